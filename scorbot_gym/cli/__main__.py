@@ -1,0 +1,5 @@
+import sys
+
+from scorbot_gym.cli import main
+
+sys.exit(main())
