@@ -1,0 +1,17 @@
+"""scorbot-gym: a simulated SCORBOT-ER Vplus tabletop for vision-based grasping.
+
+Importing the package registers the Gymnasium ids ``ScorbotGrasp-v0`` (joint actions) and
+``ScorbotGraspCartesian-v0`` (Cartesian actions); ``gym.make("scorbot_gym:ScorbotGrasp-v0")``
+imports it for you.
+"""
+
+from scorbot_gym import _gl
+
+_gl.choose_backend()
+
+from scorbot_gym.envs import ENV_IDS, ScorbotGraspEnv, register_envs  # noqa: E402
+
+register_envs()
+
+__version__ = "0.1.0"
+__all__ = ["ENV_IDS", "ScorbotGraspEnv", "register_envs"]

@@ -1,0 +1,1 @@
+"""Generated assets: procedural textures and mesh preprocessing (nothing is downloaded)."""

