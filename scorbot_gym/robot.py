@@ -1,4 +1,4 @@
-"""The SCORBOT arm inside a :class:`Simulation`: joint servos, gripper, TCP and inverse kinematics."""
+"""The SCORBOT arm in a :class:`Simulation`: joint servos, gripper, TCP, inverse kinematics."""
 
 from __future__ import annotations
 
