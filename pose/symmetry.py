@@ -34,7 +34,9 @@ class Symmetry:
 
     def __post_init__(self) -> None:
         if self.kind not in ("none", "axial", "discrete"):
-            raise ValueError(f"symmetry kind must be 'none', 'axial' or 'discrete', got {self.kind!r}")
+            raise ValueError(
+                f"symmetry kind must be 'none', 'axial' or 'discrete', got {self.kind!r}"
+            )
         if self.kind == "discrete" and self.order < 1:
             raise ValueError(f"discrete symmetry needs order >= 1, got {self.order}")
         if not np.isclose(np.linalg.norm(self.axis), 1.0, atol=1e-6):

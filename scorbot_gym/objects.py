@@ -196,25 +196,55 @@ _BOX_LIKE = Symmetry("discrete", (0.0, 0.0, 1.0), order=2, flips=((1.0, 0.0, 0.0
 
 _BUILTIN: tuple[ObjectSpec, ...] = (
     _ycb("tomato_soup_can", "005_tomato_soup_can", 0.349, _AXIAL_Z),
-    _ycb("potted_meat_can", "010_potted_meat_can", 0.370, Symmetry("discrete", order=2),
-         resting_quats=(_Z_UP, _Y_UP)),
-    _ycb("foam_brick", "061_foam_brick", 0.028, _BOX_LIKE, friction=1.2,
-         resting_quats=(_Z_UP, _X_UP, _Y_UP)),
-    _ycb("rubiks_cube", "077_rubiks_cube", 0.100,
-         Symmetry("discrete", order=4, flips=((1.0, 0.0, 0.0),)),
-         resting_quats=(_Z_UP, _X_UP, _Y_UP)),
+    _ycb(
+        "potted_meat_can",
+        "010_potted_meat_can",
+        0.370,
+        Symmetry("discrete", order=2),
+        resting_quats=(_Z_UP, _Y_UP),
+    ),
+    _ycb(
+        "foam_brick",
+        "061_foam_brick",
+        0.028,
+        _BOX_LIKE,
+        friction=1.2,
+        resting_quats=(_Z_UP, _X_UP, _Y_UP),
+    ),
+    _ycb(
+        "rubiks_cube",
+        "077_rubiks_cube",
+        0.100,
+        Symmetry("discrete", order=4, flips=((1.0, 0.0, 0.0),)),
+        resting_quats=(_Z_UP, _X_UP, _Y_UP),
+    ),
     _ycb("tennis_ball", "056_tennis_ball", 0.058, _AXIAL_Z),
     _ycb("golf_ball", "058_golf_ball", 0.046, _AXIAL_Z),
     _ycb("banana", "011_banana", 0.066, Symmetry()),
-    _ycb("lego_duplo", "073-a_lego_duplo", 0.012, Symmetry("discrete", order=2),
-         resting_quats=(_Z_UP, _Y_UP)),
+    _ycb(
+        "lego_duplo",
+        "073-a_lego_duplo",
+        0.012,
+        Symmetry("discrete", order=2),
+        resting_quats=(_Z_UP, _Y_UP),
+    ),
     _ycb("large_marker", "040_large_marker", 0.016, Symmetry("axial", (1.0, 0.0, 0.0))),
-    ObjectSpec("box", "box:0.06,0.045,0.07", 0.15, _BOX_LIKE,
-               resting_quats=(_Z_UP, _X_UP, _Y_UP), description="primitive box 60x45x70 mm"),
-    ObjectSpec("cylinder", "cylinder:0.027,0.09", 0.2,
-               Symmetry("axial", (0.0, 0.0, 1.0), flips=((1.0, 0.0, 0.0),)),
-               description="primitive cylinder r=27 mm, h=90 mm"),
-)  # fmt: skip
+    ObjectSpec(
+        "box",
+        "box:0.06,0.045,0.07",
+        0.15,
+        _BOX_LIKE,
+        resting_quats=(_Z_UP, _X_UP, _Y_UP),
+        description="primitive box 60x45x70 mm",
+    ),
+    ObjectSpec(
+        "cylinder",
+        "cylinder:0.027,0.09",
+        0.2,
+        Symmetry("axial", (0.0, 0.0, 1.0), flips=((1.0, 0.0, 0.0),)),
+        description="primitive cylinder r=27 mm, h=90 mm",
+    ),
+)
 
 CATALOGUE: dict[str, ObjectSpec] = {spec.name: spec for spec in _BUILTIN}
 

@@ -50,16 +50,25 @@ class ScriptedGraspController:
         self.max_angle_step = max_angle_step
         self.speed, self.descend_speed = speed, descend_speed
         self.approach_height, self.lift_height, self.close_time = (
-            approach_height, lift_height, close_time,
-        )  # fmt: skip
+            approach_height,
+            lift_height,
+            close_time,
+        )
         self.phase = "approach"
 
     @classmethod
     def for_env(cls, env, **kwargs) -> ScriptedGraspController:
         """A controller matched to an env's action space and control rate."""
         u = env.unwrapped
-        return cls(u.robot, u.action_type, u.dt, u.max_joint_step, u.max_cartesian_step,
-                   u.max_angle_step, **kwargs)  # fmt: skip
+        return cls(
+            u.robot,
+            u.action_type,
+            u.dt,
+            u.max_joint_step,
+            u.max_cartesian_step,
+            u.max_angle_step,
+            **kwargs,
+        )
 
     def reset(self, pose: ObjectPose2D, spec: ObjectSpec, table_height: float) -> None:
         model = spec.model

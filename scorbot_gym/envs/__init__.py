@@ -6,6 +6,8 @@ import gymnasium as gym
 
 from scorbot_gym.envs.grasp import ScorbotGraspEnv
 
+MAX_EPISODE_STEPS = 150  # 6 s of simulated time at 25 Hz control
+
 ENV_IDS = {
     "ScorbotGrasp-v0": {"action_type": "joint"},
     "ScorbotGraspCartesian-v0": {"action_type": "cartesian"},
@@ -13,17 +15,14 @@ ENV_IDS = {
 
 
 def register_envs() -> None:
-    """Register every scorbot-gym id (idempotent).
-
-    The time limit lives in the env (``max_episode_steps=150``, 6 s at 25 Hz) rather than in a
-    ``TimeLimit`` wrapper, so that a truncated episode can say why it failed.
-    """
+    """Register every scorbot-gym id (idempotent)."""
     for env_id, kwargs in ENV_IDS.items():
         if env_id in gym.registry:
             continue
         gym.register(
             id=env_id,
             entry_point="scorbot_gym.envs.grasp:ScorbotGraspEnv",
+            max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=kwargs,
         )
 

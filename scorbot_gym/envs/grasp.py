@@ -19,6 +19,11 @@ from scorbot_gym.task import GraspTask
 
 ACTION_TYPES = ("joint", "cartesian")
 IMAGE_TYPES = ("rgb", "depth")
+_INSTABILITY_WARNINGS = (
+    mujoco.mjtWarning.mjWARN_BADQPOS,
+    mujoco.mjtWarning.mjWARN_BADQVEL,
+    mujoco.mjtWarning.mjWARN_BADQACC,
+)
 
 
 class ScorbotGraspEnv(gym.Env):
@@ -31,6 +36,11 @@ class ScorbotGraspEnv(gym.Env):
     - ``action_type="cartesian"``: TCP delta x, y, z (scaled by ``max_cartesian_step`` m), tool
       pitch and wrist roll deltas (scaled by ``max_angle_step`` rad), then the gripper command;
       joint targets come from damped-least-squares IK.
+
+    ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
+    reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,
+    ``collision``, ``timeout`` (nothing went wrong, there was just no success yet) or
+    ``unstable`` (the physics blew up; the episode is then truncated).
 
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
@@ -58,7 +68,6 @@ class ScorbotGraspEnv(gym.Env):
         max_joint_step: float = 0.1,
         max_cartesian_step: float = 0.02,
         max_angle_step: float = 0.1,
-        max_episode_steps: int | None = 150,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -85,7 +94,6 @@ class ScorbotGraspEnv(gym.Env):
         self.frame_skip = frame_skip
         self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
         self.max_angle_step = max_angle_step
-        self._max_episode_steps = max_episode_steps
 
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
@@ -95,22 +103,23 @@ class ScorbotGraspEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         obs_spaces: dict[str, spaces.Space] = {
             "joint_pos": spaces.Box(JOINT_LOW, JOINT_HIGH, dtype=np.float64),
-            "joint_vel": spaces.Box(-np.inf, np.inf, shape=(5,), dtype=np.float64),
+            "joint_vel": spaces.Box(-50.0, 50.0, shape=(5,), dtype=np.float64),
             "gripper_opening": spaces.Box(0.0, GRIPPER_MAX_OPENING + 1e-3, (1,), np.float64),
-            "ee_pos": spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float64),
+            "ee_pos": spaces.Box(-3.0, 3.0, shape=(3,), dtype=np.float64),
             "ee_quat": spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float64),
         }
         if observe_object_pose:
-            obs_spaces["object_pos"] = spaces.Box(-np.inf, np.inf, shape=(3,), dtype=np.float64)
+            obs_spaces["object_pos"] = spaces.Box(-3.0, 3.0, shape=(3,), dtype=np.float64)
             obs_spaces["object_quat"] = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float64)
         shape = (image_height, image_width)
         for cam in self.cameras:
             if "rgb" in self.image_types:
                 obs_spaces[f"{cam}_rgb"] = spaces.Box(0, 255, (*shape, 3), dtype=np.uint8)
             if "depth" in self.image_types:
-                obs_spaces[f"{cam}_depth"] = spaces.Box(0.0, np.inf, (*shape, 1), np.float32)
+                obs_spaces[f"{cam}_depth"] = spaces.Box(
+                    0.0, 1.01 * self.sim.max_depth, (*shape, 1), np.float32
+                )
         self.observation_space = spaces.Dict(obs_spaces)
-        self._steps = 0
 
     # --- plumbing ------------------------------------------------------------------------
     def _activate(self, name: str) -> None:
@@ -125,10 +134,6 @@ class ScorbotGraspEnv(gym.Env):
     def dt(self) -> float:
         return self.sim.timestep * self.frame_skip
 
-    @property
-    def max_episode_steps(self) -> int | None:
-        return self._max_episode_steps
-
     # --- gym API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -142,7 +147,6 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         self.sim.forward()
-        self._steps = 0
         return self._observation(), self._info(None, None)
 
     def step(self, action):
@@ -161,16 +165,13 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target((a[5] + 1.0) / 2.0 * GRIPPER_MAX_OPENING)
 
         unstable = self._simulate()
-        self._steps += 1
         facts = self.task.update(self.dt) if not unstable else {"fell": False, "grasped": False}
         success = self.task.state.success and not unstable
         reward = 0.0 if unstable else self.task.reward(facts)
         terminated = success or bool(facts["fell"])
-        limit = self.max_episode_steps
-        truncated = unstable or (limit is not None and self._steps >= limit and not terminated)
-        cause = None
-        if (terminated or truncated) and not success:
-            cause = self.task.failure_cause(facts, unstable)
+        truncated = unstable  # the time limit is Gymnasium's TimeLimit wrapper (see make)
+        # Defined on every step, so the final step carries it whoever ends the episode.
+        cause = None if success else self.task.failure_cause(facts, unstable)
         if unstable:
             self.sim.reset()  # leave a finite state behind for observations and rendering
         return self._observation(), reward, terminated, truncated, self._info(facts, cause)
@@ -186,7 +187,8 @@ class ScorbotGraspEnv(gym.Env):
         """Run the physics substeps; True if the simulation went unstable."""
         d = self.sim.data
         self.sim.step(self.frame_skip)
-        warned = d.warning[mujoco.mjtWarning.mjWARN_BADQACC].number > 0
+        # MuJoCo resets the state itself on bad qpos/qvel/qacc and only leaves a warning count.
+        warned = any(d.warning[w].number > 0 for w in _INSTABILITY_WARNINGS)
         return bool(warned or not np.all(np.isfinite(d.qpos)) or not np.all(np.isfinite(d.qvel)))
 
     def _observation(self) -> dict[str, np.ndarray]:
@@ -221,8 +223,9 @@ class ScorbotGraspEnv(gym.Env):
 
     def render(self):
         if self.render_mode is None:
-            warnings.warn("render() called without a render_mode; pass render_mode to make()",
-                          stacklevel=2)  # fmt: skip
+            warnings.warn(
+                "render() called without a render_mode; pass render_mode to make()", stacklevel=2
+            )
             return None
         kind = "rgb" if self.render_mode == "rgb_array" else "depth"
         return self.sim.render(self.render_camera, kind, self.render_width, self.render_height)

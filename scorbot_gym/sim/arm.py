@@ -49,14 +49,30 @@ _PAD_RGBA = (0.35, 0.1, 0.1, 1.0)
 
 
 def _capsule(body, name: str, start, end, radius: float, mass: float, rgba=_LINK_RGBA) -> None:
-    body.add("geom", name=name, type="capsule", fromto=[*start, *end], size=[radius], mass=mass,
-             rgba=rgba, **{"class": "link"})  # fmt: skip
+    body.add(
+        "geom",
+        name=name,
+        type="capsule",
+        fromto=[*start, *end],
+        size=[radius],
+        mass=mass,
+        rgba=rgba,
+        **{"class": "link"},
+    )
 
 
 def _revolute(body, name: str, axis) -> None:
     lo, hi = JOINT_RANGES_DEG[name]
-    body.add("joint", name=name, type="hinge", axis=axis, range=[np.deg2rad(lo), np.deg2rad(hi)],
-             armature=_ARMATURE[name], damping=0.05 * _KV[name], frictionloss=0.01)  # fmt: skip
+    body.add(
+        "joint",
+        name=name,
+        type="hinge",
+        axis=axis,
+        range=[np.deg2rad(lo), np.deg2rad(hi)],
+        armature=_ARMATURE[name],
+        damping=0.05 * _KV[name],
+        frictionloss=0.01,
+    )
 
 
 def build_arm() -> mjcf.RootElement:
@@ -68,23 +84,53 @@ def build_arm() -> mjcf.RootElement:
     )
     finger = arm.default.add("default", dclass="finger")
     finger.geom.set_attributes(
-        contype=1, conaffinity=1, group=2, condim=4, friction=[1.5, 0.02, 0.002],
-        solref=[0.004, 1.0], solimp=[0.95, 0.99, 0.001, 0.5, 2.0], priority=1,
-    )  # fmt: skip
+        contype=1,
+        conaffinity=1,
+        group=2,
+        condim=4,
+        friction=[1.5, 0.02, 0.002],
+        solref=[0.004, 1.0],
+        solimp=[0.95, 0.99, 0.001, 0.5, 2.0],
+        priority=1,
+    )
 
     wb = arm.worldbody
-    wb.add("geom", name="base_plate", type="cylinder", size=[0.11, 0.01], pos=[0, 0, 0.01],
-           rgba=_JOINT_RGBA, mass=4.0, **{"class": "link"})  # fmt: skip
+    wb.add(
+        "geom",
+        name="base_plate",
+        type="cylinder",
+        size=[0.11, 0.01],
+        pos=[0, 0, 0.01],
+        rgba=_JOINT_RGBA,
+        mass=4.0,
+        **{"class": "link"},
+    )
 
     link1 = wb.add("body", name="link1", pos=[0, 0, 0.02], gravcomp=1)
     _revolute(link1, "base", [0, 0, 1])
-    link1.add("geom", name="column", type="cylinder", size=[0.075, 0.13], pos=[0, 0, 0.13],
-              rgba=_LINK_RGBA, mass=3.0, **{"class": "link"})  # fmt: skip
-    _capsule(link1, "shoulder_housing", [SHOULDER_OFFSET, -0.07, SHOULDER_HEIGHT - 0.02],
-             [SHOULDER_OFFSET, 0.07, SHOULDER_HEIGHT - 0.02], 0.055, 1.5, _JOINT_RGBA)  # fmt: skip
+    link1.add(
+        "geom",
+        name="column",
+        type="cylinder",
+        size=[0.075, 0.13],
+        pos=[0, 0, 0.13],
+        rgba=_LINK_RGBA,
+        mass=3.0,
+        **{"class": "link"},
+    )
+    _capsule(
+        link1,
+        "shoulder_housing",
+        [SHOULDER_OFFSET, -0.07, SHOULDER_HEIGHT - 0.02],
+        [SHOULDER_OFFSET, 0.07, SHOULDER_HEIGHT - 0.02],
+        0.055,
+        1.5,
+        _JOINT_RGBA,
+    )
 
-    upper = link1.add("body", name="upper_arm", pos=[SHOULDER_OFFSET, 0, SHOULDER_HEIGHT - 0.02],
-                      gravcomp=1)  # fmt: skip
+    upper = link1.add(
+        "body", name="upper_arm", pos=[SHOULDER_OFFSET, 0, SHOULDER_HEIGHT - 0.02], gravcomp=1
+    )
     _revolute(upper, "shoulder", [0, -1, 0])
     _capsule(upper, "upper_arm_geom", [0.03, 0, 0], [UPPER_ARM - 0.03, 0, 0], 0.035, 1.2)
 
@@ -99,41 +145,100 @@ def build_arm() -> mjcf.RootElement:
 
     hand = wrist.add("body", name="hand", pos=[0.045, 0, 0], gravcomp=1)
     _revolute(hand, "wrist_roll", [1, 0, 0])
-    hand.add("geom", name="palm", type="box", size=[0.02, 0.05, 0.022], pos=[0.02, 0, 0],
-             rgba=_JOINT_RGBA, mass=0.3, **{"class": "link"})  # fmt: skip
+    hand.add(
+        "geom",
+        name="palm",
+        type="box",
+        size=[0.02, 0.05, 0.022],
+        pos=[0.02, 0, 0],
+        rgba=_JOINT_RGBA,
+        mass=0.3,
+        **{"class": "link"},
+    )
     # The TCP: midway between the finger pads, 5 mm short of the finger tips.
-    hand.add("site", name="tcp", pos=[TOOL_LENGTH - 0.045, 0, 0], size=[0.004], rgba=[1, 0, 0, 0.6],
-             group=4)  # fmt: skip
-    hand.add("camera", name="eye_in_hand", pos=[0.01, 0, 0.045], fovy=70,
-             xyaxes=[0, -1, 0, 0, 0, 1])  # fmt: skip
+    hand.add(
+        "site",
+        name="tcp",
+        pos=[TOOL_LENGTH - 0.045, 0, 0],
+        size=[0.004],
+        rgba=[1, 0, 0, 0.6],
+        group=4,
+    )
+    hand.add(
+        "camera", name="eye_in_hand", pos=[0.01, 0, 0.045], fovy=70, xyaxes=[0, -1, 0, 0, 0, 1]
+    )
 
     half = GRIPPER_MAX_OPENING / 2
     for side, sign in (("left", 1), ("right", -1)):
         f = hand.add("body", name=f"finger_{side}", pos=[0.04, 0, 0], gravcomp=1)
-        f.add("joint", name=f"finger_{side}", type="slide", axis=[0, sign, 0], range=[0, half],
-              armature=0.01, damping=2.0)  # fmt: skip
+        f.add(
+            "joint",
+            name=f"finger_{side}",
+            type="slide",
+            axis=[0, sign, 0],
+            range=[0, half],
+            armature=0.01,
+            damping=2.0,
+        )
         # Finger body at the closed position; pads face the centre plane y=0.
-        f.add("geom", name=f"finger_{side}_link", type="box", size=[0.032, 0.006, 0.012],
-              pos=[0.032, sign * 0.007, 0], rgba=_FINGER_RGBA, mass=0.05,
-              **{"class": "finger"})  # fmt: skip
-        f.add("geom", name=f"finger_{side}_pad", type="box", size=[0.027, 0.0015, 0.011],
-              pos=[0.037, sign * 0.0015, 0], rgba=_PAD_RGBA, mass=0.01,
-              **{"class": "finger"})  # fmt: skip
+        f.add(
+            "geom",
+            name=f"finger_{side}_link",
+            type="box",
+            size=[0.032, 0.006, 0.012],
+            pos=[0.032, sign * 0.007, 0],
+            rgba=_FINGER_RGBA,
+            mass=0.05,
+            **{"class": "finger"},
+        )
+        f.add(
+            "geom",
+            name=f"finger_{side}_pad",
+            type="box",
+            size=[0.027, 0.0015, 0.011],
+            pos=[0.037, sign * 0.0015, 0],
+            rgba=_PAD_RGBA,
+            mass=0.01,
+            **{"class": "finger"},
+        )
 
-    arm.equality.add("joint", name="finger_coupling", joint1="finger_left", joint2="finger_right",
-                     polycoef=[0, 1, 0, 0, 0], solref=[0.005, 1])  # fmt: skip
+    arm.equality.add(
+        "joint",
+        name="finger_coupling",
+        joint1="finger_left",
+        joint2="finger_right",
+        polycoef=[0, 1, 0, 0, 0],
+        solref=[0.005, 1],
+    )
     opening = arm.tendon.add("fixed", name="gripper_opening")
     opening.add("joint", joint="finger_left", coef=1.0)
     opening.add("joint", joint="finger_right", coef=1.0)
 
     for name in ARM_JOINTS:
-        arm.actuator.add("position", name=name, joint=name, kp=_KP[name], kv=_KV[name],
-                         ctrlrange=np.deg2rad(JOINT_RANGES_DEG[name]),
-                         forcerange=[-_FORCE[name], _FORCE[name]])  # fmt: skip
-    arm.actuator.add("position", name="gripper", tendon="gripper_opening", kp=800.0, kv=40.0,
-                     ctrlrange=[0, GRIPPER_MAX_OPENING],
-                     forcerange=[-GRIPPER_FORCE, GRIPPER_FORCE])  # fmt: skip
-    for a, b in (("link1", "upper_arm"), ("upper_arm", "forearm"), ("forearm", "wrist"),
-                 ("wrist", "hand"), ("finger_left", "finger_right")):  # fmt: skip
+        arm.actuator.add(
+            "position",
+            name=name,
+            joint=name,
+            kp=_KP[name],
+            kv=_KV[name],
+            ctrlrange=np.deg2rad(JOINT_RANGES_DEG[name]),
+            forcerange=[-_FORCE[name], _FORCE[name]],
+        )
+    arm.actuator.add(
+        "position",
+        name="gripper",
+        tendon="gripper_opening",
+        kp=800.0,
+        kv=40.0,
+        ctrlrange=[0, GRIPPER_MAX_OPENING],
+        forcerange=[-GRIPPER_FORCE, GRIPPER_FORCE],
+    )
+    for a, b in (
+        ("link1", "upper_arm"),
+        ("upper_arm", "forearm"),
+        ("forearm", "wrist"),
+        ("wrist", "hand"),
+        ("finger_left", "finger_right"),
+    ):
         arm.contact.add("exclude", body1=a, body2=b)
     return arm

@@ -23,13 +23,20 @@ _WS_CX = sum(WORKSPACE_X) / 2
 
 DEFAULT_CAMERAS: tuple[CameraSpec, ...] = (
     # Above the workspace looking straight down; image up = away from the robot.
-    CameraSpec("top", (_WS_CX, 0.0, TABLE_HEIGHT + 0.62), (_WS_CX, 0.0, TABLE_HEIGHT), 30.0,
-               up=(1.0, 0.0, 0.0)),
-    CameraSpec("side", (_WS_CX, -0.62, TABLE_HEIGHT + 0.22), (_WS_CX, 0.0, TABLE_HEIGHT + 0.03),
-               32.0),
-    CameraSpec("overview", (0.95, -0.75, TABLE_HEIGHT + 0.65), (0.18, 0.0, TABLE_HEIGHT + 0.15),
-               45.0),
-)  # fmt: skip
+    CameraSpec(
+        "top",
+        (_WS_CX, 0.0, TABLE_HEIGHT + 0.62),
+        (_WS_CX, 0.0, TABLE_HEIGHT),
+        30.0,
+        up=(1.0, 0.0, 0.0),
+    ),
+    CameraSpec(
+        "side", (_WS_CX, -0.62, TABLE_HEIGHT + 0.22), (_WS_CX, 0.0, TABLE_HEIGHT + 0.03), 32.0
+    ),
+    CameraSpec(
+        "overview", (0.95, -0.75, TABLE_HEIGHT + 0.65), (0.18, 0.0, TABLE_HEIGHT + 0.15), 45.0
+    ),
+)
 
 
 def _arena(cameras: Sequence[CameraSpec]) -> mjcf.RootElement:
@@ -42,33 +49,86 @@ def _arena(cameras: Sequence[CameraSpec]) -> mjcf.RootElement:
     arena.visual.quality.shadowsize = 1024  # a 4096 map costs ~40 ms a frame in software GL
     arena.visual.quality.offsamples = 0
     arena.visual.map.znear = 0.01
+    arena.visual.map.zfar = 5.0  # x extent (2 m): nothing is farther than 10 m
     getattr(arena.visual, "global").offwidth = 1280
     getattr(arena.visual, "global").offheight = 960
     arena.visual.headlight.ambient = [0.35, 0.35, 0.35]
     arena.visual.headlight.diffuse = [0.4, 0.4, 0.4]
 
-    arena.asset.add("texture", name="floor_tex", type="2d", builtin="checker", width=256,
-                    height=256, rgb1=[0.3, 0.32, 0.35], rgb2=[0.25, 0.27, 0.3])  # fmt: skip
+    arena.asset.add(
+        "texture",
+        name="floor_tex",
+        type="2d",
+        builtin="checker",
+        width=256,
+        height=256,
+        rgb1=[0.3, 0.32, 0.35],
+        rgb2=[0.25, 0.27, 0.3],
+    )
     arena.asset.add("material", name="floor_mat", texture="floor_tex", texrepeat=[6, 6])
-    arena.asset.add("texture", name="table_tex", type="2d", builtin="flat", width=64, height=64,
-                    rgb1=[0.62, 0.6, 0.56], rgb2=[0.6, 0.58, 0.55], mark="random",
-                    random=0.02, markrgb=[0.55, 0.53, 0.5])  # fmt: skip
+    arena.asset.add(
+        "texture",
+        name="table_tex",
+        type="2d",
+        builtin="flat",
+        width=64,
+        height=64,
+        rgb1=[0.62, 0.6, 0.56],
+        rgb2=[0.6, 0.58, 0.55],
+        mark="random",
+        random=0.02,
+        markrgb=[0.55, 0.53, 0.5],
+    )
     arena.asset.add("material", name="table_mat", texture="table_tex", texrepeat=[4, 4])
 
     wb = arena.worldbody
-    wb.add("light", name="key", pos=[0.6, -0.4, TABLE_HEIGHT + 1.6], dir=[-0.3, 0.25, -1],
-           diffuse=[0.6, 0.6, 0.6], castshadow=True)  # fmt: skip
-    wb.add("light", name="fill", pos=[0.2, 0.8, TABLE_HEIGHT + 1.2], dir=[0, -0.5, -1],
-           diffuse=[0.25, 0.25, 0.25], castshadow=False)  # fmt: skip
-    wb.add("geom", name="floor", type="plane", size=[3, 3, 0.1], material="floor_mat",
-           contype=0, conaffinity=0)  # fmt: skip
+    wb.add(
+        "light",
+        name="key",
+        pos=[0.6, -0.4, TABLE_HEIGHT + 1.6],
+        dir=[-0.3, 0.25, -1],
+        diffuse=[0.6, 0.6, 0.6],
+        castshadow=True,
+    )
+    wb.add(
+        "light",
+        name="fill",
+        pos=[0.2, 0.8, TABLE_HEIGHT + 1.2],
+        dir=[0, -0.5, -1],
+        diffuse=[0.25, 0.25, 0.25],
+        castshadow=False,
+    )
+    wb.add(
+        "geom",
+        name="floor",
+        type="plane",
+        size=[3, 3, 0.1],
+        material="floor_mat",
+        contype=0,
+        conaffinity=0,
+    )
     table = wb.add("body", name="table", pos=[0.15, 0, TABLE_HEIGHT])
-    table.add("geom", name="table_top", type="box", size=[0.45, 0.5, 0.02], pos=[0, 0, -0.02],
-              material="table_mat", friction=[0.7, 0.005, 0.0001], condim=3)  # fmt: skip
+    table.add(
+        "geom",
+        name="table_top",
+        type="box",
+        size=[0.45, 0.5, 0.02],
+        pos=[0, 0, -0.02],
+        material="table_mat",
+        friction=[0.7, 0.005, 0.0001],
+        condim=3,
+    )
     for i, (x, y) in enumerate(((0.4, 0.45), (0.4, -0.45), (-0.4, 0.45), (-0.4, -0.45))):
-        table.add("geom", name=f"table_leg{i}", type="box", size=[0.025, 0.025, TABLE_HEIGHT / 2],
-                  pos=[x, y, -TABLE_HEIGHT / 2], rgba=[0.3, 0.3, 0.3, 1], contype=0,
-                  conaffinity=0)  # fmt: skip
+        table.add(
+            "geom",
+            name=f"table_leg{i}",
+            type="box",
+            size=[0.025, 0.025, TABLE_HEIGHT / 2],
+            pos=[x, y, -TABLE_HEIGHT / 2],
+            rgba=[0.3, 0.3, 0.3, 1],
+            contype=0,
+            conaffinity=0,
+        )
     for cam in cameras:
         wb.add("camera", name=cam.name, pos=list(cam.pos), xyaxes=cam.xyaxes(), fovy=cam.fovy)
     return arena
@@ -78,12 +138,27 @@ def _object(spec: ObjectSpec) -> mjcf.RootElement:
     model = spec.model
     obj = mjcf.RootElement(model=spec.name)
     obj.asset.add("mesh", name="mesh", file=mjcf.Asset(model.stl_bytes(), ".stl"))
-    obj.asset.add("texture", name="tex", type="cube", gridsize=[3, 4], gridlayout=".U..LFRB.D..",
-                  file=mjcf.Asset(encode_png(model.texture), ".png"))  # fmt: skip
+    obj.asset.add(
+        "texture",
+        name="tex",
+        type="cube",
+        gridsize=[3, 4],
+        gridlayout=".U..LFRB.D..",
+        file=mjcf.Asset(encode_png(model.texture), ".png"),
+    )
     obj.asset.add("material", name="mat", texture="tex", specular=0.2, shininess=0.2)
     body = obj.worldbody.add("body", name="object")
-    body.add("geom", name="geom", type="mesh", mesh="mesh", material="mat", mass=spec.mass,
-             friction=[spec.friction, 0.01, 0.0005], condim=4, group=1)  # fmt: skip
+    body.add(
+        "geom",
+        name="geom",
+        type="mesh",
+        mesh="mesh",
+        material="mat",
+        mass=spec.mass,
+        friction=[spec.friction, 0.01, 0.0005],
+        condim=4,
+        group=1,
+    )
     return obj
 
 

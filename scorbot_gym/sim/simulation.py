@@ -90,6 +90,11 @@ class Simulation:
         return WORKSPACE_X, WORKSPACE_Y
 
     @property
+    def max_depth(self) -> float:
+        """Depth reported where a ray hits nothing (the far clipping plane), metres."""
+        return float(self.model.vis.map.zfar * self.model.stat.extent)
+
+    @property
     def timestep(self) -> float:
         return float(self.model.opt.timestep)
 

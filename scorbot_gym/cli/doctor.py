@@ -1,0 +1,49 @@
+"""``scorbot-gym doctor``: which GL backend is in use, whether rendering works, how fast."""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from scorbot_gym import _gl
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("doctor", help="check headless rendering and measure frames per second")
+    p.add_argument("--frames", type=int, default=30, help="frames to time per size")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import mujoco
+
+    from scorbot_gym.sim import Simulation
+
+    print(f"mujoco {mujoco.__version__}, MUJOCO_GL={_gl.backend_in_use()}")
+    try:
+        sim = Simulation("tomato_soup_can")
+        img = sim.render("top", width=64, height=48)
+    except _gl.RenderingUnavailableError as exc:
+        print(f"rendering: FAILED\n{exc}")
+        return 1
+    ok = img.shape == (48, 64, 3) and img.std() > 1.0
+    print(f"rendering: {'ok' if ok else 'FAILED (blank image)'}")
+    try:
+        from OpenGL import GL
+
+        print(f"GL renderer: {GL.glGetString(GL.GL_RENDERER).decode()}")
+    except Exception:  # PyOpenGL is optional; the renderer string is informational only
+        pass
+    for w, h in ((320, 240), (640, 480)):
+        sim.render("top", width=w, height=h)  # warm-up: context and texture upload
+        times = []
+        for _ in range(max(1, args.frames)):
+            t0 = time.perf_counter()
+            sim.render("top", width=w, height=h)
+            times.append(time.perf_counter() - t0)
+        med = float(np.median(times))
+        print(f"{w}x{h}: {1.0 / med:7.1f} frames/s (median {med * 1e3:.1f} ms over {len(times)})")
+    sim.close()
+    return 0 if ok else 1

@@ -1,0 +1,97 @@
+"""``scorbot-gym rollout``: run seeded episodes of a policy and print a summary."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+from scorbot_gym.fileio import atomic_write_json
+from scorbot_gym.rollout import (
+    POLICIES,
+    POSE_SOURCES,
+    format_summary,
+    run_episode,
+    run_episodes,
+    summarize,
+)
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("rollout", help="run seeded grasping episodes and summarize them")
+    p.add_argument("--policy", choices=POLICIES, default="scripted")
+    p.add_argument(
+        "--pose",
+        choices=POSE_SOURCES,
+        default="oracle",
+        help="where the scripted policy gets the object pose",
+    )
+    p.add_argument("--episodes", type=int, default=20)
+    p.add_argument(
+        "--object",
+        dest="object_name",
+        default=None,
+        help="catalogue object (default: a random one per episode)",
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--action-type", choices=("joint", "cartesian"), default="joint")
+    p.add_argument("--camera", default="overview", help="camera for --video")
+    p.add_argument("--video", type=Path, default=None, help="MP4 or GIF of the first episode")
+    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=run)
+
+
+def _record_first_episode(args: argparse.Namespace) -> None:
+    import imageio.v2 as imageio
+
+    if args.video.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
+    env = gym.make(
+        "ScorbotGrasp-v0",
+        action_type=args.action_type,
+        render_mode="rgb_array",
+        render_camera=args.camera,
+        render_width=480,
+        render_height=360,
+    )
+    frames: list[np.ndarray] = []
+    run_episode(
+        env, args.seed, args.policy, args.object_name, on_frame=lambda: frames.append(env.render())
+    )
+    env.close()
+    args.video.parent.mkdir(parents=True, exist_ok=True)
+    fps = env.metadata["render_fps"]
+    if args.video.suffix.lower() == ".gif":
+        imageio.mimsave(args.video, frames[::2], duration=2000 / fps, loop=0)
+    else:
+        imageio.mimsave(args.video, frames, fps=fps, macro_block_size=8)
+    print(f"video of episode seed={args.seed}: {args.video} ({len(frames)} frames)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    env = gym.make("ScorbotGrasp-v0", action_type=args.action_type, object_name=args.object_name)
+    results = run_episodes(
+        env,
+        args.episodes,
+        args.seed,
+        progress=not args.no_progress,
+        policy=args.policy,
+        object_name=args.object_name,
+    )
+    env.close()
+    summary = summarize(results)
+    summary.update(policy=args.policy, pose=args.pose, action_type=args.action_type, seed=args.seed)
+    print(format_summary(summary))
+    if args.json:
+        atomic_write_json(args.json, summary)
+        print(f"summary written to {args.json}")
+    if args.video:
+        _record_first_episode(args)
+    return 0

@@ -1,0 +1,83 @@
+"""The catalogue: real meshes, textures rich enough for SIFT, annotations; user objects."""
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from pose.symmetry import Symmetry
+from scorbot_gym.objects import CATALOGUE, MAX_GRASP_WIDTH, get_object, register_object
+from scorbot_gym.sim import Simulation
+
+YCB = [n for n, s in CATALOGUE.items() if s.source.startswith("ycb:")]
+
+
+def test_catalogue_has_eight_real_objects_and_primitives():
+    assert len(YCB) >= 8
+    assert {"box", "cylinder"} <= set(CATALOGUE)
+
+
+@pytest.mark.parametrize("name", sorted(CATALOGUE))
+def test_object_fits_gripper_and_is_annotated(name):
+    spec = get_object(name)
+    model = spec.model
+    assert 0 < model.grasp_width <= MAX_GRASP_WIDTH
+    assert 0 < spec.mass <= 1.0 and spec.friction > 0
+    assert spec.symmetry.kind in ("none", "axial", "discrete")
+    assert model.vertices.shape[1] == 3 and len(model.faces) > 0
+    # canonical frame: bounding box centred at the origin
+    np.testing.assert_allclose(model.vertices.min(0) + model.vertices.max(0), 0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", sorted(CATALOGUE))
+def test_top_camera_sees_at_least_50_sift_keypoints(name):
+    sim = Simulation(name)  # default resolution: 640x480
+    sift = cv2.SIFT_create()
+    counts = []
+    for xy, yaw in (((0.25, -0.08), 0.3), ((0.32, 0.07), 2.2)):
+        sim.set_object_pose(*sim.resting_pose(xy, yaw))
+        sim.forward()
+        gray = cv2.cvtColor(sim.render("top"), cv2.COLOR_RGB2GRAY)
+        mask = sim.render("top", "segmentation").astype(np.uint8) * 255
+        counts.append(len(sift.detect(gray, mask)))
+    sim.close()
+    assert min(counts) >= 50, counts
+
+
+def test_symmetry_rotations():
+    assert len(Symmetry().rotations()) == 1
+    assert len(Symmetry("axial").rotations(step_deg=10)) == 36
+    rots = Symmetry("discrete", order=4, flips=((1.0, 0.0, 0.0),)).rotations()
+    assert len(rots) == 8
+    for R in rots:
+        np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-12)
+    with pytest.raises(ValueError, match="kind"):
+        Symmetry("spherical")
+
+
+def test_unknown_object_error_lists_names():
+    with pytest.raises(KeyError, match="valid objects: banana"):
+        get_object("teapot")
+
+
+def test_register_object_from_mesh_and_texture(user_object):
+    assert get_object("user_block") is user_object
+    np.testing.assert_allclose(user_object.model.half_extents * 2, [0.05, 0.035, 0.06], atol=1e-6)
+    assert abs(user_object.model.grasp_width - 0.035) < 0.002
+
+
+def test_register_object_bad_input(tmp_path, user_object):
+    with pytest.raises(FileNotFoundError, match="mesh file not found"):
+        register_object("ghost", tmp_path / "missing.stl", mass=0.1)
+    with pytest.raises(ValueError, match="already registered"):
+        register_object("user_block", tmp_path / "block.stl", mass=0.1)
+    bad_tex = tmp_path / "not_an_image.png"
+    bad_tex.write_bytes(b"definitely not a png")
+    with pytest.raises(ValueError, match="cannot read texture image"):
+        register_object("other", tmp_path / "block.stl", bad_tex, mass=0.1)
+    big = tmp_path / "big.stl"
+    trimesh.creation.box(extents=[0.2, 0.2, 0.05]).export(big)
+    with pytest.raises(ValueError, match="gripper takes at most"):
+        register_object("slab", big, mass=0.1)
+    with pytest.raises(ValueError, match="mass"):
+        register_object("heavy", tmp_path / "block.stl", mass=-1.0)

@@ -1,0 +1,87 @@
+"""Cameras: intrinsics and extrinsics match what MuJoCo renders; headless GL selection."""
+
+import numpy as np
+import pytest
+
+from scorbot_gym import _gl
+from scorbot_gym.sim import Simulation
+
+
+@pytest.fixture(scope="module")
+def ball_sim():
+    sim = Simulation("golf_ball", render_width=320, render_height=240)
+    yield sim
+    sim.close()
+
+
+@pytest.mark.parametrize("camera", ["top", "side", "overview"])
+@pytest.mark.parametrize("size", [(320, 240), (160, 160)])
+def test_projected_point_is_found_in_image(ball_sim, camera, size):
+    """The ball's centre, projected with K and the extrinsics, lands on its silhouette centre,
+    and the rendered depth there is the camera distance to the ball's near surface."""
+    sim = ball_sim
+    w, h = size
+    for xy in ((0.24, -0.08), (0.32, 0.09)):
+        pos, quat = sim.resting_pose(xy, 0.4)
+        sim.set_object_pose(pos, quat)
+        sim.forward()
+        cam = sim.camera_model(camera, w, h)
+        uv = cam.project(pos)[0]
+        mask = sim.render(camera, "segmentation", w, h)
+        ys, xs = np.nonzero(mask)
+        assert len(xs) > 20
+        np.testing.assert_allclose(uv, [xs.mean(), ys.mean()], atol=0.75)
+        depth = sim.render(camera, "depth", w, h)
+        z_centre = (cam.camera_from_world @ np.r_[pos, 1.0])[2]
+        radius = sim.object_spec.model.half_extents.max()
+        d = depth[int(round(uv[1])), int(round(uv[0]))]
+        assert z_centre - radius - 0.004 < d < z_centre - radius * 0.8
+
+
+def test_backprojection_to_table_plane_recovers_position(ball_sim):
+    sim = ball_sim
+    pos, quat = sim.resting_pose((0.3, 0.05), 0.0)
+    sim.set_object_pose(pos, quat)
+    sim.forward()
+    cam = sim.camera_model("top")
+    uv = cam.project(pos)
+    np.testing.assert_allclose(cam.backproject_to_plane(uv, pos[2])[0], pos, atol=1e-9)
+
+
+def test_extrinsics_are_rigid_and_look_at_the_workspace(ball_sim):
+    cam = ball_sim.camera_model("top")
+    R = cam.world_from_camera[:3, :3]
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-9)
+    assert np.isclose(np.linalg.det(R), 1.0)
+    np.testing.assert_allclose(R[:, 2], [0, 0, -1], atol=1e-9)  # optical axis straight down
+
+
+def test_unknown_camera_and_bad_kind(ball_sim):
+    with pytest.raises(ValueError, match="valid cameras"):
+        ball_sim.render("ceiling")
+    with pytest.raises(ValueError, match="render kind"):
+        ball_sim.render("top", "normals")
+
+
+def test_eye_in_hand_camera_renders(ball_sim):
+    img = ball_sim.render("eye_in_hand", width=64, height=48)
+    assert img.shape == (48, 64, 3) and img.std() > 1
+
+
+def test_gl_backend_defaults_to_egl_without_display(monkeypatch):
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(_gl.sys, "platform", "linux")
+    assert _gl.choose_backend() == "egl"
+    import os
+
+    assert os.environ["MUJOCO_GL"] == "egl"
+
+
+def test_gl_backend_respects_user_choice_and_rejects_nonsense(monkeypatch):
+    monkeypatch.setenv("MUJOCO_GL", "osmesa")
+    assert _gl.choose_backend() == "osmesa"
+    monkeypatch.setenv("MUJOCO_GL", "vulkan9")
+    with pytest.raises(_gl.RenderingUnavailableError, match="valid"):
+        _gl.choose_backend()
