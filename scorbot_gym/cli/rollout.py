@@ -49,8 +49,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _record_first_episode(args: argparse.Namespace) -> None:
     import imageio.v2 as imageio
 
-    if args.video.suffix.lower() not in VIDEO_SUFFIXES:
-        raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
     env = gym.make(
         "ScorbotGrasp-v0",
         action_type=args.action_type,
@@ -76,6 +74,8 @@ def _record_first_episode(args: argparse.Namespace) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
     env = gym.make("ScorbotGrasp-v0", action_type=args.action_type, object_name=args.object_name)
     results = run_episodes(
         env,

@@ -64,6 +64,7 @@ class ScorbotGraspEnv(gym.Env):
         render_camera: str = "overview",
         render_width: int = 640,
         render_height: int = 480,
+        shadows: bool = False,
         frame_skip: int = 20,
         max_joint_step: float = 0.1,
         max_cartesian_step: float = 0.02,
@@ -92,6 +93,7 @@ class ScorbotGraspEnv(gym.Env):
         self.render_mode, self.render_camera = render_mode, render_camera
         self.render_width, self.render_height = render_width, render_height
         self.frame_skip = frame_skip
+        self.shadows = shadows
         self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
         self.max_angle_step = max_angle_step
 
@@ -125,7 +127,12 @@ class ScorbotGraspEnv(gym.Env):
     def _activate(self, name: str) -> None:
         """Switch to the scene holding ``name`` (scenes are compiled once and cached)."""
         if name not in self._sims:
-            sim = Simulation(name, render_width=self.image_width, render_height=self.image_height)
+            sim = Simulation(
+                name,
+                render_width=self.image_width,
+                render_height=self.image_height,
+                shadows=self.shadows,
+            )
             robot = Robot(sim)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
         self.sim, self.robot, self.task = self._sims[name]
