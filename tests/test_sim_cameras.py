@@ -85,3 +85,26 @@ def test_gl_backend_respects_user_choice_and_rejects_nonsense(monkeypatch):
     monkeypatch.setenv("MUJOCO_GL", "vulkan9")
     with pytest.raises(_gl.RenderingUnavailableError, match="valid"):
         _gl.choose_backend()
+
+
+def test_no_working_backend_gives_one_error_saying_what_to_install():
+    """GLFW cannot open a context without a display: the error names the fix."""
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "from scorbot_gym.sim import Simulation\n"
+        "from scorbot_gym._gl import RenderingUnavailableError\n"
+        "try:\n"
+        "    Simulation('box').render('top')\n"
+        "except RenderingUnavailableError as e:\n"
+        "    print('ERROR:', e)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    env["MUJOCO_GL"] = "glfw"
+    out = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120
+    )
+    assert "ERROR:" in out.stdout, out.stderr[-2000:]
+    assert "apt-get install libegl1" in out.stdout and "MUJOCO_GL=egl" in out.stdout
