@@ -1,6 +1,6 @@
 """Render the README picture: what each fixed camera sees at reset and during a scripted lift.
 
-Run:  python benchmarks/camera_views.py [--object tomato_soup_can] [--out benchmarks/results/cameras.png]
+Run:  python benchmarks/camera_views.py [--object tomato_soup_can] [--out PATH.png]
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Throughput of ``env.step`` on one core, without images and with one 320x240 image per step.
 
-Run:  python benchmarks/env_step.py [--steps 2000] [--repeats 5] [--out benchmarks/results/env_step.json]
+Run:  python benchmarks/env_step.py [--steps 2000] [--repeats 5] [--out PATH.json]
 
 The process pins itself to one CPU core and asks Mesa's llvmpipe for one rendering thread, so
 the figure is a one-core figure. Only ``env.step`` calls are timed (resets are not); each repeat

@@ -1,0 +1,90 @@
+"""Pose error measures, with the BOP toolkit's definitions.
+
+Rotations ``(3, 3)`` map object to camera coordinates; translations are in metres unless stated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from pose.rotations import geodesic_deg
+from pose.symmetry import Symmetry
+
+
+def rotation_error_deg(
+    R_est: np.ndarray, R_gt: np.ndarray, symmetry: Symmetry | None = None, step_deg: float = 1.0
+) -> float:
+    """Geodesic angle ``arccos((tr(R_est R_gt^T) - 1) / 2)`` in degrees.
+
+    With a ``symmetry``, the minimum over the ground truth's symmetric equivalents
+    ``R_gt S`` (axial symmetries sampled every ``step_deg``).
+    """
+    R_est, R_gt = np.asarray(R_est, float), np.asarray(R_gt, float)
+    if R_est.shape != (3, 3) or R_gt.shape != (3, 3):
+        raise ValueError(f"rotations must be 3x3, got {R_est.shape} and {R_gt.shape}")
+    if not (np.isfinite(R_est).all() and np.isfinite(R_gt).all()):
+        return float("nan")
+    syms = np.eye(3)[None] if symmetry is None else symmetry.rotations(step_deg)
+    return float(geodesic_deg(R_est[None], R_gt[None] @ syms).min())
+
+
+def translation_error(t_est: np.ndarray, t_gt: np.ndarray) -> float:
+    """Euclidean distance between the translations (same unit as the inputs)."""
+    return float(np.linalg.norm(np.asarray(t_est, float).ravel() - np.asarray(t_gt, float).ravel()))
+
+
+def _transform(R, t, pts):
+    return np.asarray(pts, float) @ np.asarray(R, float).T + np.asarray(t, float).ravel()
+
+
+def add(R_est, t_est, R_gt, t_gt, points: np.ndarray) -> float:
+    """ADD: mean distance between model points under the two poses."""
+    e = _transform(R_est, t_est, points) - _transform(R_gt, t_gt, points)
+    return float(np.linalg.norm(e, axis=1).mean())
+
+
+def add_s(R_est, t_est, R_gt, t_gt, points: np.ndarray) -> float:
+    """ADD-S (BOP's ``adi``): mean distance from each ground-truth-posed point to the nearest
+    estimate-posed point; indifferent to symmetries."""
+    est = _transform(R_est, t_est, points)
+    gt = _transform(R_gt, t_gt, points)
+    return float(cKDTree(est).query(gt, k=1)[0].mean())
+
+
+def success_rate(rot_err_deg, thr_deg: float = 5.0) -> float:
+    """Fraction of views with rotation error below ``thr_deg`` (NaN = invalid = failure)."""
+    e = np.asarray(rot_err_deg, float)
+    return float(np.mean(np.nan_to_num(e, nan=np.inf) < thr_deg)) if e.size else float("nan")
+
+
+def success_rate_deg_cm(rot_err_deg, trans_err_m, thr_deg: float = 5.0, thr_m: float = 0.05):
+    """The 5 deg / 5 cm criterion: both errors below their thresholds."""
+    r = np.nan_to_num(np.asarray(rot_err_deg, float), nan=np.inf)
+    t = np.nan_to_num(np.asarray(trans_err_m, float), nan=np.inf)
+    return float(np.mean((r < thr_deg) & (t < thr_m))) if r.size else float("nan")
+
+
+def summarize(rot_err_deg, trans_err_m, coarse_err_deg=None, trans_reg_err_m=None) -> dict:
+    """The figures the CLI and the benchmark report for one set of views."""
+    r = np.asarray(rot_err_deg, float)
+    t = np.asarray(trans_err_m, float)
+    out = {
+        "n_views": int(r.size),
+        "valid_rate": float(np.mean(np.isfinite(r))) if r.size else float("nan"),
+        "success_5deg": success_rate(r),
+        "success_5deg_5cm": success_rate_deg_cm(r, t),
+        "median_rot_err_deg": float(np.nanmedian(r)) if np.isfinite(r).any() else float("nan"),
+        "mean_rot_err_deg": float(np.nanmean(r)) if np.isfinite(r).any() else float("nan"),
+        "median_trans_err_cm": float(np.nanmedian(t) * 100) if np.isfinite(t).any() else None,
+    }
+    if coarse_err_deg is not None:
+        c = np.asarray(coarse_err_deg, float)
+        out["coarse_success_5deg"] = success_rate(c)
+        out["coarse_median_rot_err_deg"] = float(np.nanmedian(c)) if np.isfinite(c).any() else None
+    if trans_reg_err_m is not None:
+        tr = np.asarray(trans_reg_err_m, float)
+        out["regressed_median_trans_err_cm"] = (
+            float(np.nanmedian(tr) * 100) if np.isfinite(tr).any() else None
+        )
+    return out

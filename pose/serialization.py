@@ -1,0 +1,57 @@
+"""Pickle-free model files: one ``.npz`` with a format tag and version, written atomically."""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+FORMAT = "scorbot-gym/pose-manifold"
+FORMAT_VERSION = 1
+
+
+def save_arrays(path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict) -> Path:
+    """Write ``arrays`` plus a JSON header to ``path`` via a temporary file and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"format": FORMAT, "format_version": FORMAT_VERSION, **meta}
+    payload = {"__header__": np.array(json.dumps(header)), **arrays}
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, **payload)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_arrays(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
+    """Header and arrays of a model file; ``ValueError`` naming the problem if it is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no model file at {path}")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise ValueError(f"{path} is not a readable pose model file (corrupt npz: {exc})") from exc
+    if "__header__" not in arrays:
+        raise ValueError(f"{path} is an npz file but not a pose model (no header)")
+    try:
+        header = json.loads(str(arrays.pop("__header__")))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: corrupt model header ({exc})") from exc
+    if header.get("format") != FORMAT:
+        raise ValueError(f"{path}: format {header.get('format')!r}, expected {FORMAT!r}")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: model format version {header.get('format_version')!r} is not supported "
+            f"(this code reads version {FORMAT_VERSION}); retrain with `scorbot-gym pose train`"
+        )
+    return header, arrays

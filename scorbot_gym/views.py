@@ -1,0 +1,303 @@
+"""Labelled views for the pose estimator, rendered by the simulator and cached on disk.
+
+A view is the image, the object's visible mask, the camera model and the ground-truth pose of
+one object resting on the table. Poses come from a grid (resting faces x headings x table
+positions) for training and from seeded random samples for evaluation. Partial occlusion is
+synthetic and exact: an occluder (a textured half-plane, pasted over the image) covers the
+requested fraction of the object's mask, at a random, seeded angle.
+
+Renders are cached under a content key (object, camera, image size, poses, occlusion, seed and
+this module's format version), written atomically, so a second run costs a file read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from pose.camera import CameraModel
+from pose.view import View
+
+CACHE_VERSION = 1
+MAX_OCCLUSION = 0.95
+
+
+@dataclass(frozen=True)
+class PoseSample:
+    """Where the object rests: table position, heading (radians) and resting face index."""
+
+    x: float
+    y: float
+    yaw: float
+    resting_index: int = 0
+
+
+@dataclass(frozen=True)
+class LabelledView:
+    """A rendered view with its ground truth (``camera_from_object``, 4x4, metres)."""
+
+    view: View
+    camera_from_object: np.ndarray
+    world_from_object: np.ndarray
+    occlusion: float  # fraction of the object's mask hidden by the occluder
+    sample: PoseSample
+
+
+def workspace_bounds() -> tuple[tuple[float, float], tuple[float, float]]:
+    """The table area ``((xmin, xmax), (ymin, ymax))`` where objects are placed."""
+    from scorbot_gym.sim.scene import WORKSPACE_X, WORKSPACE_Y
+
+    return (tuple(WORKSPACE_X), tuple(WORKSPACE_Y))
+
+
+def default_cache_dir() -> Path:
+    env = os.environ.get("SCORBOT_GYM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "scorbot-gym"
+
+
+def grid_poses(
+    n_resting: int,
+    yaw_step_deg: float = 10.0,
+    xy_bounds: tuple[tuple[float, float], tuple[float, float]] = ((0.23, 0.33), (-0.1, 0.1)),
+    n_positions: int = 2,
+    seed: int = 0,
+) -> list[PoseSample]:
+    """Every resting face x every ``yaw_step_deg`` heading (the grid), each at ``n_positions``
+    uniformly random table positions (the random part: positions vary continuously, so a
+    position regressor sees more than a handful of places)."""
+    if not 0 < yaw_step_deg <= 360:
+        raise ValueError(f"yaw_step_deg must be in (0, 360], got {yaw_step_deg}")
+    if n_resting < 1 or n_positions < 1:
+        raise ValueError(
+            f"need n_resting >= 1 and n_positions >= 1, got {n_resting}, {n_positions}"
+        )
+    rng = np.random.default_rng(seed)
+    yaws = np.radians(np.arange(0.0, 360.0, yaw_step_deg))
+    out = []
+    for r in range(n_resting):
+        for a in yaws:
+            for _ in range(n_positions):
+                x, y = rng.uniform(*xy_bounds[0]), rng.uniform(*xy_bounds[1])
+                out.append(PoseSample(float(x), float(y), float(a), r))
+    return out
+
+
+def random_poses(
+    n: int,
+    n_resting: int,
+    xy_bounds: tuple[tuple[float, float], tuple[float, float]],
+    seed: int,
+) -> list[PoseSample]:
+    """``n`` uniformly random positions, headings and resting faces."""
+    rng = np.random.default_rng(seed)
+    return [
+        PoseSample(
+            float(rng.uniform(*xy_bounds[0])),
+            float(rng.uniform(*xy_bounds[1])),
+            float(rng.uniform(0.0, 2 * np.pi)),
+            int(rng.integers(n_resting)),
+        )
+        for _ in range(n)
+    ]
+
+
+def occlude(
+    image: np.ndarray, mask: np.ndarray, fraction: float, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Paste a textured half-plane occluder hiding ``fraction`` of ``mask``'s pixels.
+
+    The occluder's edge has a random direction; its offset is the quantile of the mask pixels'
+    projections on that direction, so the hidden fraction is exact up to one pixel row. Returns
+    the new image, the visible mask and the achieved fraction.
+    """
+    if not 0.0 <= fraction <= MAX_OCCLUSION:
+        raise ValueError(f"occlusion must be within [0, {MAX_OCCLUSION}], got {fraction}")
+    mask = np.asarray(mask, bool)
+    n = int(mask.sum())
+    if fraction == 0.0 or n == 0:
+        return image, mask, 0.0
+    theta = rng.uniform(0, 2 * np.pi)
+    d = np.array([np.cos(theta), np.sin(theta)])
+    ys, xs = np.nonzero(mask)
+    proj = xs * d[0] + ys * d[1]
+    cut = np.quantile(proj, 1.0 - fraction)
+    h, w = mask.shape
+    vv, uu = np.mgrid[0:h, 0:w]
+    # Only near the object: a disc around it, so the occluder looks like a nearby object.
+    cy, cx = ys.mean(), xs.mean()
+    radius = 1.5 * np.sqrt(((xs - cx) ** 2 + (ys - cy) ** 2).max()) + 10
+    occ = (uu * d[0] + vv * d[1] > cut) & ((uu - cx) ** 2 + (vv - cy) ** 2 < radius**2)
+    out = image.copy()
+    base = rng.integers(40, 200, 3)
+    noise = rng.normal(0, 18, (h, w, 1))
+    stripes = 25 * np.sign(np.sin((uu * d[1] - vv * d[0]) / rng.uniform(3, 8)))[..., None]
+    patch = np.clip(base + noise + stripes, 0, 255).astype(np.uint8)
+    out[occ] = patch[occ]
+    visible = mask & ~occ
+    return out, visible, 1.0 - visible.sum() / n
+
+
+def _scene_fingerprint() -> str:
+    """Hash of the source that decides what a render looks like (scene, objects, textures, this
+    module): editing any of it invalidates the cache instead of serving stale images."""
+    root = Path(__file__).resolve().parent
+    files = [Path(__file__).resolve(), root / "objects.py", *sorted((root / "sim").glob("*.py"))]
+    files += sorted((root / "assets").glob("*.py"))
+    h = hashlib.sha256()
+    for f in files:
+        if f.is_file():
+            h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _cache_key(payload: dict) -> str:
+    blob = json.dumps(payload, sort_keys=True).encode()
+    return hashlib.sha256(blob).hexdigest()[:24]
+
+
+def _file_stamp(path: str | None) -> list | None:
+    if path is None or not Path(path).is_file():
+        return None
+    st = Path(path).stat()
+    return [str(path), st.st_size, st.st_mtime_ns]
+
+
+def _save_npz_atomic(path: Path, **arrays) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez_compressed(f, **arrays)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def render_views(
+    object_name: str,
+    samples: Sequence[PoseSample],
+    camera: str = "top",
+    width: int = 320,
+    height: int = 240,
+    occlusion: float | Sequence[float] = 0.0,
+    seed: int = 0,
+    cache_dir: str | os.PathLike | None = None,
+    progress: bool = True,
+) -> list[LabelledView]:
+    """Render (or read from the cache) one labelled view per pose sample.
+
+    ``occlusion`` is one fraction for all views or one per view; occluders are drawn from
+    ``seed``. ``cache_dir=None`` uses ``$SCORBOT_GYM_CACHE`` or ``~/.cache/scorbot-gym``.
+    """
+    from scorbot_gym.objects import get_object
+
+    spec = get_object(object_name)
+    samples = list(samples)
+    occ = np.broadcast_to(np.asarray(occlusion, float), (len(samples),)).copy()
+    if len(samples) == 0:
+        raise ValueError("no pose samples to render")
+    payload = {
+        "version": CACHE_VERSION,
+        "object": spec.name,
+        "source": spec.source,
+        "scale": spec.scale,
+        "camera": camera,
+        "size": [width, height],
+        "samples": [[s.x, s.y, s.yaw, s.resting_index] for s in samples],
+        "occlusion": occ.tolist(),
+        "seed": seed,
+        "scene": _scene_fingerprint(),
+        "texture": _file_stamp(spec.texture_path),
+    }
+    path = Path(cache_dir or default_cache_dir()) / "views" / f"{_cache_key(payload)}.npz"
+    if path.is_file():
+        try:
+            return _load(path, spec.name, samples)
+        except (OSError, ValueError, KeyError):
+            path.unlink(missing_ok=True)  # a corrupt cache entry is re-rendered
+    arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress)
+    _save_npz_atomic(path, **arrays)
+    return _load(path, spec.name, samples)
+
+
+def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
+    from scorbot_gym.sim import Simulation
+
+    sim = Simulation(object_name=name, render_width=width, render_height=height)
+    rngs = np.random.default_rng(seed).spawn(len(samples))
+    images, masks, world_T, achieved = [], [], [], []
+    try:
+        for s, f, rng in tqdm(
+            list(zip(samples, occ, rngs, strict=True)),
+            desc=f"render {name}",
+            disable=not progress,
+            leave=False,
+        ):
+            pos, quat = sim.resting_pose((s.x, s.y), s.yaw, s.resting_index)
+            sim.set_object_pose(pos, quat)
+            sim.forward()
+            img = sim.render(camera)
+            mask = sim.render(camera, kind="segmentation")
+            img, mask, a = occlude(img, mask, float(f), rng)
+            images.append(img)
+            masks.append(mask)
+            achieved.append(a)
+            world_T.append(_pose_matrix(pos, quat))
+        cam = sim.camera_model(camera)
+    finally:
+        sim.close()
+    return {
+        "images": np.array(images),
+        "masks": np.array(masks),
+        "world_from_object": np.array(world_T),
+        "occlusion": np.array(achieved),
+        "camera": np.array(json.dumps(cam.to_dict())),
+    }
+
+
+def _pose_matrix(pos: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
+    w, x, y, z = np.asarray(quat_wxyz, float) / np.linalg.norm(quat_wxyz)
+    R = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = pos
+    return T
+
+
+def _load(path: Path, name: str, samples: list[PoseSample]) -> list[LabelledView]:
+    with np.load(path, allow_pickle=False) as z:
+        cam = CameraModel.from_dict(json.loads(str(z["camera"])))
+        images, masks, world_T, occ = (
+            z["images"],
+            z["masks"],
+            z["world_from_object"],
+            z["occlusion"],
+        )
+    if len(images) != len(samples):
+        raise ValueError(f"cache entry {path} holds {len(images)} views, expected {len(samples)}")
+    cam_from_world = cam.camera_from_world
+    return [
+        LabelledView(
+            view=View(images[i], cam, masks[i], name),
+            camera_from_object=cam_from_world @ world_T[i],
+            world_from_object=world_T[i],
+            occlusion=float(occ[i]),
+            sample=samples[i],
+        )
+        for i in range(len(samples))
+    ]

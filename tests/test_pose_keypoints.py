@@ -1,0 +1,56 @@
+"""Stage a: SIFT keypoints restricted to the mask, unit descriptors."""
+
+import numpy as np
+import pytest
+
+from pose.keypoints import extract_sift
+from pose.synthetic import card_texture
+
+
+@pytest.fixture(scope="module")
+def scene():
+    img = np.full((240, 320, 3), 90, np.uint8)
+    img[20:220, 60:260] = card_texture(seed=3)
+    mask = np.zeros((240, 320), bool)
+    mask[20:220, 60:160] = True  # only the left half of the card
+    return img, mask
+
+
+def test_descriptors_are_unit_length(scene):
+    img, _ = scene
+    f = extract_sift(img)
+    assert len(f) > 50
+    assert f.descriptors.shape == (len(f), 128)
+    np.testing.assert_allclose(np.linalg.norm(f.descriptors, axis=1), 1.0, atol=1e-5)
+
+
+def test_keypoints_stay_inside_the_mask(scene):
+    img, mask = scene
+    f = extract_sift(img, mask, mask_dilation=2)
+    assert len(f) > 20
+    u, v = f.xy[:, 0], f.xy[:, 1]
+    assert np.all((u >= 60 - 3) & (u <= 160 + 2) & (v >= 20 - 3) & (v <= 220 + 2))
+    full = extract_sift(img)
+    assert len(f) < len(full)
+
+
+def test_crop_gives_the_same_keypoints_as_the_full_image(scene):
+    """The mask's bounding-box crop is an optimisation: locations must come back in image
+    coordinates, matching those found on the whole image inside the mask."""
+    img, mask = scene
+    cropped = extract_sift(img, mask)
+    full = extract_sift(img)
+    inside = full.xy[mask[np.clip(full.xy[:, 1].round().astype(int), 0, 239),
+                          np.clip(full.xy[:, 0].round().astype(int), 0, 319)]]  # fmt: skip
+    d = np.linalg.norm(cropped.xy[:, None] - inside[None], axis=2).min(axis=1)
+    assert np.mean(d < 1.0) > 0.8
+
+
+@pytest.mark.parametrize("case", ["blank", "empty_mask"])
+def test_no_keypoints_gives_empty_features(case, scene):
+    img, mask = scene
+    if case == "blank":
+        f = extract_sift(np.full((240, 320, 3), 128, np.uint8))
+    else:
+        f = extract_sift(img, np.zeros_like(mask))
+    assert len(f) == 0 and f.descriptors.shape == (0, 128)
