@@ -25,8 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     import scorbot_gym  # noqa: F401
+    from pose.fileio import atomic_write_bytes
     from scorbot_gym.controllers import ScriptedGraspController
-    from scorbot_gym.fileio import atomic_write_bytes
     from scorbot_gym.objects import get_object
     from scorbot_gym.rollout import oracle_pose
 

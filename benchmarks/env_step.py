@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     import numpy as np
 
     import scorbot_gym
-    from scorbot_gym.fileio import atomic_write_json
+    from pose.fileio import atomic_write_json
 
     settings = {
         "no_images": {},

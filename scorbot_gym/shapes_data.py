@@ -15,24 +15,24 @@ descriptors are scale-invariant on purpose, so objects of one shape and differen
 golf ball and a tennis ball) need this cue to be told apart.
 
 Rendered sets are cached as compressed ``.npz`` under a content key in ``$SCORBOT_GYM_CACHE``
-(default ``~/.cache/scorbot_gym``), written atomically.
+(default ``~/.cache/scorbot-gym``), written atomically.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from pose.fileio import atomic_savez
 from pose.shape.datasets import SilhouetteSet
 from scorbot_gym.objects import CATALOGUE, get_object
 from scorbot_gym.sim.cameras import CameraSpec
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS, TABLE_HEIGHT, WORKSPACE_X, WORKSPACE_Y
+from scorbot_gym.views import default_cache_dir
 
 _CACHE_VERSION = 1
 _CENTRE = (sum(WORKSPACE_X) / 2, sum(WORKSPACE_Y) / 2)
@@ -68,7 +68,7 @@ VIEWPOINTS = {"ring": viewpoint_cameras, "scene": scene_cameras}
 
 
 def cache_dir() -> Path:
-    return Path(os.environ.get("SCORBOT_GYM_CACHE", Path.home() / ".cache" / "scorbot_gym"))
+    return default_cache_dir()
 
 
 def _cache_key(objects, n_per_object: int, width: int, height: int, seed: int, viewpoints: str):
@@ -171,15 +171,7 @@ def render_catalogue_silhouettes(
 
 
 def _save_atomic(path: Path, data: SilhouetteSet) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez_compressed(
-                fh, masks=np.stack(data.masks), labels=data.labels, groups=data.groups,
-                sources=np.array(data.sources), metric_size=data.extras["metric_size"],
-            )  # fmt: skip
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_savez(
+        path, masks=np.stack(data.masks), labels=data.labels, groups=data.groups,
+        sources=np.array(data.sources), metric_size=data.extras["metric_size"],
+    )  # fmt: skip

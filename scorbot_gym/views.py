@@ -15,7 +15,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -24,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pose.camera import CameraModel
+from pose.fileio import atomic_savez
 from pose.view import View
 
 CACHE_VERSION = 1
@@ -170,18 +170,6 @@ def _file_stamp(path: str | None) -> list | None:
     return [str(path), st.st_size, st.st_mtime_ns]
 
 
-def _save_npz_atomic(path: Path, **arrays) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **arrays)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def render_views(
     object_name: str,
     samples: Sequence[PoseSample],
@@ -225,7 +213,7 @@ def render_views(
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)  # a corrupt cache entry is re-rendered
     arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress)
-    _save_npz_atomic(path, **arrays)
+    atomic_savez(path, **arrays)
     return _load(path, spec.name, samples)
 
 

@@ -8,9 +8,6 @@ is touched once, by the refitted best model.
 
 from __future__ import annotations
 
-import json
-import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -23,6 +20,7 @@ from sklearn.model_selection import (
     train_test_split,
 )
 
+from pose.fileio import atomic_write, atomic_write_json
 from pose.shape.baselines import make_classifiers
 from pose.shape.descriptors import DESCRIPTOR_LENGTH, block_weights
 
@@ -156,27 +154,8 @@ def evaluate(
     return out
 
 
-def _umask_mode(path: str) -> None:
-    """Give a ``mkstemp`` file (created 0600) the mode a plain ``open`` would have."""
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(path, 0o666 & ~umask)
-
-
 def write_json_atomic(obj: dict, path: str | Path) -> None:
-    """Write ``obj`` as indented JSON via a temporary file and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name, suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(obj, fh, indent=2)
-            fh.write("\n")
-        _umask_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    atomic_write_json(path, obj)
 
 
 def plot_confusions(result: dict, path: str | Path, title: str = "") -> None:
@@ -210,15 +189,7 @@ def plot_confusions(result: dict, path: str | Path, title: str = "") -> None:
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.stem, suffix=".png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        _umask_mode(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        atomic_write(path, lambda f: fig.savefig(f, dpi=110, format="png"))
     finally:
         plt.close(fig)

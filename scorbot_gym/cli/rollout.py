@@ -8,7 +8,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from scorbot_gym.fileio import atomic_write_json
+from pose.fileio import atomic_write_json
 from scorbot_gym.rollout import (
     POLICIES,
     POSE_SOURCES,
