@@ -28,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     from pose.fileio import atomic_write_bytes
     from scorbot_gym.controllers import ScriptedGraspController
     from scorbot_gym.objects import get_object
-    from scorbot_gym.rollout import oracle_pose
+    from scorbot_gym.perception import oracle_pose
 
     env = gym.make("ScorbotGrasp-v0", object_name=args.object, shadows=True)
     obs, info = env.reset(seed=args.seed)
@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
 
     rows = [row("(reset)")]
     ctrl = ScriptedGraspController.for_env(env)
-    ctrl.reset(oracle_pose(info), get_object(args.object), sim.table_height)
+    ctrl.reset(oracle_pose(env, info).pose, get_object(args.object), sim.table_height)
     for _ in range(200):  # stop while the object is held in the air
         obs, _, terminated, truncated, info = env.step(ctrl.act(obs))
         if info["held_time"] > 0.2 or terminated or truncated:

@@ -11,12 +11,14 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from scorbot_gym.controllers import ObjectPose2D, ScriptedGraspController
+from scorbot_gym.controllers import ScriptedGraspController
 from scorbot_gym.objects import get_object
+from scorbot_gym.perception import PerceivedPose, oracle_pose
 from scorbot_gym.task import FAILURE_CAUSES
 
 POLICIES = ("scripted", "random")
-POSE_SOURCES = ("oracle",)
+POSE_SOURCES = ("oracle", "manifold")
+PoseFn = Callable[[gym.Env, dict], PerceivedPose]
 
 
 @dataclass
@@ -27,17 +29,9 @@ class EpisodeResult:
     steps: int
     failure_cause: str | None
     total_reward: float
-
-
-def yaw_from_quat(q: np.ndarray) -> float:
-    """Heading about world z of a (w, x, y, z) quaternion."""
-    w, x, y, z = q
-    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
-
-
-def oracle_pose(info: dict) -> ObjectPose2D:
-    pose = info["object_pose"]
-    return ObjectPose2D(np.asarray(pose["position"]), yaw_from_quat(pose["quaternion"]))
+    pose_valid: bool = True
+    position_error_m: float | None = None
+    rotation_error_deg: float | None = None
 
 
 def run_episode(
@@ -45,27 +39,33 @@ def run_episode(
     seed: int,
     policy: str = "scripted",
     object_name: str | None = None,
-    pose_fn: Callable[[dict, dict], ObjectPose2D] | None = None,
+    pose_fn: PoseFn = oracle_pose,
     on_frame: Callable[[], None] | None = None,
 ) -> EpisodeResult:
-    """One episode. ``pose_fn(obs, info)`` gives the pose the scripted policy grasps at
-    (default: the ground truth); ``on_frame`` is called after reset and every step."""
+    """One episode. ``pose_fn(env, info)`` gives the pose the scripted policy grasps at
+    (default: the ground truth); without a valid pose the arm holds still, the gripper open,
+    until the time limit. ``on_frame`` is called after reset and every step."""
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {POLICIES}, got {policy!r}")
     options = {"object_name": object_name} if object_name else None
     obs, info = env.reset(seed=seed, options=options)
     env.action_space.seed(seed)
-    controller = None
+    controller, perceived = None, None
     if policy == "scripted":
-        controller = ScriptedGraspController.for_env(env)
-        pose = (pose_fn or (lambda _obs, i: oracle_pose(i)))(obs, info)
-        spec = get_object(info["object_name"])
-        controller.reset(pose, spec, env.unwrapped.sim.table_height)
+        perceived = pose_fn(env, info)
+        if perceived.pose is not None:
+            controller = ScriptedGraspController.for_env(env)
+            spec = get_object(info["object_name"])
+            controller.reset(perceived.pose, spec, env.unwrapped.sim.table_height)
+    hold = np.r_[np.zeros(5), 1.0].astype(np.float32)
     if on_frame:
         on_frame()
     total, steps = 0.0, 0
     while True:
-        action = controller.act(obs) if controller else env.action_space.sample()
+        if controller is not None:
+            action = controller.act(obs)
+        else:
+            action = hold if policy == "scripted" else env.action_space.sample()
         obs, reward, terminated, truncated, info = env.step(action)
         total += float(reward)
         steps += 1
@@ -73,8 +73,17 @@ def run_episode(
             on_frame()
         if terminated or truncated:
             break
+    valid = perceived is None or perceived.pose is not None
     return EpisodeResult(
-        seed, info["object_name"], bool(info["is_success"]), steps, info["failure_cause"], total
+        seed,
+        info["object_name"],
+        bool(info["is_success"]),
+        steps,
+        info["failure_cause"],
+        total,
+        pose_valid=valid,
+        position_error_m=perceived.position_error_m if perceived else None,
+        rotation_error_deg=perceived.rotation_error_deg if perceived else None,
     )
 
 
@@ -113,6 +122,16 @@ def summarize(results: list[EpisodeResult]) -> dict:
         o = per_object.setdefault(r.object_name, {"episodes": 0, "successes": 0})
         o["episodes"] += 1
         o["successes"] += int(r.success)
+    valid = [r for r in results if r.pose_valid and r.rotation_error_deg is not None]
+    pose = {
+        "valid_rate": sum(r.pose_valid for r in results) / n if n else 0.0,
+        "median_position_error_mm": (
+            1000 * float(np.median([r.position_error_m for r in valid])) if valid else None
+        ),
+        "median_rotation_error_deg": (
+            float(np.median([r.rotation_error_deg for r in valid])) if valid else None
+        ),
+    }
     return {
         "episodes": n,
         "successes": len(wins),
@@ -121,6 +140,7 @@ def summarize(results: list[EpisodeResult]) -> dict:
         "mean_steps_to_success": float(np.mean([r.steps for r in wins])) if wins else None,
         "failure_causes": {c: causes.get(c, 0) for c in FAILURE_CAUSES},
         "per_object": per_object,
+        "pose": pose,
         "results": [asdict(r) for r in results],
     }
 
@@ -134,6 +154,13 @@ def format_summary(summary: dict) -> str:
         ("mean steps to success", "-" if steps is None else f"{steps:.1f}"),
     ]
     rows += [(f"failures: {c}", str(k)) for c, k in summary["failure_causes"].items()]
+    pose = summary["pose"]
+    if pose["median_rotation_error_deg"] is not None:
+        rows += [
+            ("pose estimates valid", f"{pose['valid_rate']:.1%}"),
+            ("median position error", f"{pose['median_position_error_mm']:.1f} mm"),
+            ("median rotation error", f"{pose['median_rotation_error_deg']:.2f} deg"),
+        ]
     rows += [
         (f"  {name}", f"{o['successes']}/{o['episodes']}")
         for name, o in sorted(summary["per_object"].items())

@@ -8,10 +8,12 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from pose.fileio import atomic_write_json
+from pose.fileio import atomic_write_bytes, atomic_write_json
+from scorbot_gym.perception import ManifoldPoseSource, oracle_pose
 from scorbot_gym.rollout import (
     POLICIES,
     POSE_SOURCES,
+    PoseFn,
     format_summary,
     run_episode,
     run_episodes,
@@ -30,6 +32,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="oracle",
         help="where the scripted policy gets the object pose",
     )
+    p.add_argument(
+        "--pose-model",
+        type=Path,
+        default=None,
+        help="model file from `scorbot-gym pose train` (with --pose manifold)",
+    )
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument(
         "--object",
@@ -46,8 +54,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _record_first_episode(args: argparse.Namespace) -> None:
-    import imageio.v2 as imageio
+def _pose_source(args: argparse.Namespace) -> PoseFn:
+    if args.pose == "oracle":
+        return oracle_pose
+    if args.pose_model is None:
+        raise ValueError("--pose manifold needs --pose-model PATH (from `scorbot-gym pose train`)")
+    return ManifoldPoseSource(args.pose_model)
+
+
+def _record_first_episode(args: argparse.Namespace, pose_fn: PoseFn) -> None:
+    import imageio.v3 as iio
 
     env = gym.make(
         "ScorbotGrasp-v0",
@@ -59,15 +75,20 @@ def _record_first_episode(args: argparse.Namespace) -> None:
     )
     frames: list[np.ndarray] = []
     run_episode(
-        env, args.seed, args.policy, args.object_name, on_frame=lambda: frames.append(env.render())
+        env,
+        args.seed,
+        args.policy,
+        args.object_name,
+        pose_fn,
+        on_frame=lambda: frames.append(env.render()),
     )
     env.close()
-    args.video.parent.mkdir(parents=True, exist_ok=True)
     fps = env.metadata["render_fps"]
     if args.video.suffix.lower() == ".gif":
-        imageio.mimsave(args.video, frames[::2], duration=2000 / fps, loop=0)
+        data = iio.imwrite("<bytes>", frames[::2], extension=".gif", duration=2000 / fps, loop=0)
     else:
-        imageio.mimsave(args.video, frames, fps=fps, macro_block_size=8)
+        data = iio.imwrite("<bytes>", frames, extension=".mp4", fps=fps, macro_block_size=8)
+    atomic_write_bytes(args.video, data)
     print(f"video of episode seed={args.seed}: {args.video} ({len(frames)} frames)")
 
 
@@ -76,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
         raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
+    pose_fn = _pose_source(args)
     env = gym.make("ScorbotGrasp-v0", action_type=args.action_type, object_name=args.object_name)
     results = run_episodes(
         env,
@@ -84,14 +106,17 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         policy=args.policy,
         object_name=args.object_name,
+        pose_fn=pose_fn,
     )
     env.close()
     summary = summarize(results)
-    summary.update(policy=args.policy, pose=args.pose, action_type=args.action_type, seed=args.seed)
+    summary.update(
+        policy=args.policy, pose_source=args.pose, action_type=args.action_type, seed=args.seed
+    )
     print(format_summary(summary))
     if args.json:
         atomic_write_json(args.json, summary)
         print(f"summary written to {args.json}")
     if args.video:
-        _record_first_episode(args)
+        _record_first_episode(args, pose_fn)
     return 0
