@@ -44,6 +44,34 @@ def measure(env, steps: int, seed: int) -> float:
     return steps / elapsed if elapsed > 0 else float(np.inf)
 
 
+def plot(report: dict, path: Path) -> None:
+    """Bar chart: measured steps/s against the FetchPickAndPlace reference and the 2x target."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pose.fileio import atomic_write
+
+    names = list(report["results"])
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2))
+    for ax, name in zip(axes, names, strict=True):
+        r = report["results"][name]
+        ref = r["fetch_pick_and_place_reference"]
+        ax.bar(
+            ["FetchPickAndPlace\n(reference)", "ScorbotGrasp-v0"],
+            [ref, r["steps_per_second_median"]],
+            color=["#999999", "#3a78b5"],
+        )
+        ax.axhline(TARGET_RATIO * ref, color="#c44", ls="--", label=f"target {TARGET_RATIO:g}x")
+        ax.set_title(name.replace("_", " "))
+        ax.set_ylabel("env steps / s (one core, median)")
+        ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    atomic_write(path, lambda f: fig.savefig(f, dpi=100, format="png"))
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=2000)
@@ -100,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
         },
     }
     atomic_write_json(args.out, report)
-    print(f"written {args.out}")
+    plot(report, args.out.with_suffix(".png"))
+    print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
 
 

@@ -56,8 +56,8 @@ class ManifoldPoseSource:
     The view is rendered from the camera and at the size the model file was trained with.
     """
 
-    def __init__(self, model_path: str | os.PathLike) -> None:
-        self.models = PoseModelSet.load(model_path)
+    def __init__(self, models: PoseModelSet | str | os.PathLike) -> None:
+        self.models = models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
         self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
