@@ -12,16 +12,23 @@ CROP_MARGIN = 24
 
 @dataclass(frozen=True)
 class Features:
-    """Keypoint locations ``xy`` ``(N, 2)`` (pixels) and unit descriptors ``(N, 128)``."""
+    """Keypoint locations ``xy`` ``(N, 2)`` (pixels), unit descriptors ``(N, 128)`` and SIFT
+    orientations ``angles`` ``(N,)`` (radians, image axes: from u towards v, like
+    ``arctan2(dv, du)``; zeros when not given)."""
 
     xy: np.ndarray
     descriptors: np.ndarray
+    angles: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.angles is None:
+            object.__setattr__(self, "angles", np.zeros(len(self.xy), np.float32))
 
     def __len__(self) -> int:
         return len(self.xy)
 
     def subset(self, keep: np.ndarray) -> Features:
-        return Features(self.xy[keep], self.descriptors[keep])
+        return Features(self.xy[keep], self.descriptors[keep], self.angles[keep])
 
     @classmethod
     def empty(cls) -> Features:
@@ -67,6 +74,7 @@ def extract_sift(
     if desc is None or len(kps) == 0:
         return Features.empty()
     xy = np.array([k.pt for k in kps], dtype=np.float32) + np.float32([x0, y0])
+    angles = np.radians(np.array([k.angle for k in kps], dtype=np.float32))  # degrees, u -> v
     desc = desc.astype(np.float32)
     desc /= np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
-    return Features(xy, desc)
+    return Features(xy, desc, angles)

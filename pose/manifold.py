@@ -4,8 +4,9 @@ The coordinates are the squared distances ``||e_i - e*||^2`` of the bunch vector
 bunch ``e*``. k-means numbers its clusters arbitrarily, so an order has to be imposed:
 
 * the anchor is the bunch lying furthest along the object's in-plane reference direction
-  (:func:`pose.orientation.reference_angle`), i.e. with the largest projection of its
-  centroid offset on that direction. The reference turns with the object, so the anchor is
+  (by default the keypoint-voted heading, :func:`pose.orientation.keypoint_heading`; else the
+  silhouette's, :func:`pose.orientation.reference_angle`), i.e. with the largest projection of
+  its centroid offset on that direction. The reference turns with the object, so the anchor is
   the same physical part of the object from one view to the next (the most populated bunch
   was tried first: its direction jumps by up to 180 degrees between neighbouring views);
 * the other distances are sorted in increasing order. A sorted vector is invariant to the

@@ -105,15 +105,35 @@ class DescriptorIndex:
         self._flann.add([np.ascontiguousarray(self.descriptors, np.float32)])
         self._flann.train()
 
-    def vote(self, query: np.ndarray, k: int = 5, max_dist: float = 0.6) -> np.ndarray:
+    def nearest(self, query: np.ndarray, k: int = 5) -> tuple[np.ndarray, np.ndarray]:
+        """Indices and distances ``(M, k)`` of the ``k`` nearest training descriptors of each
+        query descriptor, nearest first (index -1, distance inf where FLANN found fewer)."""
+        k = max(1, min(k, len(self.descriptors)))
+        idx = np.full((len(query), k), -1, np.int64)
+        dist = np.full((len(query), k), np.inf)
+        if len(query) == 0:
+            return idx, dist
+        for i, ms in enumerate(self._flann.knnMatch(np.ascontiguousarray(query, np.float32), k=k)):
+            for j, m in enumerate(ms):
+                idx[i, j], dist[i, j] = m.trainIdx, m.distance
+        return idx, dist
+
+    def vote(
+        self,
+        query: np.ndarray,
+        k: int = 5,
+        max_dist: float = 0.6,
+        neighbours: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> np.ndarray:
         """Votes ``(n_views,)``: each query descriptor votes once for every view among its ``k``
-        nearest training descriptors closer than ``max_dist``."""
+        nearest training descriptors closer than ``max_dist`` (``neighbours``: the output of
+        :meth:`nearest`, when already computed)."""
         votes = np.zeros(self.n_views)
         if len(query) == 0:
             return votes
-        k = min(k, len(self.descriptors))
-        for ms in self._flann.knnMatch(np.ascontiguousarray(query, np.float32), k=k):
-            seen = {self.view_ids[m.trainIdx] for m in ms if m.distance < max_dist}
-            for v in seen:
+        idx, dist = neighbours if neighbours is not None else self.nearest(query, k)
+        close = (dist[:, :k] < max_dist) & (idx[:, :k] >= 0)
+        for row, ok in zip(idx[:, :k], close, strict=True):
+            for v in set(self.view_ids[row[ok]].tolist()):
                 votes[v] += 1
         return votes

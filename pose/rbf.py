@@ -40,7 +40,10 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
     """Gaussian RBF network: ``y = W^T [phi_1(x) .. phi_m(x), 1]``.
 
     ``phi_j(x) = exp(-||x - c_j||^2 / (2 sigma_j^2))`` with ``sigma_j = width_scale`` times the
-    mean distance from ``c_j`` to its ``n_neighbors`` nearest other centres.
+    mean distance from ``c_j`` to its ``n_neighbors`` nearest other centres. ``normalized=True``
+    divides the units by their sum (Moody and Darken's normalised RBF): far from every centre the
+    output is then the nearest centres' answer instead of decaying to the bias, which suits
+    targets that are nearly piecewise constant (one rotation per resting face).
     """
 
     def __init__(
@@ -50,6 +53,7 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
         alpha: float = 1e-6,
         n_neighbors: int = 2,
         standardize: bool = True,
+        normalized: bool = False,
         random_state: int = 0,
     ):
         self.n_centers = n_centers
@@ -57,6 +61,7 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
         self.width_scale = width_scale
         self.alpha = alpha
         self.n_neighbors = n_neighbors
+        self.normalized = normalized
         self.random_state = random_state
 
     def fit(self, X, y):
@@ -65,9 +70,13 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
             raise ValueError("need n_centers >= 1, alpha >= 0 and width_scale > 0")
         self.x_mean_, self.x_scale_ = _standardizer(X, self.standardize)
         Z = (X - self.x_mean_) / self.x_scale_
-        m = min(self.n_centers, len(np.unique(Z, axis=0)))
-        km = KMeans(n_clusters=m, n_init=3, random_state=self.random_state).fit(Z)
-        self.centers_ = km.cluster_centers_
+        distinct = np.unique(Z, axis=0)
+        m = min(self.n_centers, len(distinct))
+        if m == len(distinct):  # one unit per sample: k-means would only reproduce them
+            self.centers_ = distinct
+        else:
+            km = KMeans(n_clusters=m, n_init=3, random_state=self.random_state).fit(Z)
+            self.centers_ = km.cluster_centers_
         if m > 1:
             dc = np.linalg.norm(self.centers_[:, None] - self.centers_[None], axis=2)
             np.fill_diagonal(dc, np.inf)
@@ -84,7 +93,11 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
 
     def _design(self, Z: np.ndarray) -> np.ndarray:
         d2 = ((Z[:, None, :] - self.centers_[None]) ** 2).sum(axis=2)
-        return np.c_[np.exp(-d2 / (2 * self.widths_**2)), np.ones(len(Z))]
+        e = -d2 / (2 * self.widths_**2)
+        if self.normalized:  # softmax: stable however far the point is from every centre
+            e = np.exp(e - e.max(axis=1, keepdims=True))
+            return np.c_[e / e.sum(axis=1, keepdims=True), np.ones(len(Z))]
+        return np.c_[np.exp(e), np.ones(len(Z))]
 
     def predict(self, X) -> np.ndarray:
         check_is_fitted(self, "weights_")

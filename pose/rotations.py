@@ -10,6 +10,21 @@ def rot_z(angle: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+_GENERIC = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
+
+
+def inplane_heading(R: np.ndarray) -> float:
+    """Image-plane angle (radians, image axes) of a fixed generic object direction under ``R``.
+
+    It turns exactly with the object when the object turns about the optical axis, so
+    ``rot_z(-inplane_heading(R)) @ R`` no longer depends on that turn. The direction
+    ``(1, 2, 3)/sqrt(14)`` is oblique to every face of a box: with any face towards the camera
+    at least 60 % of it lies in the image plane, so the angle is always well defined there.
+    """
+    d = np.asarray(R, float) @ _GENERIC
+    return float(np.arctan2(d[1], d[0]))
+
+
 def to_6d(R: np.ndarray) -> np.ndarray:
     """First two columns of ``R`` (``(..., 3, 3)`` -> ``(..., 6)``): no wrap-around jumps."""
     R = np.asarray(R, float)

@@ -12,7 +12,7 @@ import numpy as np
 from pose.fileio import atomic_savez
 
 FORMAT = "scorbot-gym/pose-manifold"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: keypoint canonical orientations and visual words
 
 
 def save_arrays(path: str | os.PathLike, arrays: dict[str, np.ndarray], meta: dict) -> Path:

@@ -55,6 +55,15 @@ def test_refine_false_returns_the_pure_manifold_rotation(card_model, card_data):
         a, b = card_model.predict(v), coarse.predict(v)
         np.testing.assert_allclose(b.rotation, a.rotation_coarse, atol=1e-12)
         errs.append(rotation_error_deg(b.rotation, p[:3, :3]))
+    # the keypoint heading and the one-unit-per-sample RBF: well under a degree on the card
+    assert np.median(errs) < 2.0 and max(errs) < 5.0, errs
+
+
+def test_silhouette_reference_is_kept_as_an_ablation(card_data):
+    views, poses, tviews, tposes = card_data
+    est = PoseManifoldEstimator(**PARAMS, reference="silhouette", refine=False).fit(views, poses)
+    pairs = zip(tviews, tposes, strict=True)
+    errs = [rotation_error_deg(est.predict(v).rotation, p[:3, :3]) for v, p in pairs]
     # coarse but informative: a random heading would be 90 degrees off on average
     assert np.median(errs) < 25.0, errs
 
@@ -143,6 +152,8 @@ def test_params_and_bad_input(card_data):
     views, poses = card_data[:2]
     with pytest.raises(ValueError, match="n_bunches must be >= 2"):
         PoseManifoldEstimator(n_bunches=1).fit(views, poses)
+    with pytest.raises(ValueError, match="reference must be 'keypoints' or 'silhouette'"):
+        PoseManifoldEstimator(reference="axis").fit(views, poses)
     with pytest.raises(ValueError, match="regressor must be 'rbf' or 'scipy'"):
         PoseManifoldEstimator(regressor="mlp").fit(views, poses)
     with pytest.raises(ValueError, match="camera_from_object"):
