@@ -12,7 +12,6 @@ import os
 from dataclasses import dataclass
 
 import gymnasium as gym
-import mujoco
 import numpy as np
 
 from pose.metrics import rotation_error_deg
@@ -20,6 +19,7 @@ from pose.model_set import PoseModelSet
 from pose.view import PoseEstimate, View
 from scorbot_gym.controllers import ObjectPose2D
 from scorbot_gym.objects import get_object
+from scorbot_gym.sim.simulation import quat_to_mat
 
 
 @dataclass
@@ -44,12 +44,6 @@ def oracle_pose(env: gym.Env, info: dict) -> PerceivedPose:
     )
 
 
-def _world_rotation(quat_wxyz: np.ndarray) -> np.ndarray:
-    R = np.empty(9)
-    mujoco.mju_quat2Mat(R, np.asarray(quat_wxyz, float))
-    return R.reshape(3, 3)
-
-
 class ManifoldPoseSource:
     """Estimates the object's pose with a trained :class:`pose.model_set.PoseModelSet`.
 
@@ -70,7 +64,7 @@ class ManifoldPoseSource:
         mask = sim.render(self.camera, "segmentation", self.width, self.height)
         est = self.models.predict(View(image, cam, mask, name))
         gt_pos = np.asarray(info["object_pose"]["position"])
-        gt_R = _world_rotation(info["object_pose"]["quaternion"])
+        gt_R = quat_to_mat(info["object_pose"]["quaternion"])
         if not est.valid:
             return PerceivedPose(None, est)
         world_R = cam.world_from_camera[:3, :3] @ est.rotation

@@ -4,11 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from scorbot_gym.robot import Robot
-from scorbot_gym.sim.simulation import Simulation
+from scorbot_gym.sim.simulation import Simulation, quat_to_mat
 
 FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
 
@@ -56,9 +55,7 @@ class GraspTask:
 
     def grasp_point_world(self) -> np.ndarray:
         pos, quat = self.sim.object_pose()
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, quat)
-        return pos + R.reshape(3, 3) @ np.r_[self.sim.object_spec.model.grasp_point, 0.0]
+        return pos + quat_to_mat(quat) @ np.r_[self.sim.object_spec.model.grasp_point, 0.0]
 
     def update(self, dt: float) -> dict:
         """Advance the episode bookkeeping after ``dt`` seconds; return the step's facts."""

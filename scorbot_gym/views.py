@@ -219,6 +219,7 @@ def render_views(
 
 def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
     from scorbot_gym.sim import Simulation
+    from scorbot_gym.sim.simulation import quat_to_mat
 
     sim = Simulation(object_name=name, render_width=width, render_height=height)
     rngs = np.random.default_rng(seed).spawn(len(samples))
@@ -239,7 +240,7 @@ def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
             images.append(img)
             masks.append(mask)
             achieved.append(a)
-            world_T.append(_pose_matrix(pos, quat))
+            world_T.append(np.r_[np.c_[quat_to_mat(quat), pos], [[0.0, 0.0, 0.0, 1.0]]])
         cam = sim.camera_model(camera)
     finally:
         sim.close()
@@ -250,21 +251,6 @@ def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
         "occlusion": np.array(achieved),
         "camera": np.array(json.dumps(cam.to_dict())),
     }
-
-
-def _pose_matrix(pos: np.ndarray, quat_wxyz: np.ndarray) -> np.ndarray:
-    w, x, y, z = np.asarray(quat_wxyz, float) / np.linalg.norm(quat_wxyz)
-    R = np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = pos
-    return T
 
 
 def _load(path: Path, name: str, samples: list[PoseSample]) -> list[LabelledView]:

@@ -5,18 +5,15 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Literal
 
+import mujoco  # the package's __init__ has already chosen the GL backend
+import numpy as np
+
+from pose.camera import CameraModel
 from scorbot_gym import _gl
-
-_gl.choose_backend()
-
-import mujoco  # noqa: E402  (after the GL backend is chosen)
-import numpy as np  # noqa: E402
-
-from pose.camera import CameraModel  # noqa: E402
-from scorbot_gym.objects import ObjectSpec, get_object  # noqa: E402
-from scorbot_gym.sim import cameras as cam_utils  # noqa: E402
-from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS  # noqa: E402
-from scorbot_gym.sim.scene import (  # noqa: E402
+from scorbot_gym.objects import ObjectSpec, get_object
+from scorbot_gym.sim import cameras as cam_utils
+from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS
+from scorbot_gym.sim.scene import (
     DEFAULT_CAMERAS,
     TABLE_HEIGHT,
     WORKSPACE_X,
@@ -30,6 +27,13 @@ ARM_PREFIX = "scorbot/"
 
 def quat_from_yaw(yaw: float) -> np.ndarray:
     return np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+
+
+def quat_to_mat(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3x3) of a (w, x, y, z) quaternion."""
+    R = np.empty(9)
+    mujoco.mju_quat2Mat(R, np.asarray(quat, float))
+    return R.reshape(3, 3)
 
 
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -133,9 +137,7 @@ class Simulation:
         if not 0 <= resting_index < len(rests):
             raise ValueError(f"resting_index must be in [0, {len(rests)}), got {resting_index}")
         quat = quat_mul(quat_from_yaw(yaw), np.asarray(rests[resting_index], float))
-        R = np.empty(9)
-        mujoco.mju_quat2Mat(R, quat)
-        lowest = (self.object_spec.mesh_vertices() @ R.reshape(3, 3).T)[:, 2].min()
+        lowest = (self.object_spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
         return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
 
     # --- cameras and rendering -------------------------------------------------------------
