@@ -33,8 +33,9 @@ from pathlib import Path
 import numpy as np
 import sklearn
 
+from pose.fileio import atomic_write_json
 from pose.shape.descriptors import block_weights, shape_descriptors
-from pose.shape.evaluation import evaluate, plot_confusions, split_indices, write_json_atomic
+from pose.shape.evaluation import evaluate, plot_confusions, split_indices
 from pose.shape.flr import FLRClassifier
 from scorbot_gym.shapes_data import render_catalogue_silhouettes
 
@@ -137,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             "machine": platform.machine(),
         },
     }
-    write_json_atomic(report, args.out)
+    atomic_write_json(args.out, report)
     png = args.out.with_name(args.out.stem + "_confusion.png")
     plot_confusions(runs[0], png, title=f"rendered catalogue silhouettes, split seed 0 "
                                         f"({runs[0]['n_test']} held out)")  # fmt: skip

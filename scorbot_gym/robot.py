@@ -75,9 +75,6 @@ class Robot:
     def set_gripper_target(self, opening: float) -> None:
         self.sim.data.ctrl[self.gripper_actuator] = np.clip(opening, 0.0, GRIPPER_MAX_OPENING)
 
-    def joint_targets(self) -> np.ndarray:
-        return self.sim.data.ctrl[self.actuator_idx].copy()
-
     # --- contacts ------------------------------------------------------------------------
     def contacts_with(self, geoms: np.ndarray) -> tuple[bool, bool, bool]:
         """Whether the left finger, right finger and arm links touch any of ``geoms``."""

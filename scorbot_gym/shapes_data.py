@@ -67,10 +67,6 @@ def scene_cameras() -> tuple[CameraSpec, ...]:
 VIEWPOINTS = {"ring": viewpoint_cameras, "scene": scene_cameras}
 
 
-def cache_dir() -> Path:
-    return default_cache_dir()
-
-
 def _cache_key(objects, n_per_object: int, width: int, height: int, seed: int, viewpoints: str):
     specs = [
         {"name": o, "source": get_object(o).source, "scale": get_object(o).scale,
@@ -146,7 +142,7 @@ def render_catalogue_silhouettes(
     if viewpoints not in VIEWPOINTS:
         raise ValueError(f"viewpoints must be one of {', '.join(VIEWPOINTS)}, got {viewpoints!r}")
     key = _cache_key(objects, n_per_object, width, height, seed, viewpoints)
-    path = cache_dir() / f"silhouettes-{key}.npz"
+    path = default_cache_dir() / f"silhouettes-{key}.npz"
     if use_cache and path.is_file():
         with np.load(path) as z:
             return SilhouetteSet(

@@ -15,7 +15,6 @@ FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
 @dataclass
 class EpisodeState:
     rest_pos: np.ndarray
-    rest_quat: np.ndarray
     held_time: float = 0.0
     ever_grasped: bool = False
     closed_empty: bool = False
@@ -51,7 +50,7 @@ class GraspTask:
         pos, quat = self.sim.resting_pose(xy, yaw, resting_index)
         self.sim.set_object_pose(pos, quat)
         self.sim.forward()
-        self.state = EpisodeState(rest_pos=pos, rest_quat=quat)
+        self.state = EpisodeState(rest_pos=pos)
 
     def grasp_point_world(self) -> np.ndarray:
         pos, quat = self.sim.object_pose()

@@ -20,7 +20,7 @@ from sklearn.model_selection import (
     train_test_split,
 )
 
-from pose.fileio import atomic_write, atomic_write_json
+from pose.fileio import atomic_write
 from pose.shape.baselines import make_classifiers
 from pose.shape.descriptors import DESCRIPTOR_LENGTH, block_weights
 
@@ -152,10 +152,6 @@ def evaluate(
     gap = 100 * (accs["flr"] - accs[out["best_baseline"]])
     out["flr_minus_best_baseline_points"] = round(gap, 2)
     return out
-
-
-def write_json_atomic(obj: dict, path: str | Path) -> None:
-    atomic_write_json(path, obj)
 
 
 def plot_confusions(result: dict, path: str | Path, title: str = "") -> None:

@@ -71,8 +71,9 @@ def load_silhouettes(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    from pose.fileio import atomic_write_json
     from pose.shape.descriptors import shape_descriptors
-    from pose.shape.evaluation import evaluate, plot_confusions, write_json_atomic
+    from pose.shape.evaluation import evaluate, plot_confusions
 
     t0 = time.perf_counter()
     data, layout, what = load_silhouettes(args)
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"FLR - best baseline ({result['best_baseline']}): "
           f"{result['flr_minus_best_baseline_points']:+.2f} points")  # fmt: skip
     if args.json:
-        write_json_atomic(result, args.json)
+        atomic_write_json(args.json, result)
         print(f"wrote {args.json}")
     if args.png:
         plot_confusions(result, args.png, title=what)

@@ -100,7 +100,7 @@ class ScorbotGraspEnv(gym.Env):
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
         for cam in (*self.cameras, *([render_camera] if render_mode else [])):
-            self.sim._camera_id(cam)  # ValueError listing the valid cameras
+            self.sim.camera_id(cam)  # ValueError listing the valid cameras
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
         obs_spaces: dict[str, spaces.Space] = {

@@ -141,7 +141,7 @@ class Simulation:
         return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
 
     # --- cameras and rendering -------------------------------------------------------------
-    def _camera_id(self, camera: str) -> int:
+    def camera_id(self, camera: str) -> int:
         full = ARM_PREFIX + camera if camera == "eye_in_hand" else camera
         cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, full)
         if cam_id < 0:
@@ -154,7 +154,7 @@ class Simulation:
         self, camera: str, width: int | None = None, height: int | None = None
     ) -> CameraModel:
         """Intrinsics and extrinsics (OpenCV convention) that match what ``render`` shows."""
-        cam_id = self._camera_id(camera)
+        cam_id = self.camera_id(camera)
         w, h = width or self.render_width, height or self.render_height
         K = cam_utils.intrinsics(float(self.model.cam_fovy[cam_id]), w, h)
         T = cam_utils.world_from_camera(self.data.cam_xpos[cam_id], self.data.cam_xmat[cam_id])
@@ -186,7 +186,7 @@ class Simulation:
         or the object's segmentation mask ``bool (H, W)``."""
         if kind not in ("rgb", "depth", "segmentation"):
             raise ValueError(f"render kind must be 'rgb', 'depth' or 'segmentation', got {kind!r}")
-        cam_id = self._camera_id(camera)
+        cam_id = self.camera_id(camera)
         r = self._renderer(width or self.render_width, height or self.render_height)
         if kind == "depth":
             r.enable_depth_rendering()
