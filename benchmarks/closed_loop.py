@@ -28,15 +28,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
     args = parser.parse_args(argv)
 
-    import gymnasium as gym
-
     import scorbot_gym
     from pose.fileio import atomic_write_json
     from pose.model_set import PoseModelSet
-    from scorbot_gym.cli.pose_cmd import train_models
+    from scorbot_gym.envs.factory import make_env
+    from scorbot_gym.evaluation import run_episode, summarize
     from scorbot_gym.objects import CATALOGUE
-    from scorbot_gym.perception import ManifoldPoseSource, oracle_pose
-    from scorbot_gym.rollout import run_episode, summarize
+    from scorbot_gym.perception.training import train_models
+    from scorbot_gym.policies import ScriptedGraspPolicy
 
     t0 = time.perf_counter()
     if args.model is None:
@@ -44,23 +43,24 @@ def main(argv: list[str] | None = None) -> int:
     else:
         models = PoseModelSet.load(args.model)
     train_s = time.perf_counter() - t0
-    sources = {"oracle": oracle_pose, "manifold": ManifoldPoseSource(models)}
-    env = gym.make("ScorbotGrasp-v0")
+    sources = {"oracle": {}, "manifold": {"models": models}}
     report: dict = {"benchmark": "closed_loop", "per_object": args.per_object, "results": {}}
-    for label, pose_fn in sources.items():
+    for label, pose_kwargs in sources.items():
+        env = make_env(pose=label, pose_kwargs=pose_kwargs, estimate_every=0)
+        policy = ScriptedGraspPolicy.for_env(env)
         results = [
-            run_episode(env, args.seed + i, object_name=name, pose_fn=pose_fn)
+            run_episode(env, policy, args.seed + i, options={"object_name": name})
             for name in CATALOGUE
             for i in range(args.per_object)
         ]
+        env.close()
         summary = summarize(results)
         report["results"][label] = summary
         lo, hi = summary["success_rate_ci95"]
         print(
             f"{label:>9}: success {summary['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
-            f"over {summary['episodes']} episodes; pose {summary['pose']}"
+            f"over {summary['episodes']} episodes; perception {summary['perception']}"
         )
-    env.close()
     report["train_s"] = None if args.model else train_s
     report["machine"] = {
         "platform": platform.platform(),

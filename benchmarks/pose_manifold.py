@@ -30,7 +30,8 @@ import cv2  # noqa: E402
 
 cv2.setNumThreads(1)
 
-from scorbot_gym.cli.pose_cmd import evaluate, format_tables, train_models  # noqa: E402
+from scorbot_gym.evaluation.pose import evaluate, format_tables  # noqa: E402
+from scorbot_gym.perception.training import train_models  # noqa: E402
 
 TARGETS = {
     "success_5deg_at_0": 0.90,

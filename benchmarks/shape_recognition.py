@@ -37,7 +37,7 @@ from pose.fileio import atomic_write_json
 from pose.shape.descriptors import block_weights, shape_descriptors
 from pose.shape.evaluation import evaluate, plot_confusions, split_indices
 from pose.shape.flr import FLRClassifier
-from scorbot_gym.shapes_data import render_catalogue_silhouettes
+from scorbot_gym.data.shapes import render_catalogue_silhouettes
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

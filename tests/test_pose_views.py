@@ -5,8 +5,8 @@ import pytest
 
 from pose.estimator import PoseManifoldEstimator
 from pose.metrics import rotation_error_deg
+from scorbot_gym.data.views import PoseSample, grid_poses, occlude, random_poses, render_views
 from scorbot_gym.objects import get_object
-from scorbot_gym.views import PoseSample, grid_poses, occlude, random_poses, render_views
 
 W, H = 320, 240
 

@@ -36,19 +36,21 @@ def test_servo_step_response_tracks_without_oscillation(robot, joint):
 
 def test_ik_reaches_a_tool_down_pose(robot):
     target = np.array([0.3, 0.05, robot.sim.table_height + 0.1])
-    q, err = robot.ik(target, -np.pi / 2, HOME_QPOS)
+    q, err = robot.kinematics.ik(target, -np.pi / 2, HOME_QPOS)
     assert err < 1e-3
     assert np.all(q >= JOINT_LOW - 1e-9) and np.all(q <= JOINT_HIGH + 1e-9)
-    pos, R = robot.forward_kinematics(q)
+    pos, R = robot.kinematics.forward(q)
     np.testing.assert_allclose(pos, target, atol=1e-3)
     np.testing.assert_allclose(R[:, 0], [0, 0, -1], atol=1e-3)  # tool axis points down
 
 
 def test_wrist_roll_sets_the_closing_direction(robot):
-    q, _ = robot.ik(np.array([0.28, -0.05, robot.sim.table_height + 0.1]), -np.pi / 2, HOME_QPOS)
+    q, _ = robot.kinematics.ik(
+        np.array([0.28, -0.05, robot.sim.table_height + 0.1]), -np.pi / 2, HOME_QPOS
+    )
     for yaw in (-1.2, 0.0, 0.7):
-        q[4] = robot.roll_for_closing_yaw(q, yaw)
-        diff = (robot.closing_yaw(q) - yaw + np.pi / 2) % np.pi - np.pi / 2
+        q[4] = robot.kinematics.roll_for_closing_yaw(q, yaw)
+        diff = (robot.kinematics.closing_yaw(q) - yaw + np.pi / 2) % np.pi - np.pi / 2
         assert abs(diff) < 1e-6
 
 

@@ -10,7 +10,7 @@ import pytest
 from pose.shape.descriptors import shape_descriptors
 from pose.shape.flr import FLRClassifier
 from scorbot_gym.cli import main
-from scorbot_gym.shapes_data import render_catalogue_silhouettes, viewpoint_cameras
+from scorbot_gym.data.shapes import render_catalogue_silhouettes, viewpoint_cameras
 
 OBJECTS = ("box", "tennis_ball", "large_marker")
 PER_OBJECT = 8

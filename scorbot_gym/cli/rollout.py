@@ -5,21 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 
 from pose.fileio import atomic_write_bytes, atomic_write_json
-from scorbot_gym.perception import ManifoldPoseSource, oracle_pose
-from scorbot_gym.rollout import (
-    POLICIES,
-    POSE_SOURCES,
-    PoseFn,
-    format_summary,
-    run_episode,
-    run_episodes,
-    summarize,
-)
+from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation import format_summary, run_episode, run_episodes, summarize
+from scorbot_gym.perception import pose_source_names
+from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
+POLICIES = ("scripted", "random")
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
@@ -28,15 +22,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--policy", choices=POLICIES, default="scripted")
     p.add_argument(
         "--pose",
-        choices=POSE_SOURCES,
+        choices=pose_source_names(),
         default="oracle",
-        help="where the scripted policy gets the object pose",
+        help="where the policy's object pose comes from",
     )
     p.add_argument(
         "--pose-model",
         type=Path,
         default=None,
         help="model file from `scorbot-gym pose train` (with --pose manifold)",
+    )
+    p.add_argument(
+        "--estimate-every",
+        type=int,
+        default=1,
+        help="estimate the pose every K steps (0: once per episode, at reset)",
     )
     p.add_argument("--episodes", type=int, default=20)
     p.add_argument(
@@ -54,20 +54,33 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _pose_source(args: argparse.Namespace) -> PoseFn:
-    if args.pose == "oracle":
-        return oracle_pose
+def _pose_kwargs(args: argparse.Namespace) -> dict:
+    if args.pose != "manifold":
+        return {}
     if args.pose_model is None:
         raise ValueError("--pose manifold needs --pose-model PATH (from `scorbot-gym pose train`)")
-    return ManifoldPoseSource(args.pose_model)
+    return {"models": args.pose_model}
 
 
-def _record_first_episode(args: argparse.Namespace, pose_fn: PoseFn) -> None:
+def _env_id(action_type: str) -> str:
+    return "ScorbotGraspCartesian-v0" if action_type == "cartesian" else "ScorbotGrasp-v0"
+
+
+def _policy(args: argparse.Namespace, env):
+    if args.policy == "random":
+        return RandomPolicy(env.action_space, args.seed)
+    return ScriptedGraspPolicy.for_env(env)
+
+
+def _record_first_episode(args: argparse.Namespace, pose_kwargs: dict) -> None:
     import imageio.v3 as iio
 
-    env = gym.make(
-        "ScorbotGrasp-v0",
-        action_type=args.action_type,
+    env = make_env(
+        _env_id(args.action_type),
+        pose=args.pose,
+        pose_kwargs=pose_kwargs,
+        estimate_every=args.estimate_every,
+        object_name=args.object_name,
         render_mode="rgb_array",
         render_camera=args.camera,
         render_width=480,
@@ -75,12 +88,7 @@ def _record_first_episode(args: argparse.Namespace, pose_fn: PoseFn) -> None:
     )
     frames: list[np.ndarray] = []
     run_episode(
-        env,
-        args.seed,
-        args.policy,
-        args.object_name,
-        pose_fn,
-        on_frame=lambda: frames.append(env.render()),
+        env, _policy(args, env), args.seed, on_step=lambda o, i: frames.append(env.render())
     )
     env.close()
     fps = env.metadata["render_fps"]
@@ -95,28 +103,33 @@ def _record_first_episode(args: argparse.Namespace, pose_fn: PoseFn) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.estimate_every < 0:
+        raise ValueError(f"--estimate-every must be >= 0, got {args.estimate_every}")
     if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
         raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
-    pose_fn = _pose_source(args)
-    env = gym.make("ScorbotGrasp-v0", action_type=args.action_type, object_name=args.object_name)
-    results = run_episodes(
-        env,
-        args.episodes,
-        args.seed,
-        progress=not args.no_progress,
-        policy=args.policy,
+    pose_kwargs = _pose_kwargs(args)
+    env = make_env(
+        _env_id(args.action_type),
+        pose=args.pose,
+        pose_kwargs=pose_kwargs,
+        estimate_every=args.estimate_every,
         object_name=args.object_name,
-        pose_fn=pose_fn,
     )
+    policy = _policy(args, env)
+    results = run_episodes(env, policy, args.episodes, args.seed, progress=not args.no_progress)
     env.close()
     summary = summarize(results)
     summary.update(
-        policy=args.policy, pose_source=args.pose, action_type=args.action_type, seed=args.seed
+        policy=args.policy,
+        pose_source=args.pose,
+        estimate_every=args.estimate_every,
+        action_type=args.action_type,
+        seed=args.seed,
     )
     print(format_summary(summary))
     if args.json:
         atomic_write_json(args.json, summary)
         print(f"summary written to {args.json}")
     if args.video:
-        _record_first_episode(args, pose_fn)
+        _record_first_episode(args, pose_kwargs)
     return 0

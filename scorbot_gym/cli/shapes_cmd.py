@@ -59,7 +59,7 @@ def load_silhouettes(args: argparse.Namespace):
         layout = detect_layout(args.data) if args.layout == "auto" else args.layout
         data = load_dataset(args.data, layout, max_side=args.max_side)
         return data, layout, f"{layout} silhouettes from {args.data}"
-    from scorbot_gym.shapes_data import render_catalogue_silhouettes
+    from scorbot_gym.data.shapes import render_catalogue_silhouettes
 
     if args.per_object < 4:
         raise ValueError(f"--per-object must be >= 4, got {args.per_object}")

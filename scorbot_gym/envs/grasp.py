@@ -11,14 +11,17 @@ import mujoco
 import numpy as np
 from gymnasium import spaces
 
+from pose.camera import CameraModel
 from scorbot_gym.objects import CATALOGUE, get_object
-from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot
+from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.simulation import Simulation
-from scorbot_gym.task import GraspTask
+from scorbot_gym.tasks import GraspTask
 
 ACTION_TYPES = ("joint", "cartesian")
-IMAGE_TYPES = ("rgb", "depth")
+# "privileged_segmentation" is the simulator's own object mask: for oracle and ablation
+# experiments only (a real camera gives no such image), hence the name.
+IMAGE_TYPES = ("rgb", "depth", "privileged_segmentation")
 _INSTABILITY_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
@@ -121,6 +124,10 @@ class ScorbotGraspEnv(gym.Env):
                 obs_spaces[f"{cam}_depth"] = spaces.Box(
                     0.0, 1.01 * self.sim.max_depth, (*shape, 1), np.float32
                 )
+            if "privileged_segmentation" in self.image_types:
+                obs_spaces[f"{cam}_privileged_segmentation"] = spaces.Box(
+                    0, 1, (*shape, 1), np.uint8
+                )
         self.observation_space = spaces.Dict(obs_spaces)
 
     # --- plumbing ------------------------------------------------------------------------
@@ -185,8 +192,8 @@ class ScorbotGraspEnv(gym.Env):
 
     def _cartesian_target(self, q: np.ndarray, a: np.ndarray) -> np.ndarray:
         pos = self.robot.tcp_pos + a[:3] * self.max_cartesian_step
-        pitch = self.robot.tool_pitch(q) + a[3] * self.max_angle_step
-        target, _ = self.robot.ik(pos, pitch, q, iterations=15)
+        pitch = tool_pitch(q) + a[3] * self.max_angle_step
+        target, _ = self.robot.kinematics.ik(pos, pitch, q, iterations=15)
         target[4] = q[4] + a[4] * self.max_angle_step
         return target
 
@@ -214,12 +221,33 @@ class ScorbotGraspEnv(gym.Env):
                 obs[f"{cam}_rgb"] = self.sim.render(cam, "rgb")
             if "depth" in self.image_types:
                 obs[f"{cam}_depth"] = self.sim.render(cam, "depth")[..., None]
+            if "privileged_segmentation" in self.image_types:
+                seg = self.sim.render(cam, "segmentation")
+                obs[f"{cam}_privileged_segmentation"] = seg[..., None].astype(np.uint8)
         return obs
+
+    def camera_model(self, camera: str) -> CameraModel:
+        """Intrinsics and extrinsics (OpenCV convention) of ``camera`` at the observation's image
+        size: the public calibration that wrappers and policies may use."""
+        return self.sim.camera_model(camera, self.image_width, self.image_height)
+
+    def camera_params(self, camera: str) -> dict[str, Any]:
+        """:meth:`camera_model` as plain arrays (``K``, ``world_from_camera``, ``width``,
+        ``height``), the form ``info["camera_params"]`` carries: it pickles across processes
+        and compares by value; ``pose.camera.CameraModel(**params)`` turns it back."""
+        cm = self.camera_model(camera)
+        return {
+            "K": cm.K,
+            "world_from_camera": cm.world_from_camera,
+            "width": cm.width,
+            "height": cm.height,
+            "name": camera,
+        }
 
     def _info(self, facts: dict | None, cause: str | None) -> dict[str, Any]:
         pos, quat = self.sim.object_pose()
         st = self.task.state
-        return {
+        info = {
             "is_success": bool(st.success),
             "grasped": bool(facts["grasped"]) if facts else False,
             "object_pose": {"position": pos, "quaternion": quat},
@@ -227,6 +255,9 @@ class ScorbotGraspEnv(gym.Env):
             "failure_cause": cause,
             "held_time": st.held_time,
         }
+        if self.cameras:  # calibration travels with the images (as ManiSkill's sensor_param)
+            info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
+        return info
 
     def render(self):
         if self.render_mode is None:

@@ -36,6 +36,13 @@ def quat_to_mat(quat: np.ndarray) -> np.ndarray:
     return R.reshape(3, 3)
 
 
+def mat_to_quat(R: np.ndarray) -> np.ndarray:
+    """Unit (w, x, y, z) quaternion with w >= 0 of a rotation matrix."""
+    q = np.empty(4)
+    mujoco.mju_mat2Quat(q, np.ascontiguousarray(R, float).ravel())
+    return q if q[0] >= 0 else -q
+
+
 def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out = np.empty(4)
     mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))

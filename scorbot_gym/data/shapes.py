@@ -29,10 +29,10 @@ import numpy as np
 
 from pose.fileio import atomic_savez
 from pose.shape.datasets import SilhouetteSet
+from scorbot_gym.data.views import default_cache_dir
 from scorbot_gym.objects import CATALOGUE, get_object
 from scorbot_gym.sim.cameras import CameraSpec
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS, TABLE_HEIGHT, WORKSPACE_X, WORKSPACE_Y
-from scorbot_gym.views import default_cache_dir
 
 _CACHE_VERSION = 1
 _CENTRE = (sum(WORKSPACE_X) / 2, sum(WORKSPACE_Y) / 2)

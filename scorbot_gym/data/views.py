@@ -148,7 +148,7 @@ def occlude(
 def _scene_fingerprint() -> str:
     """Hash of the source that decides what a render looks like (scene, objects, textures, this
     module): editing any of it invalidates the cache instead of serving stale images."""
-    root = Path(__file__).resolve().parent
+    root = Path(__file__).resolve().parent.parent  # the scorbot_gym package
     files = [Path(__file__).resolve(), root / "objects.py", *sorted((root / "sim").glob("*.py"))]
     files += sorted((root / "assets").glob("*.py"))
     h = hashlib.sha256()

@@ -1,0 +1,61 @@
+"""Build a grasping env with perception in the loop, in one call (CLI, benchmarks, RL).
+
+``make_env(pose="manifold", pose_kwargs={"models": path})`` creates the pose source first, asks
+it which cameras, image size and image types it reads (``env_requirements``), makes the env
+render exactly those, and wraps it with :class:`PoseEstimateObservation`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+from scorbot_gym.perception.base import PoseSource
+from scorbot_gym.perception.registry import make_pose_source
+from scorbot_gym.wrappers.pose_observation import PoseEstimateObservation
+
+
+def make_env(
+    env_id: str = "ScorbotGrasp-v0",
+    *,
+    pose: str | PoseSource = "oracle",
+    pose_kwargs: dict[str, Any] | None = None,
+    estimate_every: int = 1,
+    rotation: str = "quat",
+    include_class: bool = True,
+    classes: list[str] | None = None,
+    identity: str = "given",
+    keep_images: bool = False,
+    **env_kwargs: Any,
+) -> gym.Env:
+    """``gym.make(env_id, **env_kwargs)`` wrapped with a pose source's estimates.
+
+    Camera settings the pose source needs are merged into ``env_kwargs``; a conflicting
+    setting given by the caller is an error, not silently overridden.
+    """
+    source = make_pose_source(pose, **(pose_kwargs or {}))
+    needs = dict(getattr(source, "env_requirements", {}))
+    if "cameras" in needs:
+        cams = list(env_kwargs.get("cameras", ()))
+        needs["cameras"] = cams + [c for c in needs["cameras"] if c not in cams]
+    if "image_types" in needs:
+        types = list(env_kwargs.get("image_types", ("rgb",)))
+        needs["image_types"] = types + [t for t in needs["image_types"] if t not in types]
+    for key in ("image_width", "image_height"):
+        if key in needs and key in env_kwargs and env_kwargs[key] != needs[key]:
+            raise ValueError(
+                f"{key}={env_kwargs[key]} conflicts with the pose source, which reads "
+                f"{needs[key]}-pixel images"
+            )
+    env = gym.make(env_id, **{**env_kwargs, **needs})
+    return PoseEstimateObservation(
+        env,
+        source,
+        estimate_every=estimate_every,
+        rotation=rotation,
+        include_class=include_class,
+        classes=classes,
+        identity=identity,
+        keep_images=keep_images,
+    )

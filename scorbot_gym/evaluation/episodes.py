@@ -1,0 +1,123 @@
+"""Run seeded episodes of a policy on an env and record what happened (CLI and benchmarks).
+
+``run_episode(env, policy, seed)`` is the one loop: reset with the seed, ``policy.reset(obs,
+info)``, then ``policy.act(obs)`` until the episode ends. Whatever the env's wrappers put in
+``info["perception"]`` (errors against the ground truth, recognition, timings) is collected
+for the record; the policy never sees it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from scorbot_gym.policies.base import Policy
+
+
+@dataclass
+class EpisodeResult:
+    seed: int
+    object_name: str
+    success: bool
+    steps: int
+    failure_cause: str | None
+    total_reward: float
+    perception: dict[str, Any] | None = None  # per-episode perception record (see below)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """Aggregate the steps at which the pose source ran (``info["perception"]["estimated"]``)."""
+    ran = [r for r in records if r.get("estimated")]
+    if not ran:
+        return None
+    valid = [r for r in ran if r.get("valid")]
+
+    def median(key: str, rows: list[dict]) -> float | None:
+        vals = [r[key] for r in rows if r.get(key) is not None and np.isfinite(r[key])]
+        return float(np.median(vals)) if vals else None
+
+    recog = [r for r in ran if r.get("recognised") is not None]
+    first = ran[0]
+    return {
+        "estimates": len(ran),
+        "valid": len(valid),
+        "first_valid": bool(first.get("valid")),
+        "median_rot_err_deg": median("rot_err_deg", valid),
+        "median_pos_err_cm": median("pos_err_cm", valid),
+        "median_add_s_cm": median("add_s_cm", valid),
+        "success_5deg": float(np.mean([bool(r["success_5deg"]) for r in valid])) if valid else None,
+        "recognised": recog[-1]["recognised"] if recog else None,
+        "true_class": first.get("true_class"),
+        "recognition_correct": (
+            float(np.mean([r["recognised"] == r["true_class"] for r in recog])) if recog else None
+        ),
+        "median_estimate_ms": median("total_ms", ran),
+        "median_stage_ms": {
+            k: float(np.median([r["timings_ms"][k] for r in ran if k in r["timings_ms"]]))
+            for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
+        },
+        "privileged": bool(first.get("privileged")),
+    }
+
+
+def run_episode(
+    env: gym.Env,
+    policy: Policy,
+    seed: int,
+    options: dict[str, Any] | None = None,
+    on_step: Callable[[dict, dict], None] | None = None,
+) -> EpisodeResult:
+    """One seeded episode of ``policy`` on ``env``. ``on_step(obs, info)`` is called after the
+    reset and after every step (e.g. to grab video frames)."""
+    obs, info = env.reset(seed=seed, options=options)
+    seed_fn = getattr(policy, "seed", None)
+    if callable(seed_fn):
+        seed_fn(seed)
+    policy.reset(obs, info)
+    records = [info["perception"]] if "perception" in info else []
+    if on_step:
+        on_step(obs, info)
+    total, steps = 0.0, 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs))
+        total += float(reward)
+        steps += 1
+        if "perception" in info:
+            records.append(info["perception"])
+        if on_step:
+            on_step(obs, info)
+        if terminated or truncated:
+            break
+    extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    return EpisodeResult(
+        seed,
+        info["object_name"],
+        bool(info["is_success"]),
+        steps,
+        info["failure_cause"],
+        total,
+        _perception_record(records),
+        extra,
+    )
+
+
+def run_episodes(
+    env: gym.Env,
+    policy: Policy,
+    episodes: int,
+    seed: int = 0,
+    options: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> list[EpisodeResult]:
+    """Episodes with seeds ``seed, seed + 1, ...`` (the same seeds for every policy compared)."""
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    seeds: Iterable[int] = range(seed, seed + episodes)
+    bar = tqdm(seeds, desc="episodes", unit="ep", disable=not progress, leave=False)
+    return [run_episode(env, policy, s, options) for s in bar]

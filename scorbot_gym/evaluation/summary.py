@@ -1,0 +1,111 @@
+"""Summaries of episode results: success with a 95 % interval, failure causes, per object, and
+the perception record (validity, errors, recognition, estimator time)."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import asdict
+
+import numpy as np
+
+from scorbot_gym.evaluation.episodes import EpisodeResult
+from scorbot_gym.tasks import FAILURE_CAUSES
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """95 % Wilson score interval for a binomial proportion (sound at 0 % and 100 %)."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def _median(values) -> float | None:
+    vals = [v for v in values if v is not None and np.isfinite(v)]
+    return float(np.median(vals)) if vals else None
+
+
+def perception_summary(results: list[EpisodeResult]) -> dict | None:
+    """Pooled over episodes: the share of valid estimates, the share of episodes whose kept
+    class is right, and medians over episodes of each episode's median error and time."""
+    recs = [r.perception for r in results if r.perception is not None]
+    if not recs:
+        return None
+    n_est = sum(p["estimates"] for p in recs)
+    recog = [p for p in recs if p["recognised"] is not None]
+    return {
+        "estimates": n_est,
+        "valid_rate": sum(p["valid"] for p in recs) / n_est if n_est else 0.0,
+        "first_estimate_valid_rate": float(np.mean([p["first_valid"] for p in recs])),
+        "recognition_accuracy": (
+            float(np.mean([p["recognised"] == p["true_class"] for p in recog])) if recog else None
+        ),
+        "median_rot_err_deg": _median(p["median_rot_err_deg"] for p in recs),
+        "median_pos_err_cm": _median(p["median_pos_err_cm"] for p in recs),
+        "median_add_s_cm": _median(p["median_add_s_cm"] for p in recs),
+        "median_estimate_ms": _median(p["median_estimate_ms"] for p in recs),
+        "median_stage_ms": {
+            k: _median(p["median_stage_ms"].get(k) for p in recs)
+            for k in sorted({k for p in recs for k in p["median_stage_ms"]})
+        },
+        "privileged": any(p["privileged"] for p in recs),
+    }
+
+
+def summarize(results: list[EpisodeResult]) -> dict:
+    n = len(results)
+    wins = [r for r in results if r.success]
+    lo, hi = wilson_interval(len(wins), n)
+    causes = Counter(r.failure_cause for r in results if not r.success)
+    per_object: dict[str, dict] = {}
+    for r in results:
+        o = per_object.setdefault(r.object_name, {"episodes": 0, "successes": 0})
+        o["episodes"] += 1
+        o["successes"] += int(r.success)
+    return {
+        "episodes": n,
+        "successes": len(wins),
+        "success_rate": len(wins) / n if n else 0.0,
+        "success_rate_ci95": [lo, hi],
+        "mean_steps_to_success": float(np.mean([r.steps for r in wins])) if wins else None,
+        "failure_causes": {c: causes.get(c, 0) for c in FAILURE_CAUSES},
+        "per_object": per_object,
+        "perception": perception_summary(results),
+        "results": [asdict(r) for r in results],
+    }
+
+
+def format_summary(summary: dict) -> str:
+    lo, hi = summary["success_rate_ci95"]
+    steps = summary["mean_steps_to_success"]
+    rows = [
+        ("episodes", f"{summary['episodes']}"),
+        ("success rate", f"{summary['success_rate']:.1%}  (95% CI {lo:.1%} - {hi:.1%})"),
+        ("mean steps to success", "-" if steps is None else f"{steps:.1f}"),
+    ]
+    rows += [(f"failures: {c}", str(k)) for c, k in summary["failure_causes"].items()]
+    p = summary.get("perception")
+    if p is not None:
+
+        def fmt(v, spec: str, unit: str = "") -> str:
+            return "-" if v is None else f"{v:{spec}}{unit}"
+
+        rows += [
+            ("pose estimates valid", f"{p['valid_rate']:.1%}  ({p['estimates']} estimates)"),
+            ("recognition accuracy", fmt(p["recognition_accuracy"], ".1%")),
+            ("median position error", fmt(p["median_pos_err_cm"], ".2f", " cm")),
+            ("median rotation error", fmt(p["median_rot_err_deg"], ".2f", " deg")),
+            ("median estimator time", fmt(p["median_estimate_ms"], ".1f", " ms")),
+        ]
+        if p["privileged"]:
+            rows.append(("pose source", "privileged (reads the ground truth)"))
+    rows += [
+        (f"  {name}", f"{o['successes']}/{o['episodes']}")
+        for name, o in sorted(summary["per_object"].items())
+    ]
+    width = max(len(r[0]) for r in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)

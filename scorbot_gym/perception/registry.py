@@ -1,0 +1,88 @@
+"""One registry of pose sources, by name: ``oracle``, ``noisy_oracle``, ``manifold``, ...
+
+An ablation swaps the pose source by name (``make_pose_source("noisy_oracle",
+yaw_sigma_deg=10)``) or by passing an object. Users add their own with
+:func:`register_pose_source`: a factory returning a :class:`~scorbot_gym.perception.base.
+PoseSource`, or a plain function ``frame -> WorldPose`` (wrapped in :class:`FunctionPoseSource`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+from scorbot_gym.perception.model_set import ModelSetPoseSource
+from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
+
+
+class FunctionPoseSource:
+    """A plain function ``frame -> WorldPose`` as a pose source."""
+
+    def __init__(
+        self,
+        fn: Callable[[PerceptionFrame], WorldPose],
+        required_keys: Sequence[str] = (),
+        privileged: bool = False,
+    ) -> None:
+        self.fn, self.required_keys, self.privileged = fn, tuple(required_keys), privileged
+
+    def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
+        pass
+
+    def estimate(self, frame: PerceptionFrame) -> WorldPose:
+        return self.fn(frame)
+
+
+_REGISTRY: dict[str, Callable[..., Any]] = {
+    "oracle": OraclePoseSource,
+    "noisy_oracle": NoisyOraclePoseSource,
+    "manifold": ModelSetPoseSource,
+}
+
+
+def pose_source_names() -> tuple[str, ...]:
+    return tuple(sorted(_REGISTRY))
+
+
+def register_pose_source(
+    name: str, factory: Callable[..., Any], *, overwrite: bool = False
+) -> None:
+    """Make ``make_pose_source(name, **kwargs)`` call ``factory(**kwargs)``.
+
+    The factory returns a pose source, or a function ``PerceptionFrame -> WorldPose``.
+    """
+    if not name or not isinstance(name, str):
+        raise ValueError(f"a pose source needs a non-empty name, got {name!r}")
+    if name in _REGISTRY and not overwrite:
+        raise ValueError(f"pose source {name!r} is already registered (pass overwrite=True)")
+    if not callable(factory):
+        raise TypeError(f"factory for pose source {name!r} must be callable, got {factory!r}")
+    _REGISTRY[name] = factory
+
+
+def make_pose_source(source: str | PoseSource, **kwargs: Any) -> PoseSource:
+    """A pose source by registered name (``kwargs`` go to its factory), or ``source`` itself."""
+    if not isinstance(source, str):
+        if kwargs:
+            raise ValueError("keyword arguments are only accepted with a pose source name")
+        if not isinstance(source, PoseSource):
+            raise TypeError(
+                f"{source!r} is not a PoseSource (it needs required_keys, privileged, reset and "
+                "estimate)"
+            )
+        return source
+    if source not in _REGISTRY:
+        raise ValueError(
+            f"unknown pose source {source!r}; registered: {', '.join(pose_source_names())}"
+        )
+    made = _REGISTRY[source](**kwargs)
+    if not isinstance(made, PoseSource):
+        if not callable(made):
+            raise TypeError(f"pose source {source!r} is neither a PoseSource nor a callable")
+        made = FunctionPoseSource(made)
+    if getattr(made, "name", None) is None:
+        made.name = source  # how records and summaries refer to it
+    return made

@@ -1,0 +1,222 @@
+"""Scripted top-down grasp as position-based visual servoing (PBVS).
+
+Approach above the object, align the wrist, descend, close, lift: straight Cartesian waypoints
+tracked with the arm's own kinematics model. The object's pose is read from the observation
+(``object_pos`` + ``object_quat`` or ``object_yaw``, from whatever pose source the env is
+wrapped with) and the grasp is **re-planned from every new estimate** (``pose_age == 0``) until
+the fingers close, so the arm follows an object that moves; if the object has moved far during
+the descent, the arm goes back up and approaches again. Between estimates the last plan holds.
+
+The object's identity (which grasp point and direction to use) comes from the observation's
+``object_class`` one-hot (recognised by the pose wrapper) or is given as ``object_name``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.objects import ObjectSpec, get_object
+from scorbot_gym.robot.kinematics import ArmKinematics, tool_pitch, wrap_half_turn
+from scorbot_gym.sim.scene import TABLE_HEIGHT
+
+TOOL_DOWN = -np.pi / 2
+PHASES = ("wait", "approach", "descend", "close", "lift", "hold")
+ACTION_TYPES = ("joint", "cartesian")
+
+
+def yaw_from_quat(q: np.ndarray) -> float:
+    """Heading about world z of a (w, x, y, z) quaternion."""
+    w, x, y, z = q
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def observed_pose(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float]:
+    """Object position and heading from an observation (``object_quat`` or ``object_yaw``)."""
+    pos = np.asarray(obs["object_pos"], dtype=float)
+    if "object_yaw" in obs:
+        s, c = np.asarray(obs["object_yaw"], dtype=float)
+        return pos, float(np.arctan2(s, c))
+    if "object_quat" in obs:
+        return pos, yaw_from_quat(np.asarray(obs["object_quat"], dtype=float))
+    raise KeyError("the observation has object_pos but neither object_quat nor object_yaw")
+
+
+class ScriptedGraspPolicy:
+    """Produces actions for ``ScorbotGraspEnv`` in either action space, from observations alone.
+
+    Parameters mirror the env's action scaling (``dt``, ``max_*_step``); :meth:`for_env` reads
+    them from an env's configuration. ``object_name`` fixes the object; otherwise ``classes``
+    names the entries of the observation's ``object_class`` one-hot.
+    """
+
+    def __init__(
+        self,
+        action_type: str = "joint",
+        dt: float = 0.04,
+        max_joint_step: float = 0.1,
+        max_cartesian_step: float = 0.02,
+        max_angle_step: float = 0.1,
+        object_name: str | None = None,
+        classes: Sequence[str] | None = None,
+        speed: float = 0.3,
+        descend_speed: float = 0.12,
+        approach_height: float = 0.10,
+        lift_height: float = 0.12,
+        close_time: float = 0.5,
+        replan_tolerance: float = 0.015,
+        table_height: float = TABLE_HEIGHT,
+        kinematics: ArmKinematics | None = None,
+    ) -> None:
+        if action_type not in ACTION_TYPES:
+            raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
+        if object_name is not None:
+            get_object(object_name)  # KeyError listing the valid names
+        self.action_type, self.dt = action_type, dt
+        self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
+        self.max_angle_step = max_angle_step
+        self.object_name = object_name
+        self.classes = tuple(classes) if classes is not None else None
+        self.speed, self.descend_speed = speed, descend_speed
+        self.approach_height, self.lift_height = approach_height, lift_height
+        self.close_time, self.replan_tolerance = close_time, replan_tolerance
+        self.table_height = table_height
+        self.kinematics = kinematics or ArmKinematics()
+        self.phase = "wait"
+        self.grasp: np.ndarray | None = None
+        self.closing_yaw = 0.0
+        self.replans = 0
+
+    @classmethod
+    def for_env(cls, env, **kwargs) -> ScriptedGraspPolicy:
+        """A policy matched to an env's action space and control rate (its public config)."""
+
+        def attr(name):
+            return env.get_wrapper_attr(name)
+
+        classes = kwargs.pop("classes", None)
+        if classes is None:
+            try:
+                classes = attr("class_names")
+            except AttributeError:
+                classes = None
+        return cls(
+            attr("action_type"),
+            attr("dt"),
+            attr("max_joint_step"),
+            attr("max_cartesian_step"),
+            attr("max_angle_step"),
+            classes=classes,
+            **kwargs,
+        )
+
+    # --- episode ---------------------------------------------------------------------------
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> None:
+        self.phase, self.grasp, self.replans = "wait", None, 0
+        self._phase_time = 0.0
+        self._waypoint: np.ndarray | None = None  # starts where the TCP is at the first act()
+        self._spec: ObjectSpec | None = None
+        self._maybe_replan(obs)
+
+    def _object(self, obs: dict[str, np.ndarray]) -> ObjectSpec:
+        if self.object_name is not None:
+            return get_object(self.object_name)
+        if "object_class" in obs and self.classes is not None:
+            return get_object(self.classes[int(np.argmax(obs["object_class"]))])
+        raise ValueError(
+            "ScriptedGraspPolicy needs the object's identity: pass object_name=..., or wrap the "
+            "env with PoseEstimateObservation(include_class=True) and pass classes=..."
+        )
+
+    @staticmethod
+    def _fresh(obs: dict[str, np.ndarray]) -> bool:
+        """Whether ``obs`` carries a pose estimated at this step (always, for perfect-feature
+        observations from ``observe_object_pose=True``)."""
+        if "pose_valid" not in obs:
+            return "object_pos" in obs
+        return bool(obs["pose_valid"][0] > 0.5 and obs["pose_age"][0] < 0.5)
+
+    def _plan(self, obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float]:
+        pos, yaw = observed_pose(obs)
+        model = self._spec.model
+        c, s = np.cos(yaw), np.sin(yaw)
+        gx, gy = pos[:2] + np.array([[c, -s], [s, c]]) @ model.grasp_point
+        top = pos[2] + model.half_extents[2]
+        # Fingers reach 55 mm below the palm: grasp at mid-height, but low enough for a firm hold
+        # and high enough that the palm clears the top.
+        z = max(pos[2], top - 0.05, self.table_height + 0.012)
+        return np.array([gx, gy, z]), yaw + model.grasp_yaw
+
+    def _maybe_replan(self, obs: dict[str, np.ndarray]) -> None:
+        """Plan at the first valid pose; re-plan at every fresh estimate until the fingers
+        close (after that the estimate sees the gripper more than the object)."""
+        if self.grasp is None:
+            if not self._fresh(obs):
+                return
+            self._spec = self._object(obs)
+            self.grasp, self.closing_yaw = self._plan(obs)
+            self.phase, self._phase_time = "approach", 0.0
+            return
+        if self.phase not in ("approach", "descend") or not self._fresh(obs):
+            return
+        grasp, closing = self._plan(obs)
+        moved = np.linalg.norm(grasp[:2] - self.grasp[:2])
+        turned = abs(wrap_half_turn(closing - self.closing_yaw))
+        if moved > 1e-6 or turned > 1e-6:
+            self.replans += 1
+        if self.phase == "descend" and (moved > self.replan_tolerance or turned > 0.2):
+            self.phase, self._phase_time = "approach", 0.0  # back up, then approach again
+        self.grasp, self.closing_yaw = grasp, closing
+
+    # --- control ---------------------------------------------------------------------------
+    def _goal(self) -> tuple[np.ndarray, float]:
+        g = self.grasp
+        if self.phase == "approach":
+            return g + [0.0, 0.0, self.approach_height], self.speed
+        if self.phase in ("descend", "close"):
+            return g, self.descend_speed
+        return g + [0.0, 0.0, self.lift_height], self.descend_speed
+
+    def _advance_phase(self, tcp: np.ndarray, goal: np.ndarray) -> None:
+        self._phase_time += self.dt
+        at_goal = np.allclose(self._waypoint, goal) and np.linalg.norm(tcp - goal) < 0.008
+        if self.phase == "approach" and at_goal:
+            self.phase, self._phase_time = "descend", 0.0
+        elif self.phase == "descend" and (at_goal or self._phase_time > 2.0):
+            self.phase, self._phase_time = "close", 0.0
+        elif self.phase == "close" and self._phase_time >= self.close_time:
+            self.phase, self._phase_time = "lift", 0.0
+        elif self.phase == "lift" and at_goal:
+            self.phase = "hold"
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self._maybe_replan(obs)
+        if self.grasp is None:  # no pose yet: hold still, gripper open
+            return np.r_[np.zeros(5), 1.0].astype(np.float32)
+        q = np.asarray(obs["joint_pos"], dtype=float)
+        tcp = np.asarray(obs["ee_pos"], dtype=float)
+        if self._waypoint is None:
+            self._waypoint = tcp.copy()
+        goal, speed = self._goal()
+        # Move the waypoint toward the goal at a bounded speed: straight Cartesian segments.
+        delta = goal - self._waypoint
+        dist = np.linalg.norm(delta)
+        step = speed * self.dt
+        self._waypoint = goal.copy() if dist <= step else self._waypoint + delta * (step / dist)
+        self._advance_phase(tcp, goal)
+
+        kin = self.kinematics
+        q_goal, _ = kin.ik(self._waypoint, TOOL_DOWN, q)
+        q_goal[4] = kin.roll_for_closing_yaw(q_goal, self.closing_yaw)
+        gripper = 1.0 if self.phase in ("approach", "descend") else -1.0
+        if self.action_type == "joint":
+            arm = (q_goal - q) / self.max_joint_step
+        else:
+            arm = np.r_[
+                (self._waypoint - tcp) / self.max_cartesian_step,
+                (TOOL_DOWN - tool_pitch(q)) / self.max_angle_step,
+                (q_goal[4] - q[4]) / self.max_angle_step,
+            ]
+        return np.clip(np.r_[arm, gripper], -1.0, 1.0).astype(np.float32)

@@ -1,0 +1,269 @@
+"""``PoseEstimateObservation``: the pose estimator in the loop, as an observation wrapper.
+
+At reset and then every ``estimate_every`` steps the wrapper hands the step's observation
+(camera images) and the cameras' public calibration to a pose source, converts nothing itself
+(sources answer in the world frame) and adds to the observation:
+
+- ``object_pos`` (3) and ``object_quat`` (4, w x y z) or ``object_yaw`` (sin, cos): the last
+  *valid* estimate, held between estimates and when an estimate fails;
+- ``pose_valid`` (1): whether the latest estimate succeeded;
+- ``pose_confidence`` (1): the source's confidence in the held estimate, in [0, 1];
+- ``pose_age`` (1): steps since the held estimate was made (``MAX_AGE`` before the first);
+- ``object_class`` (n, optional): one-hot of the class the source used.
+
+``info["perception"]`` carries, at every step, what the estimate was worth against the ground
+truth (rotation error, position error, ADD-S, success@5°), the recognised and the true class,
+keypoint and inlier counts and per-stage timings. These are measured for the record and never
+enter the observation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from pose.camera import CameraModel
+from pose.metrics import add_s, rotation_error_deg
+from scorbot_gym.objects import get_object
+from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+from scorbot_gym.perception.registry import make_pose_source
+from scorbot_gym.sim.simulation import quat_to_mat
+
+MAX_AGE = 1000
+ROTATION_FORMS = ("quat", "yaw")
+
+
+class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
+    """Add a pose source's estimate of the object's pose to the observation.
+
+    Parameters
+    ----------
+    source
+        A registered pose-source name (``"oracle"``, ``"noisy_oracle"``, ``"manifold"``...) or
+        a :class:`~scorbot_gym.perception.base.PoseSource`; ``source_kwargs`` go to its factory.
+    estimate_every
+        Estimate at reset and then every this many steps; ``0`` estimates once, at reset.
+    rotation
+        ``"quat"`` adds ``object_quat`` (4); ``"yaw"`` adds ``object_yaw`` (sin, cos).
+    include_class, classes
+        Add ``object_class``, a one-hot over ``classes`` (default: the env's objects).
+    identity
+        ``"given"``: the source is told the object's true identity (what the user passes;
+        recorded as such). Recognition from the images replaces it when a source does it.
+    keep_images
+        Keep the observation entries the source consumed (camera images); dropped by default,
+        so a policy sees only the estimate.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env,
+        source: str | PoseSource = "oracle",
+        *,
+        estimate_every: int = 1,
+        rotation: str = "quat",
+        include_class: bool = False,
+        classes: Sequence[str] | None = None,
+        identity: str = "given",
+        keep_images: bool = False,
+        **source_kwargs: Any,
+    ) -> None:
+        gym.utils.RecordConstructorArgs.__init__(
+            self,
+            source=source,
+            estimate_every=estimate_every,
+            rotation=rotation,
+            include_class=include_class,
+            classes=classes,
+            identity=identity,
+            keep_images=keep_images,
+            **source_kwargs,
+        )
+        gym.Wrapper.__init__(self, env)
+        if isinstance(estimate_every, bool) or not isinstance(estimate_every, (int, np.integer)):
+            raise ValueError(f"estimate_every must be an int >= 0, got {estimate_every!r}")
+        if estimate_every < 0:
+            raise ValueError(
+                f"estimate_every must be >= 0 (0: once per episode), got {estimate_every}"
+            )
+        if rotation not in ROTATION_FORMS:
+            raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
+        if identity not in ("given", "recognize"):
+            raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
+        self.source = make_pose_source(source, **source_kwargs)
+        self.source_name = getattr(self.source, "name", None) or type(self.source).__name__
+        self.estimate_every = int(estimate_every)
+        self.rotation, self.include_class, self.identity = rotation, include_class, identity
+        self.class_names = (
+            tuple(classes) if classes is not None else tuple(env.get_wrapper_attr("object_names"))
+        )
+        for name in self.class_names:
+            get_object(name)  # KeyError listing the valid names
+        base = env.observation_space
+        if not isinstance(base, spaces.Dict):
+            raise TypeError("PoseEstimateObservation needs a Dict observation space")
+        missing = [k for k in self.source.required_keys if k not in base.spaces]
+        if missing:
+            raise ValueError(
+                f"pose source {self.source_name!r} reads observation entries {missing} that the "
+                f"env does not produce (it has {sorted(base.spaces)}); make the env with the "
+                "cameras and image types the source needs, e.g. cameras=['top'], "
+                "image_width=320, image_height=240"
+            )
+        self._dropped = () if keep_images else tuple(self.source.required_keys)
+        new = {k: v for k, v in base.spaces.items() if k not in self._dropped}
+        new["object_pos"] = spaces.Box(-3.0, 3.0, (3,), np.float64)
+        if rotation == "quat":
+            new["object_quat"] = spaces.Box(-1.0, 1.0, (4,), np.float64)
+        else:
+            new["object_yaw"] = spaces.Box(-1.0, 1.0, (2,), np.float64)
+        new["pose_valid"] = spaces.Box(0.0, 1.0, (1,), np.float64)
+        new["pose_confidence"] = spaces.Box(0.0, 1.0, (1,), np.float64)
+        new["pose_age"] = spaces.Box(0.0, float(MAX_AGE), (1,), np.float64)
+        if include_class:
+            new["object_class"] = spaces.Box(0.0, 1.0, (len(self.class_names),), np.float64)
+        self.observation_space = spaces.Dict(new)
+        self._rng = np.random.default_rng()
+        self._held: WorldPose | None = None
+        self._age, self._last_valid, self._t = MAX_AGE, False, 0
+        self._cameras: dict = {}
+
+    # --- gym API -----------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        if seed is not None:  # its own stream: the env's draws stay what they are unwrapped
+            self._rng = np.random.default_rng([int(seed), 0x5EED])
+        self._held, self._age, self._last_valid, self._t = None, MAX_AGE, False, 0
+        self._cameras = {}
+        self._update_cameras(info)
+        frame = self._frame(obs, info)
+        self.source.reset(frame, self._rng)
+        record = self._estimate(frame, info)
+        return self._observation(obs), {**info, "perception": record}
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        self._t += 1
+        self._update_cameras(info)
+        due = self.estimate_every > 0 and self._t % self.estimate_every == 0
+        if due:
+            record = self._estimate(self._frame(obs, info), info)
+        else:
+            self._age = min(self._age + 1, MAX_AGE)
+            record = self._record(info, None)
+        return self._observation(obs), reward, terminated, truncated, {**info, "perception": record}
+
+    # --- internals ---------------------------------------------------------------------------
+    def _update_cameras(self, info: dict) -> None:
+        """Keep each camera's calibration (re-read each step: an eye-in-hand camera moves)."""
+        for name, params in info.get("camera_params", {}).items():
+            self._cameras[name] = CameraModel(**params)
+
+    def _frame(self, obs: dict, info: dict) -> PerceptionFrame:
+        return PerceptionFrame(
+            observation=obs,
+            cameras=self._cameras,
+            object_name=info["object_name"] if self.identity == "given" else None,
+            truth=info["object_pose"] if self.source.privileged else None,
+            step=self._t,
+        )
+
+    def _estimate(self, frame: PerceptionFrame, info: dict) -> dict[str, Any]:
+        est = self.source.estimate(frame)
+        ok = bool(
+            est.valid and np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.quaternion))
+        )
+        self._last_valid = ok
+        if ok:
+            self._held, self._age = est, 0
+        else:
+            self._age = min(self._age + 1, MAX_AGE)
+        return self._record(info, est)
+
+    def _record(self, info: dict, est: WorldPose | None) -> dict[str, Any]:
+        """What this step's perception was worth, for the record (never for the policy)."""
+        true_name = info["object_name"]
+        rec: dict[str, Any] = {
+            "estimated": est is not None,
+            "valid": bool(est is not None and self._last_valid),
+            "pose_age": self._age,
+            "source": self.source_name,
+            "privileged": bool(self.source.privileged),
+            "identity": self.identity,
+            "true_class": true_name,
+            "recognised": None,
+            "rot_err_deg": None,
+            "pos_err_cm": None,
+            "add_s_cm": None,
+            "success_5deg": None,
+            "n_keypoints": 0,
+            "n_inliers": 0,
+            "total_ms": None,
+            "timings_ms": {},
+            "reason": "",
+        }
+        if est is None:
+            return rec
+        rec.update(
+            recognised=est.object_name if self.identity == "recognize" else None,
+            n_keypoints=int(est.n_keypoints),
+            n_inliers=int(est.n_inliers),
+            timings_ms=dict(est.timings_ms),
+            total_ms=float(sum(est.timings_ms.get(k, 0.0) for k in _TOP_LEVEL_STAGES)),
+            reason=est.reason,
+        )
+        if rec["valid"]:
+            spec = get_object(true_name)
+            gt_pos = np.asarray(info["object_pose"]["position"], float)
+            gt_R = quat_to_mat(info["object_pose"]["quaternion"])
+            R = est.rotation
+            rot = rotation_error_deg(R, gt_R, spec.symmetry)
+            pts = _model_points(true_name)
+            rec.update(
+                rot_err_deg=float(rot),
+                pos_err_cm=float(100 * np.linalg.norm(est.position - gt_pos)),
+                add_s_cm=float(100 * add_s(R, est.position, gt_R, gt_pos, pts)),
+                success_5deg=bool(rot <= 5.0),
+            )
+        return rec
+
+    def _observation(self, obs: dict) -> dict[str, np.ndarray]:
+        out = {k: v for k, v in obs.items() if k not in self._dropped}
+        held = self._held
+        pos = held.position if held is not None else np.zeros(3)
+        quat = held.quaternion if held is not None else np.array([1.0, 0.0, 0.0, 0.0])
+        out["object_pos"] = np.clip(pos, -3.0, 3.0).astype(np.float64)
+        if self.rotation == "quat":
+            out["object_quat"] = np.asarray(quat, np.float64).copy()
+        else:
+            R = quat_to_mat(quat)
+            yaw = np.arctan2(R[1, 0], R[0, 0])
+            out["object_yaw"] = np.array([np.sin(yaw), np.cos(yaw)])
+        out["pose_valid"] = np.array([1.0 if self._last_valid else 0.0])
+        conf = float(held.confidence) if held is not None else 0.0
+        out["pose_confidence"] = np.array([np.clip(conf, 0.0, 1.0)])
+        out["pose_age"] = np.array([float(self._age)])
+        if self.include_class:
+            onehot = np.zeros(len(self.class_names))
+            if held is not None and held.object_name in self.class_names:
+                onehot[self.class_names.index(held.object_name)] = 1.0
+            out["object_class"] = onehot
+        return out
+
+
+# Stages a pose source reports at top level; their sum is the estimator's time for one step.
+_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate")
+
+_POINTS: dict[str, np.ndarray] = {}
+
+
+def _model_points(name: str) -> np.ndarray:
+    """About 500 of the object's mesh vertices, for ADD-S."""
+    if name not in _POINTS:
+        pts = get_object(name).mesh_vertices()
+        _POINTS[name] = pts[:: max(1, len(pts) // 500)]
+    return _POINTS[name]
