@@ -14,13 +14,16 @@ class View:
     """One image of one object from a calibrated camera.
 
     ``image`` is ``HxWx3`` RGB or ``HxW`` grey ``uint8``; ``mask`` (optional, ``HxW`` bool) marks
-    the object's visible pixels; ``object_name`` selects the model when a model set holds several.
+    the object's visible pixels; ``object_name`` selects the model when a model set holds several;
+    ``depth`` (optional, ``HxW`` float, metres along the optical axis, 0 where unknown) is what
+    estimators that lift keypoints to 3-D (PnP) train on.
     """
 
     image: np.ndarray
     camera: CameraModel
     mask: np.ndarray | None = None
     object_name: str | None = None
+    depth: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         img = np.asarray(self.image)
@@ -35,6 +38,8 @@ class View:
             )
         if self.mask is not None and np.shape(self.mask) != (h, w):
             raise ValueError(f"mask must have shape {(h, w)}, got {np.shape(self.mask)}")
+        if self.depth is not None and np.shape(self.depth) != (h, w):
+            raise ValueError(f"depth must have shape {(h, w)}, got {np.shape(self.depth)}")
 
 
 @dataclass

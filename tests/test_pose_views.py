@@ -91,3 +91,23 @@ def test_fit_predict_on_rendered_views(brick_views):
 def test_unknown_object_lists_the_valid_names():
     with pytest.raises(KeyError, match="valid objects"):
         render_views("teapot", [PoseSample(0.28, 0.0, 0.0)], progress=False)
+
+
+def test_depth_views_lift_mask_pixels_onto_the_object(tmp_path):
+    samples = random_poses(2, 1, ((0.25, 0.3), (-0.05, 0.05)), seed=4)
+    views = render_views("box", samples, "top", 160, 120, 0.3, 0, tmp_path, False, depth=True)
+    for lv in views:
+        v = lv.view
+        assert v.depth is not None and v.depth.shape == (120, 160)
+        vs, us = np.nonzero(v.mask)
+        z = v.depth[vs, us]
+        assert np.all(z > 0)
+        rays = np.c_[us, vs, np.ones(len(us))] @ np.linalg.inv(v.camera.K).T
+        pts_cam = rays * z[:, None]
+        T = lv.camera_from_object
+        pts_obj = (pts_cam - T[:3, 3]) @ T[:3, :3]  # camera -> object frame
+        half = get_object("box").model.half_extents
+        assert np.all(np.abs(pts_obj) <= half + 0.004)
+    # the same call is served from the cache, depth included
+    again = render_views("box", samples, "top", 160, 120, 0.3, 0, tmp_path, False, depth=True)
+    np.testing.assert_array_equal(again[0].view.depth, views[0].view.depth)

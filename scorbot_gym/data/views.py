@@ -180,11 +180,14 @@ def render_views(
     seed: int = 0,
     cache_dir: str | os.PathLike | None = None,
     progress: bool = True,
+    depth: bool = False,
 ) -> list[LabelledView]:
     """Render (or read from the cache) one labelled view per pose sample.
 
     ``occlusion`` is one fraction for all views or one per view; occluders are drawn from
-    ``seed``. ``cache_dir=None`` uses ``$SCORBOT_GYM_CACHE`` or ``~/.cache/scorbot-gym``.
+    ``seed``. ``depth=True`` also renders each view's depth (``View.depth``, metres along the
+    optical axis; occluder pixels are set to 0, unknown). ``cache_dir=None`` uses
+    ``$SCORBOT_GYM_CACHE`` or ``~/.cache/scorbot-gym``.
     """
     from scorbot_gym.objects import get_object
 
@@ -205,6 +208,7 @@ def render_views(
         "seed": seed,
         "scene": _scene_fingerprint(),
         "texture": _file_stamp(spec.texture_path),
+        "depth": bool(depth),
     }
     path = Path(cache_dir or default_cache_dir()) / "views" / f"{_cache_key(payload)}.npz"
     if path.is_file():
@@ -212,18 +216,18 @@ def render_views(
             return _load(path, spec.name, samples)
         except (OSError, ValueError, KeyError):
             path.unlink(missing_ok=True)  # a corrupt cache entry is re-rendered
-    arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress)
+    arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress, depth)
     atomic_savez(path, **arrays)
     return _load(path, spec.name, samples)
 
 
-def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
+def _render(name, samples, camera, width, height, occ, seed, progress, depth=False) -> dict:
     from scorbot_gym.sim import Simulation
     from scorbot_gym.sim.simulation import quat_to_mat
 
     sim = Simulation(object_name=name, render_width=width, render_height=height)
     rngs = np.random.default_rng(seed).spawn(len(samples))
-    images, masks, world_T, achieved = [], [], [], []
+    images, masks, depths, world_T, achieved = [], [], [], [], []
     try:
         for s, f, rng in tqdm(
             list(zip(samples, occ, rngs, strict=True)),
@@ -236,7 +240,11 @@ def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
             sim.forward()
             img = sim.render(camera)
             mask = sim.render(camera, kind="segmentation")
-            img, mask, a = occlude(img, mask, float(f), rng)
+            occluded, visible, a = occlude(img, mask, float(f), rng)
+            if depth:
+                z = sim.render(camera, kind="depth")
+                depths.append(np.where((occluded != img).any(axis=2), 0.0, z).astype(np.float32))
+            img, mask = occluded, visible
             images.append(img)
             masks.append(mask)
             achieved.append(a)
@@ -244,13 +252,16 @@ def _render(name, samples, camera, width, height, occ, seed, progress) -> dict:
         cam = sim.camera_model(camera)
     finally:
         sim.close()
-    return {
+    out = {
         "images": np.array(images),
         "masks": np.array(masks),
         "world_from_object": np.array(world_T),
         "occlusion": np.array(achieved),
         "camera": np.array(json.dumps(cam.to_dict())),
     }
+    if depth:
+        out["depths"] = np.array(depths)
+    return out
 
 
 def _load(path: Path, name: str, samples: list[PoseSample]) -> list[LabelledView]:
@@ -262,12 +273,13 @@ def _load(path: Path, name: str, samples: list[PoseSample]) -> list[LabelledView
             z["world_from_object"],
             z["occlusion"],
         )
+        depths = z["depths"] if "depths" in z.files else None
     if len(images) != len(samples):
         raise ValueError(f"cache entry {path} holds {len(images)} views, expected {len(samples)}")
     cam_from_world = cam.camera_from_world
     return [
         LabelledView(
-            view=View(images[i], cam, masks[i], name),
+            view=View(images[i], cam, masks[i], name, None if depths is None else depths[i]),
             camera_from_object=cam_from_world @ world_T[i],
             world_from_object=world_T[i],
             occlusion=float(occ[i]),

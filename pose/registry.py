@@ -1,0 +1,37 @@
+"""Pose estimators by name: ``make_estimator("manifold", n_bunches=6)``.
+
+Every registered estimator follows the same contract — ``fit(views, poses)`` with
+``camera_from_object`` poses ``(N, 4, 4)``, ``predict(view) -> PoseEstimate`` — so an ablation
+is a swap of names (the CLI, the sweep runner and the pose sources all resolve them here).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from pose.estimator import PoseManifoldEstimator
+
+_ESTIMATORS: dict[str, Callable[..., Any]] = {"manifold": PoseManifoldEstimator}
+
+
+def estimator_names() -> tuple[str, ...]:
+    return tuple(sorted(_ESTIMATORS))
+
+
+def register_estimator(name: str, factory: Callable[..., Any], *, overwrite: bool = False) -> None:
+    """Make ``make_estimator(name, **params)`` call ``factory(**params)``."""
+    if not name or not isinstance(name, str):
+        raise ValueError(f"an estimator needs a non-empty name, got {name!r}")
+    if name in _ESTIMATORS and not overwrite:
+        raise ValueError(f"estimator {name!r} is already registered (pass overwrite=True)")
+    if not callable(factory):
+        raise TypeError(f"factory for estimator {name!r} must be callable, got {factory!r}")
+    _ESTIMATORS[name] = factory
+
+
+def make_estimator(name: str, **params: Any) -> Any:
+    """A new, unfitted estimator of the registered kind ``name``."""
+    if name not in _ESTIMATORS:
+        raise ValueError(f"unknown estimator {name!r}; registered: {', '.join(estimator_names())}")
+    return _ESTIMATORS[name](**params)
