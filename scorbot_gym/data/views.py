@@ -32,12 +32,36 @@ MAX_OCCLUSION = 0.95
 
 @dataclass(frozen=True)
 class PoseSample:
-    """Where the object rests: table position, heading (radians) and resting face index."""
+    """Where the object is: table position, heading (radians), resting face index, and an
+    optional tilt out of that resting pose (``tilt`` radians about the horizontal axis at world
+    heading ``tilt_dir``; the object is then lifted so that its lowest point touches the table,
+    as if propped or held)."""
 
     x: float
     y: float
     yaw: float
     resting_index: int = 0
+    tilt: float = 0.0
+    tilt_dir: float = 0.0
+
+
+def sample_pose(spec, sample: PoseSample, table_height: float) -> tuple[np.ndarray, np.ndarray]:
+    """World position and quaternion (w, x, y, z) of ``spec`` placed as ``sample`` says."""
+    from scorbot_gym.sim.simulation import quat_from_yaw, quat_mul, quat_to_mat
+
+    rests = spec.resting_quats
+    if not 0 <= sample.resting_index < len(rests):
+        raise ValueError(
+            f"resting_index must be in [0, {len(rests)}) for {spec.name}, "
+            f"got {sample.resting_index}"
+        )
+    quat = quat_mul(quat_from_yaw(sample.yaw), np.asarray(rests[sample.resting_index], float))
+    if sample.tilt:
+        axis = np.array([np.cos(sample.tilt_dir), np.sin(sample.tilt_dir), 0.0])
+        q_tilt = np.r_[np.cos(sample.tilt / 2), np.sin(sample.tilt / 2) * axis]
+        quat = quat_mul(q_tilt, quat)
+    lowest = (spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
+    return np.array([sample.x, sample.y, table_height - lowest + 5e-4]), quat
 
 
 @dataclass(frozen=True)
@@ -203,7 +227,7 @@ def render_views(
         "scale": spec.scale,
         "camera": camera,
         "size": [width, height],
-        "samples": [[s.x, s.y, s.yaw, s.resting_index] for s in samples],
+        "samples": [[s.x, s.y, s.yaw, s.resting_index, s.tilt, s.tilt_dir] for s in samples],
         "occlusion": occ.tolist(),
         "seed": seed,
         "scene": _scene_fingerprint(),
@@ -235,7 +259,7 @@ def _render(name, samples, camera, width, height, occ, seed, progress, depth=Fal
             disable=not progress,
             leave=False,
         ):
-            pos, quat = sim.resting_pose((s.x, s.y), s.yaw, s.resting_index)
+            pos, quat = sample_pose(sim.object_spec, s, sim.table_height)
             sim.set_object_pose(pos, quat)
             sim.forward()
             img = sim.render(camera)
