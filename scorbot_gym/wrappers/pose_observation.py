@@ -19,6 +19,7 @@ enter the observation.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -72,16 +73,18 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         keep_images: bool = False,
         **source_kwargs: Any,
     ) -> None:
+        # The spec records how to rebuild the wrapper; a source given as an object (a loaded
+        # model set, say) is recorded by its name only, as deep-copying it would copy the model.
         gym.utils.RecordConstructorArgs.__init__(
             self,
-            source=source,
+            source=source if isinstance(source, str) else getattr(source, "name", None),
             estimate_every=estimate_every,
             rotation=rotation,
             include_class=include_class,
             classes=classes,
             identity=identity,
             keep_images=keep_images,
-            **source_kwargs,
+            **{k: v for k, v in source_kwargs.items() if _is_plain(v)},
         )
         gym.Wrapper.__init__(self, env)
         if isinstance(estimate_every, bool) or not isinstance(estimate_every, (int, np.integer)):
@@ -253,6 +256,13 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 onehot[self.class_names.index(held.object_name)] = 1.0
             out["object_class"] = onehot
         return out
+
+
+def _is_plain(value: Any) -> bool:
+    """Whether a constructor argument is plain data (safe and cheap to deep-copy)."""
+    if isinstance(value, (str, int, float, bool, type(None), os.PathLike)):
+        return True
+    return isinstance(value, (list, tuple)) and all(_is_plain(v) for v in value)
 
 
 # Stages a pose source reports at top level; their sum is the estimator's time for one step.
