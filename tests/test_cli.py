@@ -40,29 +40,43 @@ def test_rollout_prints_summary_and_writes_json_and_gif(tmp_path, capsys):
     assert gif.stat().st_size > 1000 and gif.read_bytes()[:3] == b"GIF"
 
 
-def test_rollout_rejects_bad_input(tmp_path, capsys):
-    assert main(["rollout", "--episodes", "0"]) == 2
-    assert "--episodes must be >= 1" in capsys.readouterr().err
-    assert main(["rollout", "--episodes", "1", "--object", "teapot", "--no-progress"]) == 2
-    assert "valid objects" in capsys.readouterr().err
-    assert (
-        main(
-            [
-                "rollout",
-                "--episodes",
-                "1",
-                "--object",
-                "box",
-                "--no-progress",
-                "--video",
-                str(tmp_path / "x.avi"),
-            ]
-        )
-        == 2
-    )
+def test_rollout_rejects_bad_input_before_running(tmp_path, capsys):
+    def rejected(*argv: str) -> str:
+        with pytest.raises(SystemExit) as exc:
+            main(["rollout", *argv])
+        assert exc.value.code == 2
+        return capsys.readouterr().err
+
+    assert "--episodes: must be an integer >= 1" in rejected("--episodes", "0")
+    assert "unknown 'teapot'; valid: tomato_soup_can" in rejected("--objects", "teapot")
+    assert "invalid choice: 'nonsense'" in rejected("--camera", "nonsense")
+    assert "invalid choice: 'telepathy'" in rejected("--policy", "telepathy")
+    assert "must be a probability" in rejected("--pose", "noisy", "--dropout", "2")
+    # Checks that need more than one argument run before any episode, not after the rollout.
+    assert main(["rollout", "--video", str(tmp_path / "x.avi"), "--no-progress"]) == 2
     assert "--video must end in" in capsys.readouterr().err
+    assert main(["rollout", "--overlay", "--no-progress"]) == 2
+    assert "--overlay draws on the video" in capsys.readouterr().err
+    assert main(["rollout", "--pose", "manifold", "--pose-model", str(tmp_path / "no.npz")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert main(["rollout", "--yaw-sigma-deg", "5", "--no-progress"]) == 2
+    assert "only apply to pose 'noisy_oracle'" in capsys.readouterr().err
+
+
+def test_rollout_help_lists_objects_and_cameras(capsys):
     with pytest.raises(SystemExit):
-        main(["rollout", "--policy", "telepathy"])
+        main(["rollout", "--help"])
+    text = capsys.readouterr().out
+    assert "banana" in text and "eye_in_hand" in text and "--disturb" in text
+
+
+def test_object_lists_accept_spaces_and_commas(tmp_path):
+    from scorbot_gym.cli import build_parser
+
+    parser = build_parser()
+    a = parser.parse_args(["rollout", "--objects", "banana", "box"])
+    b = parser.parse_args(["rollout", "--objects", "banana,box"])
+    assert a.objects == b.objects == ["banana", "box"]
 
 
 def test_doctor_reports_backend_and_fps(capsys):

@@ -66,6 +66,14 @@ def test_scripted_grasp_from_estimated_pose(tmp_path, capsys):
     assert "median rotation error" in capsys.readouterr().out
 
 
-def test_manifold_pose_needs_a_model(capsys):
-    assert main(["rollout", "--pose", "manifold", "--episodes", "1", "--no-progress"]) == 2
-    assert "--pose-model" in capsys.readouterr().err
+@pytest.mark.slow
+def test_disturbed_episode_only_the_servoing_controller_grasps():
+    """A seeded push during the approach: re-estimating every step follows the object, the
+    estimate-once controller grasps where the object was."""
+    from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+
+    base = dict(pose="oracle", disturbance="push", objects=("box",), episodes=1, seed=3)
+    servo, _ = run_rollout(RolloutConfig(estimate_every=1, **base))
+    once, results = run_rollout(RolloutConfig(estimate_every=0, **base))
+    assert servo["success_rate"] == 1.0
+    assert once["success_rate"] == 0.0 and results[0].failure_cause in ("missed", "dropped")

@@ -1,135 +1,150 @@
-"""``scorbot-gym rollout``: run seeded episodes of a policy and print a summary."""
+"""``scorbot-gym rollout``: run seeded closed-loop episodes of a policy and print a summary."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from pose.fileio import atomic_write_bytes, atomic_write_json
-from scorbot_gym.envs.factory import make_env
-from scorbot_gym.evaluation import format_summary, run_episode, run_episodes, summarize
+from pose.fileio import atomic_write_json
+from scorbot_gym.cli._args import (
+    add_name_list,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    probability,
+)
+from scorbot_gym.evaluation import format_summary
+from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES, RolloutConfig, run_rollout
+from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episode
+from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception import pose_source_names
-from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
+from scorbot_gym.sim.scene import DEFAULT_CAMERAS
+from scorbot_gym.tasks.disturbance import DISTURBANCES
 
-POLICIES = ("scripted", "random")
-VIDEO_SUFFIXES = (".mp4", ".gif")
+CAMERAS = (*(c.name for c in DEFAULT_CAMERAS), "eye_in_hand")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("rollout", help="run seeded grasping episodes and summarize them")
-    p.add_argument("--policy", choices=POLICIES, default="scripted")
+    p = sub.add_parser(
+        "rollout",
+        help="run seeded grasping episodes and summarize them",
+        description="Run seeded closed-loop grasping episodes: the policy acts on observations "
+        "that carry the object pose from the chosen pose source, re-estimated every "
+        "--estimate-every steps. Prints success, failure causes and perception figures.",
+    )
+    p.add_argument("--policy", choices=POLICIES, default="scripted", help="who acts")
     p.add_argument(
         "--pose",
-        choices=pose_source_names(),
+        choices=sorted({*pose_source_names(), *POSE_ALIASES}),
         default="oracle",
-        help="where the policy's object pose comes from",
+        help="where the object pose in the observation comes from: oracle (ground truth), "
+        "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
+        "estimator on camera images)",
     )
     p.add_argument(
         "--pose-model",
         type=Path,
         default=None,
-        help="model file from `scorbot-gym pose train` (with --pose manifold)",
+        help="model file from `scorbot-gym pose train` for --pose manifold (default: the "
+        "default models for the pose camera, trained on first use and cached)",
+    )
+    p.add_argument(
+        "--pose-camera",
+        dest="pose_cameras",
+        action="append",
+        choices=CAMERAS,
+        default=None,
+        help="camera the estimator looks through (default: top)",
+    )
+    p.add_argument(
+        "--recognize",
+        action="store_true",
+        help="recognise the object from its silhouette instead of being told its identity",
     )
     p.add_argument(
         "--estimate-every",
-        type=int,
+        type=non_negative_int,
         default=1,
-        help="estimate the pose every K steps (0: once per episode, at reset)",
+        help="re-estimate the pose every K steps (0: once per episode, at reset)",
     )
-    p.add_argument("--episodes", type=int, default=20)
     p.add_argument(
-        "--object",
-        dest="object_name",
-        default=None,
-        help="catalogue object (default: a random one per episode)",
+        "--disturb",
+        choices=("none", *DISTURBANCES),
+        default="none",
+        help="move the object during the approach: push (one seeded push and turn) or slide",
     )
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--pos-sigma-m", type=non_negative_float, default=None, help="noisy: xy noise, m"
+    )
+    p.add_argument(
+        "--yaw-sigma-deg", type=non_negative_float, default=None, help="noisy: heading noise, deg"
+    )
+    p.add_argument("--dropout", type=probability, default=None, help="noisy: P(estimate lost)")
+    p.add_argument("--episodes", type=positive_int, default=20)
+    add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.add_argument("--action-type", choices=("joint", "cartesian"), default="joint")
-    p.add_argument("--camera", default="overview", help="camera for --video")
-    p.add_argument("--video", type=Path, default=None, help="MP4 or GIF of the first episode")
+    p.add_argument("--camera", choices=CAMERAS, default="overview", help="camera for --video")
+    p.add_argument(
+        "--video", type=Path, default=None, help="MP4 or GIF of the first episode (after the run)"
+    )
+    p.add_argument(
+        "--overlay", action="store_true", help="draw the estimated pose's axes on the video"
+    )
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
 
-def _pose_kwargs(args: argparse.Namespace) -> dict:
-    if args.pose != "manifold":
-        return {}
-    if args.pose_model is None:
-        raise ValueError("--pose manifold needs --pose-model PATH (from `scorbot-gym pose train`)")
-    return {"models": args.pose_model}
-
-
-def _env_id(action_type: str) -> str:
-    return "ScorbotGraspCartesian-v0" if action_type == "cartesian" else "ScorbotGrasp-v0"
-
-
-def _policy(args: argparse.Namespace, env):
-    if args.policy == "random":
-        return RandomPolicy(env.action_space, args.seed)
-    return ScriptedGraspPolicy.for_env(env)
-
-
-def _record_first_episode(args: argparse.Namespace, pose_kwargs: dict) -> None:
-    import imageio.v3 as iio
-
-    env = make_env(
-        _env_id(args.action_type),
+def config_from_args(args: argparse.Namespace) -> RolloutConfig:
+    """Every check happens here, before any episode runs."""
+    if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
+        raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
+    if args.overlay and not args.video:
+        raise ValueError("--overlay draws on the video: pass --video PATH too")
+    if args.pose_model is not None and not args.pose_model.is_file():
+        raise FileNotFoundError(f"--pose-model {args.pose_model}: no such file")
+    noise = {
+        k: v
+        for k, v in (
+            ("pos_sigma_m", args.pos_sigma_m),
+            ("yaw_sigma_deg", args.yaw_sigma_deg),
+            ("dropout", args.dropout),
+        )
+        if v is not None
+    }
+    return RolloutConfig(
+        policy=args.policy,
         pose=args.pose,
-        pose_kwargs=pose_kwargs,
+        pose_model=str(args.pose_model) if args.pose_model else None,
+        pose_cameras=tuple(args.pose_cameras or ("top",)),
+        recognize=args.recognize,
         estimate_every=args.estimate_every,
-        object_name=args.object_name,
-        render_mode="rgb_array",
-        render_camera=args.camera,
-        render_width=480,
-        render_height=360,
+        disturbance=None if args.disturb == "none" else args.disturb,
+        noise=noise,
+        action_type=args.action_type,
+        objects=tuple(args.objects) if args.objects else None,
+        episodes=args.episodes,
+        seed=args.seed,
     )
-    frames: list[np.ndarray] = []
-    run_episode(
-        env, _policy(args, env), args.seed, on_step=lambda o, i: frames.append(env.render())
-    )
-    env.close()
-    fps = env.metadata["render_fps"]
-    if args.video.suffix.lower() == ".gif":
-        data = iio.imwrite("<bytes>", frames[::2], extension=".gif", duration=2000 / fps, loop=0)
-    else:
-        data = iio.imwrite("<bytes>", frames, extension=".mp4", fps=fps, macro_block_size=8)
-    atomic_write_bytes(args.video, data)
-    print(f"video of episode seed={args.seed}: {args.video} ({len(frames)} frames)")
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.episodes < 1:
-        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.estimate_every < 0:
-        raise ValueError(f"--estimate-every must be >= 0, got {args.estimate_every}")
-    if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
-        raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
-    pose_kwargs = _pose_kwargs(args)
-    env = make_env(
-        _env_id(args.action_type),
-        pose=args.pose,
-        pose_kwargs=pose_kwargs,
-        estimate_every=args.estimate_every,
-        object_name=args.object_name,
-    )
-    policy = _policy(args, env)
-    results = run_episodes(env, policy, args.episodes, args.seed, progress=not args.no_progress)
-    env.close()
-    summary = summarize(results)
-    summary.update(
-        policy=args.policy,
-        pose_source=args.pose,
-        estimate_every=args.estimate_every,
-        action_type=args.action_type,
-        seed=args.seed,
-    )
+    config = config_from_args(args)
+    summary, _ = run_rollout(config, progress=not args.no_progress)
     print(format_summary(summary))
     if args.json:
         atomic_write_json(args.json, summary)
         print(f"summary written to {args.json}")
     if args.video:
-        _record_first_episode(args, pose_kwargs)
+        env = config.make_env(
+            render_mode="rgb_array", render_camera=args.camera, render_width=480, render_height=360
+        )
+        try:
+            _, n = record_episode(
+                env, config.make_policy(env), config.seed, args.video, args.overlay
+            )
+        finally:
+            env.close()
+        print(f"video of episode seed={config.seed}: {args.video} ({n} frames)")
     return 0

@@ -17,6 +17,7 @@ from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.simulation import Simulation
 from scorbot_gym.tasks import GraspTask
+from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 
 ACTION_TYPES = ("joint", "cartesian")
 # "privileged_segmentation" is the simulator's own object mask: for oracle and ablation
@@ -45,6 +46,11 @@ class ScorbotGraspEnv(gym.Env):
     ``collision``, ``timeout`` (nothing went wrong, there was just no success yet) or
     ``unstable`` (the physics blew up; the episode is then truncated).
 
+    ``disturbance`` moves the object while the arm approaches (``"push"``: one seeded push and
+    turn before the grasp; ``"slide"``: a slow steady slide until the robot touches it; or a
+    :class:`~scorbot_gym.tasks.disturbance.Disturbance` object); ``info["disturbance"]`` says
+    what happened. Off by default.
+
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
     object's true pose is always in ``info["object_pose"]``.
@@ -72,6 +78,7 @@ class ScorbotGraspEnv(gym.Env):
         max_joint_step: float = 0.1,
         max_cartesian_step: float = 0.02,
         max_angle_step: float = 0.1,
+        disturbance: str | Disturbance | None = None,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -99,6 +106,10 @@ class ScorbotGraspEnv(gym.Env):
         self.shadows = shadows
         self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
         self.max_angle_step = max_angle_step
+        self.disturbance = disturbance
+        self._disturbance = make_disturbance(disturbance)
+        self._disturbance_info: dict[str, Any] | None = None
+        self._elapsed = 0
 
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
@@ -161,6 +172,10 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         self.sim.forward()
+        self._elapsed = 0
+        if self._disturbance is not None:  # drawn after placement: placements stay the same
+            self._disturbance.reset(self.np_random)
+            self._disturbance_info = None
         return self._observation(), self._info(None, None)
 
     def step(self, action):
@@ -180,6 +195,12 @@ class ScorbotGraspEnv(gym.Env):
 
         unstable = self._simulate()
         facts = self.task.update(self.dt) if not unstable else {"fell": False, "grasped": False}
+        self._elapsed += 1
+        if self._disturbance is not None and not unstable:
+            touched = any(self.robot.contacts_with(self.sim.object_geoms)) or facts["lift"] > 0.005
+            self._disturbance_info = self._disturbance.apply(
+                self.sim, self._elapsed, self.dt, touched
+            )
         success = self.task.state.success and not unstable
         reward = 0.0 if unstable else self.task.reward(facts)
         terminated = success or bool(facts["fell"])
@@ -226,10 +247,13 @@ class ScorbotGraspEnv(gym.Env):
                 obs[f"{cam}_privileged_segmentation"] = seg[..., None].astype(np.uint8)
         return obs
 
-    def camera_model(self, camera: str) -> CameraModel:
+    def camera_model(
+        self, camera: str, width: int | None = None, height: int | None = None
+    ) -> CameraModel:
         """Intrinsics and extrinsics (OpenCV convention) of ``camera`` at the observation's image
-        size: the public calibration that wrappers and policies may use."""
-        return self.sim.camera_model(camera, self.image_width, self.image_height)
+        size (or ``width`` x ``height``, e.g. the ``render()`` size): the public calibration that
+        wrappers, policies and video overlays may use."""
+        return self.sim.camera_model(camera, width or self.image_width, height or self.image_height)
 
     def camera_params(self, camera: str) -> dict[str, Any]:
         """:meth:`camera_model` as plain arrays (``K``, ``world_from_camera``, ``width``,
@@ -255,6 +279,8 @@ class ScorbotGraspEnv(gym.Env):
             "failure_cause": cause,
             "held_time": st.held_time,
         }
+        if self._disturbance_info is not None:
+            info["disturbance"] = self._disturbance_info
         if self.cameras:  # calibration travels with the images (as ManiSkill's sensor_param)
             info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
         return info

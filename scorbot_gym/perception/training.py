@@ -7,9 +7,14 @@ table positions, rendered (or read from the cache) from the named camera.
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import time
+import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
@@ -97,3 +102,63 @@ def train_models(
     info = {n: r[1] for n, r in zip(names, results, strict=True)}
     info["total_s"] = time.perf_counter() - t0
     return models, info
+
+
+def _pose_fingerprint() -> str:
+    """Hash of the estimator's source (the ``pose`` package) and this module: editing either
+    invalidates cached models instead of serving stale ones."""
+    import pose
+
+    root = Path(pose.__file__).resolve().parent
+    h = hashlib.sha256()
+    for f in [Path(__file__).resolve(), *sorted(root.rglob("*.py"))]:
+        h.update(f.name.encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def default_pose_models(
+    camera: str = "top",
+    width: int = 320,
+    height: int = 240,
+    objects: Sequence[str] | None = None,
+    seed: int = 0,
+    cache_dir: str | os.PathLike | None = None,
+    jobs: int | None = None,
+    progress: bool = True,
+) -> PoseModelSet:
+    """The default pose models for ``camera``: trained on first use, then read from the cache.
+
+    The cache entry is keyed by the training configuration, the rendered scene and the
+    estimator's source, so a change to any of them retrains instead of serving a stale model; an
+    unreadable entry is discarded (with a warning) and retrained. ``jobs=None`` trains one
+    object per core.
+    """
+    from scorbot_gym.data.views import _scene_fingerprint, default_cache_dir
+
+    names = _objects(objects)
+    payload = {
+        "camera": camera,
+        "width": width,
+        "height": height,
+        "objects": names,
+        "seed": seed,
+        "scene": _scene_fingerprint(),
+        "pose": _pose_fingerprint(),
+    }
+    key = hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:24]
+    path = (
+        Path(cache_dir or default_cache_dir()) / "models" / f"{camera}-{width}x{height}-{key}.npz"
+    )
+    if path.is_file():
+        try:
+            return PoseModelSet.load(path)
+        except Exception as exc:  # noqa: BLE001 - any unreadable entry is rebuilt, not fatal
+            warnings.warn(f"discarding unreadable cached pose model {path}: {exc}", stacklevel=2)
+            path.unlink(missing_ok=True)
+    jobs = jobs or min(len(names), os.cpu_count() or 1)
+    if progress:
+        print(f"training the default pose models for camera {camera!r} (cached in {path.parent})")
+    models, _ = train_models(names, None, camera, width, height, seed, cache_dir, jobs, progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    models.save(path, meta={**models.meta, "cache_key": key})
+    return models

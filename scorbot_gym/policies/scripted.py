@@ -6,6 +6,9 @@ tracked with the arm's own kinematics model. The object's pose is read from the 
 wrapped with) and the grasp is **re-planned from every new estimate** (``pose_age == 0``) until
 the fingers close, so the arm follows an object that moves; if the object has moved far during
 the descent, the arm goes back up and approaches again. Between estimates the last plan holds.
+New estimates pass through a gated running average (:class:`GraspPoseFilter`) so that the plan
+follows real moves but not the estimator's noise; ``pose_filter=None`` re-plans from every raw
+estimate (the ablation).
 
 The object's identity (which grasp point and direction to use) comes from the observation's
 ``object_class`` one-hot (recognised by the pose wrapper) or is given as ``object_name``.
@@ -19,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.objects import ObjectSpec, get_object
+from scorbot_gym.policies.pose_filter import GraspPoseFilter
 from scorbot_gym.robot.kinematics import ArmKinematics, tool_pitch, wrap_half_turn
 from scorbot_gym.sim.scene import TABLE_HEIGHT
 
@@ -69,6 +73,7 @@ class ScriptedGraspPolicy:
         replan_tolerance: float = 0.015,
         table_height: float = TABLE_HEIGHT,
         kinematics: ArmKinematics | None = None,
+        pose_filter: GraspPoseFilter | str | None = "gated",
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -84,6 +89,12 @@ class ScriptedGraspPolicy:
         self.close_time, self.replan_tolerance = close_time, replan_tolerance
         self.table_height = table_height
         self.kinematics = kinematics or ArmKinematics()
+        if isinstance(pose_filter, str) and pose_filter != "gated":
+            raise ValueError(
+                f"pose_filter must be 'gated', None or a GraspPoseFilter, got {pose_filter!r}"
+            )
+        self.pose_filter = pose_filter
+        self._filter = GraspPoseFilter() if pose_filter == "gated" else pose_filter
         self.phase = "wait"
         self.grasp: np.ndarray | None = None
         self.closing_yaw = 0.0
@@ -118,6 +129,8 @@ class ScriptedGraspPolicy:
         self._phase_time = 0.0
         self._waypoint: np.ndarray | None = None  # starts where the TCP is at the first act()
         self._spec: ObjectSpec | None = None
+        if self._filter is not None:
+            self._filter.reset()
         self._maybe_replan(obs)
 
     def _object(self, obs: dict[str, np.ndarray]) -> ObjectSpec:
@@ -149,6 +162,14 @@ class ScriptedGraspPolicy:
         z = max(pos[2], top - 0.05, self.table_height + 0.012)
         return np.array([gx, gy, z]), yaw + model.grasp_yaw
 
+    def _filtered_plan(self, obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float, bool]:
+        """The grasp from this estimate after the filter; True if the belief restarted."""
+        grasp, closing = self._plan(obs)
+        if self._filter is None:
+            return grasp, closing, True
+        restarted = self._filter.update(grasp, closing)
+        return self._filter.point.copy(), self._filter.yaw, restarted
+
     def _maybe_replan(self, obs: dict[str, np.ndarray]) -> None:
         """Plan at the first valid pose; re-plan at every fresh estimate until the fingers
         close (after that the estimate sees the gripper more than the object)."""
@@ -156,17 +177,18 @@ class ScriptedGraspPolicy:
             if not self._fresh(obs):
                 return
             self._spec = self._object(obs)
-            self.grasp, self.closing_yaw = self._plan(obs)
+            self.grasp, self.closing_yaw, _ = self._filtered_plan(obs)
             self.phase, self._phase_time = "approach", 0.0
             return
         if self.phase not in ("approach", "descend") or not self._fresh(obs):
             return
-        grasp, closing = self._plan(obs)
+        grasp, closing, restarted = self._filtered_plan(obs)
         moved = np.linalg.norm(grasp[:2] - self.grasp[:2])
         turned = abs(wrap_half_turn(closing - self.closing_yaw))
         if moved > 1e-6 or turned > 1e-6:
             self.replans += 1
-        if self.phase == "descend" and (moved > self.replan_tolerance or turned > 0.2):
+        far = moved > self.replan_tolerance or turned > 0.2
+        if self.phase == "descend" and restarted and far:
             self.phase, self._phase_time = "approach", 0.0  # back up, then approach again
         self.grasp, self.closing_yaw = grasp, closing
 

@@ -1,0 +1,129 @@
+"""A closed-loop rollout as one configuration: which pose source, cameras, identity, disturbance
+and policy. The ``rollout`` command and the closed-loop benchmark both build their runs here, so
+what the README's main job measures is what the benchmark measures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
+from scorbot_gym.evaluation.summary import summarize
+from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
+
+POLICIES = ("scripted", "random")
+POSE_ALIASES = {"noisy": "noisy_oracle"}
+
+
+@dataclass
+class RolloutConfig:
+    """Everything that defines a closed-loop run (JSON-able, recorded with its summary).
+
+    ``pose_model`` is a model file for ``pose="manifold"``; without it the default models for
+    ``pose_cameras[0]`` are trained on first use and cached. ``noise`` holds the
+    ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``, ``dropout``).
+    """
+
+    policy: str = "scripted"
+    pose: str = "oracle"
+    pose_model: str | None = None
+    pose_cameras: tuple[str, ...] = ("top",)
+    pose_size: tuple[int, int] = (320, 240)
+    segmenter: str | None = None
+    recognize: bool = False
+    estimate_every: int = 1
+    disturbance: str | None = None
+    noise: dict[str, float] = field(default_factory=dict)
+    action_type: str = "joint"
+    objects: tuple[str, ...] | None = None
+    episodes: int = 20
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        self.pose = POSE_ALIASES.get(self.pose, self.pose)
+        if self.policy not in POLICIES:
+            raise ValueError(f"policy must be one of {POLICIES}, got {self.policy!r}")
+        if self.episodes < 1:
+            raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.estimate_every < 0:
+            raise ValueError(
+                f"estimate_every must be >= 0 (0: once per episode), got {self.estimate_every}"
+            )
+        if self.noise and self.pose != "noisy_oracle":
+            raise ValueError(
+                f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
+            )
+        if not self.pose_cameras:
+            raise ValueError("pose_cameras must name at least one camera")
+
+    @property
+    def env_id(self) -> str:
+        return "ScorbotGraspCartesian-v0" if self.action_type == "cartesian" else "ScorbotGrasp-v0"
+
+    def pose_kwargs(self, progress: bool = False) -> dict[str, Any]:
+        if self.pose == "noisy_oracle":
+            return dict(self.noise)
+        if self.pose != "manifold":
+            return {}
+        if len(self.pose_cameras) > 1:
+            raise ValueError(
+                "the manifold pose source estimates from one camera; pass one pose camera"
+            )
+        if self.pose_model is not None:
+            models: Any = self.pose_model
+        else:
+            from scorbot_gym.perception.training import default_pose_models
+
+            w, h = self.pose_size
+            models = default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+        kwargs: dict[str, Any] = {"models": models}
+        if self.segmenter is not None:
+            kwargs["segmenter"] = self.segmenter
+        return kwargs
+
+    def make_env(self, progress: bool = False, **env_kwargs: Any):
+        """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""
+        if self.objects:
+            env_kwargs.setdefault("objects", list(self.objects))
+        return make_env(
+            self.env_id,
+            pose=self.pose,
+            pose_kwargs=self.pose_kwargs(progress),
+            estimate_every=self.estimate_every,
+            identity="recognize" if self.recognize else "given",
+            disturbance=self.disturbance,
+            **env_kwargs,
+        )
+
+    def make_policy(self, env):
+        if self.policy == "random":
+            return RandomPolicy(env.action_space, self.seed)
+        return ScriptedGraspPolicy.for_env(env)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def run_rollout(
+    config: RolloutConfig, progress: bool = False
+) -> tuple[dict[str, Any], list[EpisodeResult]]:
+    """Run the configured episodes; returns the summary (with the configuration) and results."""
+    env = config.make_env(progress=progress)
+    try:
+        policy = config.make_policy(env)
+        results = run_episodes(env, policy, config.episodes, config.seed, progress=progress)
+    finally:
+        env.close()
+    summary = summarize(results)
+    summary.update(
+        policy=config.policy,
+        pose_source=config.pose,
+        estimate_every=config.estimate_every,
+        disturbance=config.disturbance,
+        action_type=config.action_type,
+        seed=config.seed,
+        config=config.to_dict(),
+    )
+    return summary, results

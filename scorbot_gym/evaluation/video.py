@@ -1,0 +1,101 @@
+"""Episode videos, optionally with the estimated pose drawn on every frame.
+
+The overlay shows what the policy believes: the object frame's axes (x red, y green, z blue) at
+the pose in the observation, projected with the video camera's public calibration; a grey
+frame when the held estimate is stale (``pose_age > 0``) and none before the first valid one.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import cv2
+import numpy as np
+
+from pose.camera import CameraModel
+from pose.fileio import atomic_write_bytes
+from scorbot_gym.evaluation.episodes import EpisodeResult, run_episode
+from scorbot_gym.sim.simulation import quat_to_mat
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+_AXIS_COLOURS = ((230, 40, 40), (40, 200, 40), (40, 90, 240))
+
+
+def draw_pose(
+    frame: np.ndarray,
+    camera: CameraModel,
+    position: np.ndarray,
+    rotation: np.ndarray,
+    length: float = 0.05,
+    stale: bool = False,
+) -> np.ndarray:
+    """``frame`` with the axes of the pose (world frame) drawn on a copy."""
+    out = np.ascontiguousarray(frame.copy())
+    pts = np.vstack([position, position + length * np.asarray(rotation).T])
+    cam_pts = (camera.camera_from_world @ np.c_[pts, np.ones(4)].T).T[:, :3]
+    if np.any(cam_pts[:, 2] <= 1e-3):
+        return out  # behind the camera
+    uv = camera.project(pts)
+    o = tuple(int(round(v)) for v in uv[0])
+    for k in range(3):
+        colour = (150, 150, 150) if stale else _AXIS_COLOURS[k]
+        p = tuple(int(round(v)) for v in uv[k + 1])
+        cv2.line(out, o, p, colour, 2, cv2.LINE_AA)
+    return out
+
+
+def pose_from_observation(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Position and rotation matrix the observation carries, or None before the first estimate."""
+    if "object_pos" not in obs or ("pose_valid" in obs and obs["pose_age"][0] >= 1000):
+        return None
+    if "object_quat" in obs:
+        R = quat_to_mat(np.asarray(obs["object_quat"], float))
+    elif "object_yaw" in obs:
+        s, c = np.asarray(obs["object_yaw"], float)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    else:
+        return None
+    return np.asarray(obs["object_pos"], float), R
+
+
+def record_episode(
+    env: Any,
+    policy: Any,
+    seed: int,
+    path: str | os.PathLike,
+    overlay: bool = False,
+    options: dict | None = None,
+) -> tuple[EpisodeResult, int]:
+    """Run one episode of ``env`` (made with ``render_mode="rgb_array"``) and write its frames
+    to ``path`` (MP4 or GIF, atomically); returns the result and the number of frames."""
+    import imageio.v3 as iio
+
+    suffix = os.fspath(path).lower()[-4:]
+    if suffix not in VIDEO_SUFFIXES:
+        raise ValueError(f"video path must end in {' or '.join(VIDEO_SUFFIXES)}, got {path}")
+    base = env.unwrapped
+    frames: list[np.ndarray] = []
+    camera: CameraModel | None = None
+
+    def on_step(obs: dict, info: dict) -> None:
+        nonlocal camera
+        frame = env.render()
+        if overlay:
+            h, w = frame.shape[:2]
+            if camera is None:  # fixed camera: its calibration is read once
+                camera = base.camera_model(base.render_camera, w, h)
+            pose = pose_from_observation(obs)
+            if pose is not None:
+                stale = "pose_age" in obs and obs["pose_age"][0] > 0
+                frame = draw_pose(frame, camera, *pose, stale=stale)
+        frames.append(frame)
+
+    result = run_episode(env, policy, seed, options=options, on_step=on_step)
+    fps = env.metadata["render_fps"]
+    if suffix == ".gif":
+        data = iio.imwrite("<bytes>", frames[::2], extension=".gif", duration=2000 / fps, loop=0)
+    else:
+        data = iio.imwrite("<bytes>", frames, extension=".mp4", fps=fps, macro_block_size=8)
+    atomic_write_bytes(path, data)
+    return result, len(frames)
