@@ -1,11 +1,20 @@
-"""Grasp success with the estimated pose against the ground-truth pose, over the catalogue.
+"""Closed-loop grasping with the pose estimator in the loop: the targets of the
+perception-in-the-loop issue, measured in one run.
 
-Trains pose-manifold models (or loads ``--model``), then runs the scripted controller for
-``--per-object`` seeded episodes of every catalogue object, once grasping at the true pose and
-once at the pose the estimator reads from the top camera, and writes
-``benchmarks/results/closed_loop.json``.
+Arms (every arm runs the same seeded episodes over the whole catalogue):
 
-    python benchmarks/closed_loop.py [--per-object 5] [--model pose_models.npz]
+- ``oracle``: ground-truth pose, re-read every step (the ceiling);
+- ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
+  masks and identity the ``--segmenter`` / ``--recognize`` options give (the default is the
+  no-privileged-input setting: background subtraction and silhouette recognition);
+- ``push``: a seeded push + turn of the object during the approach, for the servoing controller
+  (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
+- a robustness curve: success vs ``noisy_oracle`` heading noise (0-30 deg) and position noise
+  (0-3 cm), re-estimated every step.
+
+Writes ``benchmarks/results/closed_loop.json`` and ``closed_loop.png``.
+
+    python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--quick]
 """
 
 from __future__ import annotations
@@ -19,57 +28,149 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+YAW_SIGMAS = (0.0, 5.0, 10.0, 20.0, 30.0)
+POS_SIGMAS_CM = (0.0, 0.5, 1.0, 2.0, 3.0)
+
+
+def _arm(label: str, config, progress: bool) -> dict:
+    from scorbot_gym.evaluation.rollout import run_rollout
+
+    t0 = time.perf_counter()
+    summary, results = run_rollout(config, progress=progress)
+    summary.pop("results", None)
+    summary["label"] = label
+    summary["wall_s"] = time.perf_counter() - t0
+    lo, hi = summary["success_rate_ci95"]
+    p = summary.get("perception") or {}
+    print(
+        f"{label:>28}: success {summary['success_rate']:6.1%} (95% CI {lo:.1%}-{hi:.1%}) "
+        f"n={summary['episodes']}  valid {p.get('valid_rate', 0):.1%}  "
+        f"recog {p.get('recognition_accuracy')}  failures {summary['failure_causes']}",
+        flush=True,
+    )
+    return summary
+
+
+def _plot(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+    arms = report["arms"]
+    labels = list(arms)
+    rates = [arms[k]["success_rate"] for k in labels]
+    err = [
+        [r - arms[k]["success_rate_ci95"][0] for k, r in zip(labels, rates, strict=True)],
+        [arms[k]["success_rate_ci95"][1] - r for k, r in zip(labels, rates, strict=True)],
+    ]
+    axes[0].barh(labels, rates, xerr=err, color="tab:blue", alpha=0.8)
+    axes[0].set_xlim(0, 1.02)
+    axes[0].set_xlabel("grasp success (95% CI)")
+    axes[0].set_title("closed loop, scripted PBVS")
+    for ax, key, unit in ((axes[1], "yaw", "deg"), (axes[2], "pos", "cm")):
+        curve = report["robustness"][key]
+        xs = [c["sigma"] for c in curve]
+        ys = [c["success_rate"] for c in curve]
+        lo = [c["success_rate_ci95"][0] for c in curve]
+        hi = [c["success_rate_ci95"][1] for c in curve]
+        ax.plot(xs, ys, "o-", color="tab:red")
+        ax.fill_between(xs, lo, hi, color="tab:red", alpha=0.2)
+        ax.set_ylim(0, 1.02)
+        ax.set_xlabel(f"noisy_oracle {key} sigma ({unit})")
+        ax.set_ylabel("grasp success")
+        ax.set_title(f"robustness to {key} noise (re-estimated every step)")
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--per-object", type=int, default=5)
-    parser.add_argument("--model", type=Path, default=None, help="skip training, load this file")
-    parser.add_argument("--seed", type=int, default=100)
+    parser.add_argument("--episodes", type=int, default=220, help="episodes per main arm")
+    parser.add_argument("--curve-episodes", type=int, default=44, help="per robustness point")
+    parser.add_argument("--segmenter", default="background", help="mask source for manifold")
+    parser.add_argument("--no-recognize", action="store_true", help="give the identity instead")
+    parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--quick", action="store_true", help="a few episodes, to check it runs")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
+    parser.add_argument("--progress", action="store_true")
     args = parser.parse_args(argv)
+    if args.quick:
+        args.episodes, args.curve_episodes = 6, 3
+
+    import cv2
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
-    from pose.model_set import PoseModelSet
-    from scorbot_gym.envs.factory import make_env
-    from scorbot_gym.evaluation import run_episode, summarize
-    from scorbot_gym.objects import CATALOGUE
-    from scorbot_gym.perception.training import train_models
-    from scorbot_gym.policies import ScriptedGraspPolicy
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+    from scorbot_gym.perception.training import default_pose_models
 
+    cv2.setNumThreads(1)  # the estimator's figures are for one core
     t0 = time.perf_counter()
-    if args.model is None:
-        models, _ = train_models(width=640, height=480, jobs=2, progress=False)
-    else:
-        models = PoseModelSet.load(args.model)
+    default_pose_models("top", 320, 240, progress=args.progress)
     train_s = time.perf_counter() - t0
-    sources = {"oracle": {}, "manifold": {"models": models}}
-    report: dict = {"benchmark": "closed_loop", "per_object": args.per_object, "results": {}}
-    for label, pose_kwargs in sources.items():
-        env = make_env(pose=label, pose_kwargs=pose_kwargs, estimate_every=0)
-        policy = ScriptedGraspPolicy.for_env(env)
-        results = [
-            run_episode(env, policy, args.seed + i, options={"object_name": name})
-            for name in CATALOGUE
-            for i in range(args.per_object)
-        ]
-        env.close()
-        summary = summarize(results)
-        report["results"][label] = summary
-        lo, hi = summary["success_rate_ci95"]
-        print(
-            f"{label:>9}: success {summary['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
-            f"over {summary['episodes']} episodes; perception {summary['perception']}"
+
+    n, seed = args.episodes, args.seed
+    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    arms = {
+        "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
+        "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
+        "oracle, push, servoing": RolloutConfig(
+            pose="oracle", disturbance="push", episodes=n, seed=seed
+        ),
+        "oracle, push, estimate once": RolloutConfig(
+            pose="oracle", disturbance="push", estimate_every=0, episodes=n, seed=seed
+        ),
+        "manifold, push, servoing": RolloutConfig(
+            **manifold, disturbance="push", episodes=n, seed=seed
+        ),
+        "manifold, push, estimate once": RolloutConfig(
+            **manifold, disturbance="push", estimate_every=0, episodes=n, seed=seed
+        ),
+    }
+    report: dict = {
+        "benchmark": "closed_loop",
+        "episodes_per_arm": n,
+        "seed": seed,
+        "pose_model_ready_s": train_s,
+        "arms": {},
+        "robustness": {"yaw": [], "pos": []},
+    }
+    for label, config in arms.items():
+        report["arms"][label] = _arm(label, config, args.progress)
+    m = args.curve_episodes
+    for yaw in YAW_SIGMAS:
+        cfg = RolloutConfig(
+            pose="noisy", noise={"yaw_sigma_deg": yaw, "pos_sigma_m": 0.0}, episodes=m, seed=seed
         )
-    report["train_s"] = None if args.model else train_s
+        s = _arm(f"noisy yaw sigma {yaw:g} deg", cfg, args.progress)
+        report["robustness"]["yaw"].append({"sigma": yaw, **_curve_point(s)})
+    for pos_cm in POS_SIGMAS_CM:
+        cfg = RolloutConfig(
+            pose="noisy",
+            noise={"yaw_sigma_deg": 0.0, "pos_sigma_m": pos_cm / 100},
+            episodes=m,
+            seed=seed,
+        )
+        s = _arm(f"noisy pos sigma {pos_cm:g} cm", cfg, args.progress)
+        report["robustness"]["pos"].append({"sigma": pos_cm, **_curve_point(s)})
     report["machine"] = {
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
+        "load_avg": os.getloadavg(),
         "scorbot_gym": scorbot_gym.__version__,
     }
     atomic_write_json(args.out, report)
-    print(f"written {args.out}")
+    _plot(report, args.out.with_suffix(".png"))
+    print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
+
+
+def _curve_point(summary: dict) -> dict:
+    keys = ("episodes", "success_rate", "success_rate_ci95", "failure_causes")
+    return {k: summary[k] for k in keys}
 
 
 if __name__ == "__main__":
