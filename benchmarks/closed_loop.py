@@ -140,6 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     }
     for label, config in arms.items():
         report["arms"][label] = _arm(label, config, args.progress)
+    timing = _loop_timing(arms["manifold"], max(2, n // 20))
+    report["loop_timing_320x240_one_thread"] = timing
+    print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
     m = args.curve_episodes
     for yaw in YAW_SIGMAS:
         cfg = RolloutConfig(
@@ -166,6 +169,56 @@ def main(argv: list[str] | None = None) -> int:
     _plot(report, args.out.with_suffix(".png"))
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
+
+
+def _loop_timing(config, episodes: int) -> dict:
+    """Per-stage cost of perception inside the loop at the estimator's resolution, one thread:
+    rendering the camera (timed on the simulator, which the env does once per step) and the
+    wrapper's own stages, over every estimate and over the valid ones (full pipeline)."""
+    import numpy as np
+
+    from scorbot_gym.evaluation.episodes import run_episode
+
+    env = config.make_env()
+    policy = config.make_policy(env)
+    stages: dict[str, list[float]] = {}
+    valid: dict[str, list[float]] = {}
+    render_ms: list[float] = []
+    sim = env.unwrapped.sim  # timing only: the benchmark may look inside, policies may not
+    camera = config.pose_cameras[0]
+    w, h = config.pose_size
+
+    def on_step(obs: dict, info: dict) -> None:
+        t0 = time.perf_counter()
+        sim.render(camera, "rgb", w, h)
+        render_ms.append((time.perf_counter() - t0) * 1e3)
+        p = info["perception"]
+        if not p["estimated"]:
+            return
+        parts = {
+            k: v for k, v in p["timings_ms"].items() if k in ("segment", "recognise", "estimate")
+        }
+        parts["total"] = p["total_ms"]
+        for k, v in parts.items():
+            stages.setdefault(k, []).append(v)
+            if p["valid"]:
+                valid.setdefault(k, []).append(v)
+
+    for i in range(episodes):
+        run_episode(env, policy, config.seed + i, on_step=on_step)
+    env.close()
+    med = lambda xs: float(np.median(xs)) if xs else None  # noqa: E731
+    render = med(render_ms)
+    out = {
+        "render_ms": render,
+        "all_estimates_ms": {k: med(v) for k, v in stages.items()},
+        "valid_estimates_ms": {k: med(v) for k, v in valid.items()},
+        "n_estimates": len(stages.get("total", [])),
+        "n_valid": len(valid.get("total", [])),
+    }
+    full = out["valid_estimates_ms"].get("total")
+    out["render_plus_valid_estimate_ms"] = None if full is None else render + full
+    return out
 
 
 def _curve_point(summary: dict) -> dict:

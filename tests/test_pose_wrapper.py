@@ -151,3 +151,42 @@ def test_async_vector_env_with_the_wrapper():
     obs, *_ = envs.step(np.zeros((2, 6), np.float32))
     assert np.all(obs["pose_age"] == 1)
     envs.close()
+
+
+def test_sync_vector_env_and_sb3_subproc_vec_env_with_the_wrapper():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    envs = gym.make_vec(
+        "ScorbotGrasp-v0",
+        num_envs=2,
+        vectorization_mode="sync",
+        wrappers=[lambda e: PoseEstimateObservation(e, "oracle")],
+    )
+    obs, _ = envs.reset(seed=[0, 1])
+    assert obs["pose_valid"].tolist() == [[1.0], [1.0]]
+    envs.close()
+
+    def factory(seed):
+        return lambda: make_env(pose="noisy_oracle", object_name="box")
+
+    vec = SubprocVecEnv([factory(0), factory(1)], start_method="spawn")
+    vec.seed(3)
+    obs = vec.reset()
+    assert obs["object_pos"].shape == (2, 3)
+    obs, _, _, infos = vec.step(np.zeros((2, 6), np.float32))
+    assert all("perception" in i for i in infos) and obs["pose_age"].shape == (2, 1)
+    vec.close()
+
+
+def test_record_video_with_the_wrapper(tmp_path):
+    env = make_env(
+        pose="oracle", object_name="box", render_mode="rgb_array", render_width=96, render_height=72
+    )
+    env = gym.wrappers.RecordVideo(
+        env, str(tmp_path), episode_trigger=lambda i: True, disable_logger=True
+    )
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(np.zeros(6, np.float32))
+    env.close()
+    assert list(tmp_path.glob("*.mp4"))
