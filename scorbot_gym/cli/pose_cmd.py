@@ -33,7 +33,9 @@ def _occlusion_list(text: str) -> list[float]:
 
 def run_train(args: argparse.Namespace) -> int:
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
-    params = {"n_bunches": args.n_bunches, "refine": not args.no_refine}
+    params = {"bunches__n_bunches": args.n_bunches}
+    if args.no_refine:
+        params["refiner"] = None
     models, info = train_models(
         objects, args.views, args.camera, args.width, args.height, args.seed,
         args.cache_dir, args.jobs, not args.quiet, params,
@@ -51,7 +53,7 @@ def run_eval(args: argparse.Namespace) -> int:
     models = PoseModelSet.load(args.model)
     if args.no_refine:
         for est in models.estimators.values():
-            est.set_params(refine=False)
+            est.set_params(refiner=None)
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
     results = evaluate(
         models, args.occlusion, args.views, args.seed, objects or None, args.cache_dir,

@@ -51,7 +51,8 @@ def train_object(
     progress: bool = True,
     params: dict | None = None,
 ) -> tuple[dict, dict]:
-    """Fit one object's estimator; returns its arrays (picklable across processes) and info."""
+    """Fit one object's estimator; returns its arrays (picklable across processes) and info.
+    ``params`` go to ``set_params``, stage parameters included (``bunches__n_bunches``)."""
     from scorbot_gym.data.views import grid_poses, render_views, workspace_bounds
     from scorbot_gym.objects import get_object
 
@@ -61,7 +62,7 @@ def train_object(
     t0 = time.perf_counter()
     views = render_views(name, samples, camera, width, height, 0.0, seed, cache_dir, progress)
     t1 = time.perf_counter()
-    est = PoseManifoldEstimator(**(params or {}), random_state=seed)
+    est = PoseManifoldEstimator(random_state=seed).set_params(**(params or {}))
     est.fit([v.view for v in views], np.array([v.camera_from_object for v in views]))
     t2 = time.perf_counter()
     info = {"views": len(views), "render_s": t1 - t0, "fit_s": t2 - t1}
