@@ -339,6 +339,8 @@ class PoseManifoldEstimator(BaseEstimator):
         lap("manifold")
         R_ray = self._ray(K, centre)
         y = self.regressor_.predict(self.featurizer_.transform(row[None], [pts.descriptors]))[0]
+        if not (np.isfinite(y).all() and np.isfinite(angle)):
+            return invalid("the stages gave a non-finite pose (corrupt model?)", len(f))
         R_coarse = R_ray @ rot_z(angle) @ from_6d(y)
         t_in = self._translation_input(K, centre, size)[None]
         t_reg = self.translation_regressor_.predict(t_in)[0]

@@ -93,6 +93,17 @@ class ManifoldFeaturizer(BaseEstimator):
     def uses_bunches(self) -> bool:
         return "bunches" in self.blocks
 
+    def n_columns(self, n_bunches: int) -> int:
+        """Width of the feature vector for views cut into ``n_bunches`` bunches."""
+        widths = {
+            "bunches": n_bunches
+            if self.anchor == "reference"
+            else n_bunches * (n_bunches - 1) // 2,
+            "shape": N_SHAPE,
+            "words": self.n_words,
+        }
+        return sum(widths[b] for b in self.blocks)
+
     def row(
         self,
         bunches: Bunches | None,

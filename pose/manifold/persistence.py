@@ -172,6 +172,7 @@ def estimator_from_arrays(cls, arrays: dict, prefix: str = "", version: int | No
     except (KeyError, TypeError, AttributeError, json.JSONDecodeError) as exc:
         raise ValueError(f"model file is missing or has bad entries ({exc}); {RETRAIN}") from exc
     _check_arrays(a)
+    _check_widths(est, a)
     est.featurizer_ = _restored(est.featurizer, a)
     est.regressor_, est.translation_regressor_ = rot, trans
     est.db_xy_ = a["db_xy_"].astype(np.float32)
@@ -194,6 +195,19 @@ def _restored(featurizer: ManifoldFeaturizer, a: dict) -> ManifoldFeaturizer:
         return clone(featurizer).restore(a["words_"], a["x_mean_"], a["x_scale_"])
     except ValueError as exc:
         raise ValueError(f"inconsistent model file: {exc}; {RETRAIN}") from exc
+
+
+def _check_widths(est, a: dict) -> None:
+    """The parameters and the arrays agree on the feature layout."""
+    f = est.featurizer
+    want, got = f.n_columns(est.bunches.n_bunches), len(a["x_mean_"])
+    n_words = len(a["words_"])
+    if want != got or ("words" in f.blocks and n_words != f.n_words):
+        raise ValueError(
+            f"inconsistent model file: its parameters (blocks {tuple(f.blocks)}, "
+            f"{est.bunches.n_bunches} bunches, {f.n_words} words) need {want} feature columns, "
+            f"its arrays hold {got} with {n_words} words; {RETRAIN}"
+        )
 
 
 def _check_arrays(a: dict[str, np.ndarray]) -> None:
