@@ -10,6 +10,7 @@ the same numbers).
 from __future__ import annotations
 
 import argparse
+import os
 
 from pose.fileio import atomic_write_json
 from pose.model_set import PoseModelSet
@@ -17,6 +18,16 @@ from scorbot_gym.evaluation.pose import evaluate, format_tables
 from scorbot_gym.perception.training import train_models
 
 DEFAULT_MODEL = "pose_models.npz"
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--jobs takes a positive integer, got {text!r}")
+    return n
 
 
 def _occlusion_list(text: str) -> list[float]:
@@ -86,7 +97,12 @@ def add_parser(subparsers) -> None:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--n-bunches", type=int, default=8)
     t.add_argument("--no-refine", action="store_true", help="pure manifold regressor output")
-    t.add_argument("--jobs", type=int, default=1, help="objects trained in parallel")
+    t.add_argument(
+        "--jobs",
+        type=_positive_int,
+        default=os.cpu_count() or 1,
+        help=f"objects trained in parallel processes (default: the CPU count, {os.cpu_count()})",
+    )
     t.set_defaults(func=run_train)
 
     e = sub.add_parser("eval", parents=[common], help="score a model on held-out poses")

@@ -85,8 +85,8 @@ def train_models(
     names = _objects(objects)
     args = [(n, n_views, camera, width, height, seed, cache_dir, False, params) for n in names]
     t0 = time.perf_counter()
-    if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+    if min(jobs, len(names)) > 1:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(names))) as pool:
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:
