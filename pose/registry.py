@@ -1,4 +1,4 @@
-"""Pose estimators by name: ``make_estimator("manifold", n_bunches=6)``.
+"""Pose estimators by name: ``make_estimator("manifold", bunches__n_bunches=6)``.
 
 Every registered estimator follows the same contract — ``fit(views, poses)`` with
 ``camera_from_object`` poses ``(N, 4, 4)``, ``predict(view) -> PoseEstimate`` — so an ablation

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pose.bunches import Bunches
+from pose.manifold.bunches import Bunches
 
 
 def anchor_index(b: Bunches, reference_angle: float) -> int:
