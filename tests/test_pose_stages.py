@@ -182,3 +182,13 @@ def test_deepcopy_rebuilds_the_index(fitted, cards):
         "appearance_weight": 1.0,
         "geometry_weight": 2.0,
     }
+
+
+def test_fitted_featurizer_is_kept_when_params_change_after_fit(fitted, cards):
+    """A stateless stage swapped after fit applies at once (``pose eval --no-refine``); the
+    feature layout stays the fitted one until the next fit."""
+    est = copy.deepcopy(fitted).set_params(
+        featurizer=ManifoldFeaturizer(blocks=("shape",)), refiner=None
+    )
+    v = cards[2][0]
+    np.testing.assert_array_equal(est.predict(v).rotation, fitted.predict(v).rotation_coarse)

@@ -152,9 +152,8 @@ class PoseManifoldEstimator(BaseEstimator):
                 f"augment_occlusion fractions must be in (0, 1), got {self.augment_occlusion}"
             )
 
-    @property
-    def _min_keypoints(self) -> int:
-        n = self.bunches.n_bunches if self.featurizer.uses_bunches else 0
+    def _min_keypoints(self, featurizer: ManifoldFeaturizer) -> int:
+        n = self.bunches.n_bunches if featurizer.uses_bunches else 0
         return max(n, self.matcher.min_inliers)
 
     def _ray(self, K: np.ndarray, centre: np.ndarray) -> np.ndarray:
@@ -165,13 +164,14 @@ class PoseManifoldEstimator(BaseEstimator):
         n = np.linalg.solve(K, np.r_[centre, 1.0])
         return np.r_[n[:2], size / K[0, 0]]
 
-    def _row(self, image, pts: Features, centre, size, mask, focal, angle) -> np.ndarray:
-        """The learning-free feature blocks of one view (bunches only when a block uses them)."""
+    def _row(self, featurizer, image, pts: Features, centre, size, mask, focal, angle):
+        """The learning-free feature blocks of one view (bunches only when a block uses them);
+        ``featurizer`` is the parameter in ``fit`` and its fitted copy in ``predict``."""
         region = mask if mask is not None else hull_mask(pts.xy, image.shape[:2])
         b = None
-        if self.featurizer.uses_bunches:
+        if featurizer.uses_bunches:
             b = self.bunches.build(pts.xy, pts.descriptors, centre, size, self.random_state)
-        return self.featurizer.row(b, angle, mask, region, size, focal)
+        return featurizer.row(b, angle, mask, region, size, focal)
 
     def _angle(self, image, pts: Features, mask, centre, R_rel) -> float:
         region = mask if mask is not None else hull_mask(pts.xy, image.shape[:2])
@@ -193,13 +193,15 @@ class PoseManifoldEstimator(BaseEstimator):
         R_allo, centres, sizes, z_eff, z_origin = [], [], [], [], []
         for view, pose in zip(views, P, strict=True):
             f = self.keypoints.extract(view.image, view.mask, training=True)
-            if len(f) < self._min_keypoints:
+            if len(f) < self._min_keypoints(self.featurizer):
                 continue
             centre, size = centre_and_size(view.mask, f.xy)
             K = view.camera.K
             R_a = self._ray(K, centre).T @ pose[:3, :3]
             angle = self._angle(view.image, f, view.mask, centre, R_a)
-            rows.append(self._row(view.image, f, centre, size, view.mask, K[0, 0], angle))
+            rows.append(
+                self._row(self.featurizer, view.image, f, centre, size, view.mask, K[0, 0], angle)
+            )
             Y.append(to_6d(rot_z(-angle) @ R_a))
             D.append(f.descriptors)
             for frac in self.augment_occlusion if view.mask is not None else ():
@@ -207,7 +209,9 @@ class PoseManifoldEstimator(BaseEstimator):
                 if len(g) < self.bunches.n_bunches:
                     continue
                 ao = self._angle(view.image, g, visible, centre, R_a)
-                rows.append(self._row(view.image, g, centre, size, visible, K[0, 0], ao))
+                rows.append(
+                    self._row(self.featurizer, view.image, g, centre, size, visible, K[0, 0], ao)
+                )
                 Y.append(to_6d(rot_z(-ao) @ R_a))
                 D.append(g.descriptors)
             Xt.append(self._translation_input(K, centre, size))
@@ -225,7 +229,7 @@ class PoseManifoldEstimator(BaseEstimator):
         if len(rows) < 2:
             raise ValueError(
                 f"only {len(rows)} of {len(views)} training views have at least "
-                f"{self._min_keypoints} SIFT keypoints in the mask; "
+                f"{self._min_keypoints(self.featurizer)} SIFT keypoints in the mask; "
                 "check that the object is visible and textured"
             )
         self.featurizer_ = clone(self.featurizer).fit(
@@ -311,7 +315,7 @@ class PoseManifoldEstimator(BaseEstimator):
 
         f = self.keypoints.extract(view.image, view.mask)
         lap("sift")
-        if len(f) < self._min_keypoints:
+        if len(f) < self._min_keypoints(self.featurizer_):
             return invalid(f"only {len(f)} keypoints", len(f))
         neighbours = self._index.nearest(f.descriptors)
         matches = self.matcher.match(
@@ -335,7 +339,7 @@ class PoseManifoldEstimator(BaseEstimator):
             view.image, region, centre, f.angles[kept][nn >= 0], self.db_phi_[nn[nn >= 0]]
         )
         K = view.camera.K
-        row = self._row(view.image, pts, centre, size, view.mask, K[0, 0], angle)
+        row = self._row(self.featurizer_, view.image, pts, centre, size, view.mask, K[0, 0], angle)
         lap("manifold")
         R_ray = self._ray(K, centre)
         y = self.regressor_.predict(self.featurizer_.transform(row[None], [pts.descriptors]))[0]
