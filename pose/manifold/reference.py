@@ -33,10 +33,19 @@ class KeypointHeading(BaseEstimator):
         if not 0 < self.window_deg <= 180:
             raise ValueError(f"window_deg must be in (0, 180], got {self.window_deg}")
 
-    def training_angle(self, image, region, centre, R_rel: np.ndarray) -> float:
+    def training_angle(
+        self, image: np.ndarray, region: np.ndarray, centre: np.ndarray, R_rel: np.ndarray
+    ) -> float:
         return inplane_heading(R_rel)
 
-    def query_angle(self, image, region, centre, angles, canonical) -> float:
+    def query_angle(
+        self,
+        image: np.ndarray,
+        region: np.ndarray,
+        centre: np.ndarray,
+        angles: np.ndarray,
+        canonical: np.ndarray,
+    ) -> float:
         return keypoint_heading(angles, canonical, self.window_deg)[0]
 
 
@@ -47,8 +56,17 @@ class SilhouetteDirection(BaseEstimator):
     def validate(self) -> None:
         return None
 
-    def training_angle(self, image, region, centre, R_rel: np.ndarray) -> float:
+    def training_angle(
+        self, image: np.ndarray, region: np.ndarray, centre: np.ndarray, R_rel: np.ndarray
+    ) -> float:
         return reference_angle(image, region, centre)
 
-    def query_angle(self, image, region, centre, angles, canonical) -> float:
+    def query_angle(
+        self,
+        image: np.ndarray,
+        region: np.ndarray,
+        centre: np.ndarray,
+        angles: np.ndarray,
+        canonical: np.ndarray,
+    ) -> float:
         return reference_angle(image, region, centre)
