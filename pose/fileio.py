@@ -3,6 +3,11 @@
 Every file the project saves (models, cached datasets, benchmark results, figures) goes through
 :func:`atomic_write`: the content is written to a temporary file in the target folder, flushed,
 given the permissions a plain ``open`` would give, and renamed over the target in one step.
+
+Caches built on these files heal themselves: an entry that cannot be read (truncated,
+bit-flipped, from an older layout) is discarded with a warning and rebuilt
+(:func:`discard_cache_entry`, :data:`UNREADABLE`), and the temporary files of writes that were
+killed midway are removed on a later run (:func:`remove_orphaned_tmp`).
 """
 
 from __future__ import annotations
@@ -10,6 +15,10 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import time
+import warnings
+import zipfile
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import IO, Any
@@ -48,3 +57,36 @@ def atomic_write_json(path: str | os.PathLike, obj: Any) -> Path:
 def atomic_savez(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
     """``np.savez_compressed`` to ``path``, atomically (the name is kept as given)."""
     return atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+
+
+# What reading a damaged .npz can raise: numpy's and zipfile's format errors, zlib's for a
+# corrupt deflate stream, EOFError for a truncated member, KeyError/TypeError for missing or
+# mistyped entries, ValueError (incl. JSON) for bad contents, OSError for the file itself.
+UNREADABLE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile, zlib.error)
+ORPHAN_AGE_S = 600.0
+
+
+def discard_cache_entry(path: str | os.PathLike, error: BaseException) -> None:
+    """Delete an unreadable cache entry, saying so, so that the caller rebuilds it."""
+    warnings.warn(
+        f"discarding unreadable cache entry {path} ({type(error).__name__}: {error}); "
+        "it will be rebuilt",
+        RuntimeWarning,
+        stacklevel=3,
+    )
+    Path(path).unlink(missing_ok=True)
+
+
+def remove_orphaned_tmp(folder: str | os.PathLike, min_age_s: float = ORPHAN_AGE_S) -> int:
+    """Remove the temporary files that :func:`atomic_write` left in ``folder`` when it was
+    killed; returns how many. Only files untouched for ``min_age_s`` go: a younger one may be
+    another process's write in progress (the cache is shared)."""
+    now, removed = time.time(), 0
+    for tmp in Path(folder).glob(".*.tmp"):
+        try:
+            if now - tmp.stat().st_mtime >= min_age_s:
+                tmp.unlink()
+                removed += 1
+        except FileNotFoundError:  # its writer finished or another cleaner got there first
+            continue
+    return removed

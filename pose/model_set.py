@@ -59,13 +59,17 @@ class PoseModelSet:
     @classmethod
     def load(cls, path: str | os.PathLike) -> PoseModelSet:
         header, arrays = load_arrays(path)
+        version = header["format_version"]
         if header.get("kind") == "estimator":
-            return cls({"object": PoseManifoldEstimator.from_arrays(arrays)})
+            return cls({"object": PoseManifoldEstimator.from_arrays(arrays, "", version)})
         names = header.get("objects")
         if header.get("kind") != "model_set" or not isinstance(names, list):
             raise ValueError(f"{path}: not a pose model set (header {json.dumps(header)})")
-        estimators = {
-            n: PoseManifoldEstimator.from_arrays(arrays, prefix=f"o{i}/")
-            for i, n in enumerate(names)
-        }
+        try:
+            estimators = {
+                n: PoseManifoldEstimator.from_arrays(arrays, f"o{i}/", version)
+                for i, n in enumerate(names)
+            }
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from exc
         return cls(estimators, header.get("meta") or {})

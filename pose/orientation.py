@@ -5,8 +5,9 @@ orientations against the canonical orientations learnt in training: anchored in 
 is unambiguous for square silhouettes and survives occlusion (measured on the 640x480 top
 camera: 0.1-0.4 degree error on box, rubiks_cube, foam_brick, also at 50 % occlusion). The
 silhouette reference below (long axis or colour-saturation centroid) is kept as the
-``reference="silhouette"`` ablation; on near-square faces (rubiks_cube, foam_brick upright, the
-box's 60x45 face) it jumps by up to 90-180 degrees between neighbouring headings.
+``SilhouetteDirection`` stage (:mod:`pose.manifold.reference`, the
+``manifold-silhouette-reference`` variant); on near-square faces (rubiks_cube, foam_brick upright,
+the box's 60x45 face) it jumps by up to 90-180 degrees between neighbouring headings.
 
 As in ORB's intensity centroid (Rublee et al., 2011), the direction from the object centre to a
 weighted centroid of the pixels inside the mask turns with the object when it turns in the

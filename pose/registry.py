@@ -1,4 +1,4 @@
-"""Pose estimators by name: ``make_estimator("manifold", n_bunches=6)``.
+"""Pose estimators by name: ``make_estimator("manifold", bunches__n_bunches=6)``.
 
 Every registered estimator follows the same contract — ``fit(views, poses)`` with
 ``camera_from_object`` poses ``(N, 4, 4)``, ``predict(view) -> PoseEstimate`` — so an ablation
@@ -35,3 +35,17 @@ def make_estimator(name: str, **params: Any) -> Any:
     if name not in _ESTIMATORS:
         raise ValueError(f"unknown estimator {name!r}; registered: {', '.join(estimator_names())}")
     return _ESTIMATORS[name](**params)
+
+
+# The pose-manifold estimator and its stage-ablation variants (pose.manifold.variants): each a
+# swap of one stage; extra parameters, nested ones too (bunches__n_bunches=6), via set_params.
+def _register_manifold_variants() -> None:
+    from functools import partial
+
+    from pose.manifold.variants import VARIANTS, make_variant
+
+    for name in VARIANTS:
+        register_estimator(name, partial(make_variant, name), overwrite=name == "manifold")
+
+
+_register_manifold_variants()

@@ -35,3 +35,6 @@ def test_bad_arguments_are_reported(tmp_path, capsys):
     assert "valid objects" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["pose", "eval", "--model", "m.npz", "--occlusion", "0,abc"])
+    with pytest.raises(SystemExit):
+        main(["pose", "train", "--jobs", "0"])
+    assert "--jobs takes a positive integer, got '0'" in capsys.readouterr().err

@@ -3,9 +3,19 @@
 import numpy as np
 import pytest
 
-from pose.estimator import PoseManifoldEstimator
 from pose.keypoints import extract_sift
+from pose.manifold import KMeansBunches, ManifoldFeaturizer, SilhouetteDirection
 from pose.synthetic import card_texture
+
+CONTRAST = 0.03
+
+
+def _manifold_input(img, xy, desc, centre, size, mask):
+    """Bunch + silhouette blocks of one view, with the silhouette reference direction."""
+    angle = SilhouetteDirection().training_angle(img, mask, centre, None)
+    b = KMeansBunches(n_bunches=6).build(xy, desc, centre, size, seed=0)
+    x = ManifoldFeaturizer(blocks=("bunches", "shape")).row(b, angle, mask, mask, size, 1.0)
+    return x, angle
 
 
 def _scene(dx, dy):
@@ -20,13 +30,12 @@ def _scene(dx, dy):
 @pytest.mark.parametrize("shift", [(0, 0), (37, 21), (100, -10), (-30, 50)])
 def test_manifold_vector_does_not_change_when_the_object_shifts(shift):
     """Shifts keep the card (and the SIFT crop around it) inside the image."""
-    est = PoseManifoldEstimator(n_bunches=6, random_state=0)
 
     def coords(dx, dy):
         img, mask = _scene(dx, dy)
-        f = extract_sift(img, mask, 0, est.contrast_threshold)
+        f = extract_sift(img, mask, 0, CONTRAST)
         c = np.array([119.5 + dx, 99.5 + dy])  # the card's centre
-        return est._manifold_input(img, f.xy, f.descriptors, c, 120.0, mask)
+        return _manifold_input(img, f.xy, f.descriptors, c, 120.0, mask)
 
     (x0, a0), (x1, a1) = coords(0, 0), coords(*shift)
     assert x0.shape == (6 + 73 + 2,)
@@ -35,18 +44,17 @@ def test_manifold_vector_does_not_change_when_the_object_shifts(shift):
 
 
 def test_manifold_vector_changes_with_the_object():
-    est = PoseManifoldEstimator(n_bunches=6, random_state=0)
     img, mask = _scene(0, 0)
-    f = extract_sift(img, mask, 0, est.contrast_threshold)
-    x0, _ = est._manifold_input(img, f.xy, f.descriptors, np.array([119.5, 99.5]), 120.0, mask)
+    f = extract_sift(img, mask, 0, CONTRAST)
+    x0, _ = _manifold_input(img, f.xy, f.descriptors, np.array([119.5, 99.5]), 120.0, mask)
     other = img.copy()
     other[40:160, 60:180] = np.rot90(other[40:160, 60:180])  # turned by 90 degrees in plane
-    g = extract_sift(other, mask, 0, est.contrast_threshold)
-    x1, _ = est._manifold_input(other, g.xy, g.descriptors, np.array([119.5, 99.5]), 120.0, mask)
+    g = extract_sift(other, mask, 0, CONTRAST)
+    x1, _ = _manifold_input(other, g.xy, g.descriptors, np.array([119.5, 99.5]), 120.0, mask)
     # turned in plane: the aspect coordinates stay close, the silhouette (a square) is the same
     assert np.linalg.norm(x1[:6] - x0[:6]) < 0.5 * np.linalg.norm(x0[:6])
     tex2 = _scene(0, 0)[0]
     tex2[40:160, 60:180] = card_texture(seed=8, size=120)  # a different object entirely
-    h = extract_sift(tex2, mask, 0, est.contrast_threshold)
-    x2, _ = est._manifold_input(tex2, h.xy, h.descriptors, np.array([119.5, 99.5]), 120.0, mask)
+    h = extract_sift(tex2, mask, 0, CONTRAST)
+    x2, _ = _manifold_input(tex2, h.xy, h.descriptors, np.array([119.5, 99.5]), 120.0, mask)
     assert not np.allclose(x2[:6], x0[:6], atol=1e-3)

@@ -77,7 +77,9 @@ def test_rendered_views_are_labelled_and_cached(brick_views):
 
 def test_fit_predict_on_rendered_views(brick_views):
     _, train, test, _ = brick_views
-    est = PoseManifoldEstimator(n_bunches=6, n_centers=8, min_inliers=6)
+    est = PoseManifoldEstimator().set_params(
+        bunches__n_bunches=6, regressor__n_centers=8, matcher__min_inliers=6
+    )
     est.fit([v.view for v in train], [v.camera_from_object for v in train])
     sym = get_object("foam_brick").symmetry
     errs = []

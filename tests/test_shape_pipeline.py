@@ -120,7 +120,11 @@ def test_recognize_then_estimate_with_real_pose_estimators():
     estimators, masks, labels, tests = {}, [], [], []
     for name in objects:
         views, poses = _sim_views(name, train_yaws)
-        estimators[name] = PoseManifoldEstimator(n_bunches=6, n_centers=16).fit(views, poses)
+        estimators[name] = (
+            PoseManifoldEstimator()
+            .set_params(bunches__n_bunches=6, regressor__n_centers=16)
+            .fit(views, poses)
+        )
         masks += [v.mask for v in views]
         labels += [name] * len(views)
         tests += [(name, v, p) for v, p in zip(*_sim_views(name, test_yaws), strict=True)]

@@ -10,6 +10,7 @@ the same numbers).
 from __future__ import annotations
 
 import argparse
+import os
 
 from pose.fileio import atomic_write_json
 from pose.model_set import PoseModelSet
@@ -17,6 +18,16 @@ from scorbot_gym.evaluation.pose import evaluate, format_tables
 from scorbot_gym.perception.training import train_models
 
 DEFAULT_MODEL = "pose_models.npz"
+
+
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"--jobs takes a positive integer, got {text!r}")
+    return n
 
 
 def _occlusion_list(text: str) -> list[float]:
@@ -33,7 +44,9 @@ def _occlusion_list(text: str) -> list[float]:
 
 def run_train(args: argparse.Namespace) -> int:
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
-    params = {"n_bunches": args.n_bunches, "refine": not args.no_refine}
+    params = {"bunches__n_bunches": args.n_bunches}
+    if args.no_refine:
+        params["refiner"] = None
     models, info = train_models(
         objects, args.views, args.camera, args.width, args.height, args.seed,
         args.cache_dir, args.jobs, not args.quiet, params,
@@ -51,7 +64,7 @@ def run_eval(args: argparse.Namespace) -> int:
     models = PoseModelSet.load(args.model)
     if args.no_refine:
         for est in models.estimators.values():
-            est.set_params(refine=False)
+            est.set_params(refiner=None)
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
     results = evaluate(
         models, args.occlusion, args.views, args.seed, objects or None, args.cache_dir,
@@ -84,7 +97,12 @@ def add_parser(subparsers) -> None:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--n-bunches", type=int, default=8)
     t.add_argument("--no-refine", action="store_true", help="pure manifold regressor output")
-    t.add_argument("--jobs", type=int, default=1, help="objects trained in parallel")
+    t.add_argument(
+        "--jobs",
+        type=_positive_int,
+        default=os.cpu_count() or 1,
+        help=f"objects trained in parallel processes (default: the CPU count, {os.cpu_count()})",
+    )
     t.set_defaults(func=run_train)
 
     e = sub.add_parser("eval", parents=[common], help="score a model on held-out poses")

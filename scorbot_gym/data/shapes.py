@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pose.fileio import atomic_savez
+from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry
 from pose.shape.datasets import SilhouetteSet
 from scorbot_gym.data.views import default_cache_dir
 from scorbot_gym.objects import CATALOGUE, get_object
@@ -144,11 +144,14 @@ def render_catalogue_silhouettes(
     key = _cache_key(objects, n_per_object, width, height, seed, viewpoints)
     path = default_cache_dir() / f"silhouettes-{key}.npz"
     if use_cache and path.is_file():
-        with np.load(path) as z:
-            return SilhouetteSet(
-                list(z["masks"]), z["labels"], z["groups"], list(z["sources"]),
-                {"metric_size": z["metric_size"]},
-            )  # fmt: skip
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                return SilhouetteSet(
+                    list(z["masks"]), z["labels"], z["groups"], list(z["sources"]),
+                    {"metric_size": z["metric_size"]},
+                )  # fmt: skip
+        except UNREADABLE as exc:
+            discard_cache_entry(path, exc)
     rng = np.random.default_rng(seed)
     masks, labels, groups, sources, sizes = [], [], [], [], []
     for name in objects:

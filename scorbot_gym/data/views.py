@@ -7,7 +7,9 @@ synthetic and exact: an occluder (a textured half-plane, pasted over the image) 
 requested fraction of the object's mask, at a random, seeded angle.
 
 Renders are cached under a content key (object, camera, image size, poses, occlusion, seed and
-this module's format version), written atomically, so a second run costs a file read.
+this module's format version), written atomically, so a second run costs a file read. An entry
+that cannot be read is discarded with a warning and rendered again; temporary files left by a
+killed write are removed on a later run.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pose.camera import CameraModel
-from pose.fileio import atomic_savez
+from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
 from pose.view import View
 
 CACHE_VERSION = 1
@@ -234,12 +236,15 @@ def render_views(
         "texture": _file_stamp(spec.texture_path),
         "depth": bool(depth),
     }
-    path = Path(cache_dir or default_cache_dir()) / "views" / f"{_cache_key(payload)}.npz"
+    folder = Path(cache_dir or default_cache_dir()) / "views"
+    if folder.is_dir():
+        remove_orphaned_tmp(folder)
+    path = folder / f"{_cache_key(payload)}.npz"
     if path.is_file():
         try:
             return _load(path, spec.name, samples)
-        except (OSError, ValueError, KeyError):
-            path.unlink(missing_ok=True)  # a corrupt cache entry is re-rendered
+        except UNREADABLE as exc:
+            discard_cache_entry(path, exc)
     arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress, depth)
     atomic_savez(path, **arrays)
     return _load(path, spec.name, samples)

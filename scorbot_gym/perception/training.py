@@ -56,7 +56,8 @@ def train_object(
     progress: bool = True,
     params: dict | None = None,
 ) -> tuple[dict, dict]:
-    """Fit one object's estimator; returns its arrays (picklable across processes) and info."""
+    """Fit one object's estimator; returns its arrays (picklable across processes) and info.
+    ``params`` go to ``set_params``, stage parameters included (``bunches__n_bunches``)."""
     from scorbot_gym.data.views import grid_poses, render_views, workspace_bounds
     from scorbot_gym.objects import get_object
 
@@ -66,7 +67,7 @@ def train_object(
     t0 = time.perf_counter()
     views = render_views(name, samples, camera, width, height, 0.0, seed, cache_dir, progress)
     t1 = time.perf_counter()
-    est = PoseManifoldEstimator(**(params or {}), random_state=seed)
+    est = PoseManifoldEstimator(random_state=seed).set_params(**(params or {}))
     est.fit([v.view for v in views], np.array([v.camera_from_object for v in views]))
     t2 = time.perf_counter()
     info = {"views": len(views), "render_s": t1 - t0, "fit_s": t2 - t1}
@@ -89,8 +90,8 @@ def train_models(
     names = _objects(objects)
     args = [(n, n_views, camera, width, height, seed, cache_dir, False, params) for n in names]
     t0 = time.perf_counter()
-    if jobs > 1:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+    if min(jobs, len(names)) > 1:
+        with ProcessPoolExecutor(max_workers=min(jobs, len(names))) as pool:
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:

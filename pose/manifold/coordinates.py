@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pose.bunches import Bunches
+from pose.manifold.bunches import Bunches
 
 
 def anchor_index(b: Bunches, reference_angle: float) -> int:
@@ -40,3 +40,15 @@ def manifold_coordinates(b: Bunches, reference_angle: float) -> np.ndarray:
     d2 = ((b.vectors - b.vectors[a]) ** 2).sum(axis=1)
     direction = np.array([np.cos(reference_angle), np.sin(reference_angle)])
     return np.r_[np.sort(np.delete(d2, a)), float(b.offsets[a] @ direction)]
+
+
+def pairwise_coordinates(b: Bunches) -> np.ndarray:
+    """``(k (k - 1) / 2,)`` sorted squared distances between all pairs of bunch vectors.
+
+    The anchor-free alternative (the ``manifold-no-anchor`` ablation): sorting makes it
+    independent of the cluster numbering too, but it forgets which distances belong to the same
+    bunch, and it carries nothing about the reference direction.
+    """
+    k = len(b.vectors)
+    d2 = ((b.vectors[:, None] - b.vectors[None]) ** 2).sum(axis=2)
+    return np.sort(d2[np.triu_indices(k, 1)])

@@ -1,0 +1,194 @@
+"""The estimator as composed stages: swaps, clone, nested params, GridSearchCV, named variants."""
+
+import copy
+
+import numpy as np
+import pytest
+from sklearn.base import clone
+from sklearn.model_selection import GridSearchCV, KFold
+
+from pose.estimator import PoseManifoldEstimator
+from pose.manifold import (
+    VARIANTS,
+    KMeansBunches,
+    ManifoldFeaturizer,
+    NearestNeighbourRegressor,
+    default_regressor,
+    make_variant,
+)
+from pose.metrics import rotation_error_deg
+from pose.registry import estimator_names, make_estimator
+from pose.symmetry import Symmetry
+from pose.synthetic import card_views
+
+SMALL = dict(bunches__n_bunches=6, random_state=0)
+
+
+@pytest.fixture(scope="session")
+def cards():
+    yaws = np.radians(np.arange(0, 360, 30))
+    train = np.array([(x, y, a) for a in yaws for x, y in ((-0.04, 0.03), (0.04, -0.03))])
+    views, poses = card_views(train)
+    rng = np.random.default_rng(3)
+    test = np.c_[rng.uniform(-0.06, 0.06, 6), rng.uniform(-0.04, 0.04, 6), rng.uniform(0, 6.28, 6)]
+    tviews, tposes = card_views(test)
+    return views, poses, tviews, tposes
+
+
+@pytest.fixture(scope="session")
+def fitted(cards):
+    return PoseManifoldEstimator().set_params(**SMALL).fit(*cards[:2])
+
+
+def test_swapping_the_regressor_changes_the_coarse_rotation(tmp_path_factory):
+    """On rendered views of a brick's three resting faces (the card's relative rotation is the
+    same in every view, so every regressor would answer the same)."""
+    from scorbot_gym.data.views import grid_poses, random_poses, render_views, workspace_bounds
+    from scorbot_gym.objects import get_object
+
+    cache = tmp_path_factory.mktemp("views")
+    train = render_views("foam_brick", grid_poses(3, 45.0, n_positions=1), cache_dir=cache,
+                         progress=False)  # fmt: skip
+    test = render_views("foam_brick", random_poses(4, 3, workspace_bounds(), 1), cache_dir=cache,
+                        progress=False)  # fmt: skip
+    views, poses = [v.view for v in train], [v.camera_from_object for v in train]
+    rbf = PoseManifoldEstimator().set_params(**SMALL).fit(views, poses)
+    knn = clone(rbf).set_params(regressor=NearestNeighbourRegressor()).fit(views, poses)
+    assert isinstance(knn.regressor_, NearestNeighbourRegressor)
+    a, b = rbf.predict([v.view for v in test]), knn.predict([v.view for v in test])
+    assert all(e.valid for e in a + b)
+    # a lookup answers a training view's rotation, the RBF network blends neighbouring ones
+    assert not np.array_equal([e.rotation_coarse for e in a], [e.rotation_coarse for e in b])
+    sym = get_object("foam_brick").symmetry
+    for e, lv in zip(b, test, strict=True):
+        assert rotation_error_deg(e.rotation_coarse, lv.camera_from_object[:3, :3], sym) < 5.0
+
+
+def test_clone_and_default_stages_are_independent(fitted):
+    c = clone(fitted)
+    assert not hasattr(c, "regressor_")
+    assert repr(c.get_params(deep=True)) == repr(fitted.get_params(deep=True))
+    assert c.bunches is not fitted.bunches
+    a, b = PoseManifoldEstimator(), PoseManifoldEstimator()
+    a.set_params(bunches__n_bunches=5, regressor__n_centers=10)
+    assert (b.bunches.n_bunches, b.regressor.n_centers) == (8, 1000)  # defaults not shared
+    assert PoseManifoldEstimator().bunches.n_bunches == 8
+
+
+def test_deep_params_list_every_stage():
+    params = PoseManifoldEstimator().get_params(deep=True)
+    for key in (
+        "keypoints__contrast_threshold",
+        "matcher__ratio",
+        "matcher__min_inliers",
+        "bunches__n_bunches",
+        "reference__window_deg",
+        "featurizer__blocks",
+        "featurizer__anchor",
+        "regressor__n_centers",
+        "regressor__alpha",
+        "translation_regressor__n_centers",
+        "refiner",
+        "random_state",
+    ):
+        assert key in params, key
+    assert params["featurizer__blocks"] == ("bunches", "shape", "words")
+
+
+def test_grid_search_sweeps_stages(cards):
+    views, poses, _, _ = cards
+    grid = GridSearchCV(
+        PoseManifoldEstimator().set_params(**SMALL),
+        {"regressor": [default_regressor(), NearestNeighbourRegressor()], "refiner": [None]},
+        cv=KFold(2, shuffle=True, random_state=0),
+    ).fit(views, poses)
+    scores = grid.cv_results_["mean_test_score"]
+    assert len(scores) == 2 and np.all((0 <= scores) & (scores <= 1))
+    assert grid.best_estimator_.refiner is None and hasattr(grid.best_estimator_, "regressor_")
+
+
+def test_batch_predict_and_score(fitted, cards):
+    _, _, tviews, tposes = cards
+    batch = fitted.predict(tviews)
+    assert isinstance(batch, list) and len(batch) == len(tviews)
+    one = fitted.predict(tviews[0])
+    np.testing.assert_array_equal(one.rotation, batch[0].rotation)
+    errs = [rotation_error_deg(e.rotation, p[:3, :3]) for e, p in zip(batch, tposes, strict=True)]
+    assert fitted.score(tviews, tposes) == pytest.approx(np.mean(np.array(errs) < 5.0))
+    # ground truth turned 180 degrees about the object's z axis: all wrong, unless the object
+    # is declared symmetric about that axis
+    flipped = tposes.copy()
+    flipped[:, :3, :3] = tposes[:, :3, :3] @ np.diag([-1.0, -1.0, 1.0])
+    assert fitted.score(tviews, flipped) == 0.0
+    two_fold = Symmetry(kind="discrete", axis=(0.0, 0.0, 1.0), order=2)
+    assert fitted.score(tviews, flipped, two_fold) == fitted.score(tviews, tposes) > 0.8
+    with pytest.raises(ValueError, match="sequence of them"):
+        fitted.predict("view.png")
+
+
+@pytest.mark.parametrize("name", sorted(VARIANTS))
+def test_every_named_variant_fits_and_round_trips(name, cards, tmp_path):
+    views, poses, tviews, tposes = cards
+    assert name in estimator_names()
+    est = make_estimator(name, **SMALL).fit(views, poses)
+    assert est.score(tviews, tposes) >= 0.5
+    path = tmp_path / f"{name}.npz"
+    est.save(path)
+    loaded = PoseManifoldEstimator.load(path)
+    assert repr(loaded.get_params(deep=True)) == repr(est.get_params(deep=True))
+    for v in tviews[:2]:
+        a, b = est.predict(v), loaded.predict(v)
+        assert a.valid and b.valid
+        assert rotation_error_deg(a.rotation, b.rotation) < 0.5  # descriptors stored as float16
+
+
+def test_variants_are_single_stage_swaps():
+    base = make_variant("manifold").get_params(deep=False)
+    for name in VARIANTS:
+        params = make_variant(name).get_params(deep=False)
+        changed = [k for k in base if repr(params[k]) != repr(base[k])]
+        assert len(changed) == (0 if name == "manifold" else 1), (name, changed)
+    assert make_variant("manifold-coarse").refiner is None
+    assert make_variant("manifold-no-shape").featurizer.blocks == ("bunches", "words")
+    with pytest.raises(ValueError, match="unknown manifold variant 'nope'; valid: manifold"):
+        make_variant("nope")
+
+
+def test_feature_blocks_are_named(fitted):
+    f = fitted.featurizer_
+    assert list(f.block_slices_) == ["bunches", "shape", "words"]
+    assert f.block_slices_["bunches"] == slice(0, 6)
+    assert f.block_slices_["words"].stop == fitted.n_features_in_ == 6 + 75 + 32
+    anchorless = ManifoldFeaturizer(anchor=None)
+    assert anchorless.uses_bunches and not ManifoldFeaturizer(blocks=("shape",)).uses_bunches
+
+
+def test_unsaveable_stage_says_so(cards, tmp_path):
+    from sklearn.neighbors import KNeighborsRegressor
+
+    views, poses, tviews, _ = cards
+    est = PoseManifoldEstimator(regressor=KNeighborsRegressor(1)).set_params(**SMALL)
+    assert est.fit(views, poses).predict(tviews[0]).valid  # any scikit-learn regressor fits
+    with pytest.raises(ValueError, match="KNeighborsRegressor is not a registered stage"):
+        est.save(tmp_path / "m.npz")
+
+
+def test_deepcopy_rebuilds_the_index(fitted, cards):
+    twin = copy.deepcopy(fitted)
+    v = cards[2][0]
+    np.testing.assert_array_equal(twin.predict(v).rotation, fitted.predict(v).rotation)
+    assert KMeansBunches().get_params() == {
+        "n_bunches": 8,
+        "appearance_weight": 1.0,
+        "geometry_weight": 2.0,
+    }
+
+
+def test_fitted_featurizer_is_kept_when_params_change_after_fit(fitted, cards):
+    """A stateless stage swapped after fit applies at once (``pose eval --no-refine``); the
+    feature layout stays the fitted one until the next fit."""
+    est = copy.deepcopy(fitted).set_params(
+        featurizer=ManifoldFeaturizer(blocks=("shape",)), refiner=None
+    )
+    v = cards[2][0]
+    np.testing.assert_array_equal(est.predict(v).rotation, fitted.predict(v).rotation_coarse)
