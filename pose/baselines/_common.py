@@ -81,7 +81,8 @@ def lift_to_object(view: View, xy: np.ndarray, pose: np.ndarray) -> tuple[np.nda
     """Object-frame 3-D points of the keypoints ``xy`` with known depth, and which had one.
 
     The camera point ``z K^-1 (u, v, 1)`` is mapped by the inverse of the training pose.
-    Depth is read at the rounded pixel; 0 (unknown, e.g. under an occluder) drops the point.
+    Depth is read at the rounded pixel; 0 (unknown, e.g. under an occluder) or a pixel outside
+    the mask drops the point.
     """
     if view.depth is None:
         raise ValueError("training views need View.depth to lift keypoints to 3-D")
@@ -90,6 +91,9 @@ def lift_to_object(view: View, xy: np.ndarray, pose: np.ndarray) -> tuple[np.nda
     v = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
     z = np.asarray(view.depth, float)[v, u]
     ok = np.isfinite(z) & (z > 0)
+    region = object_region(view)
+    if region is not None:  # a corner on the silhouette would take the table's depth
+        ok &= region[v, u]
     rays = np.c_[xy, np.ones(len(xy))] @ np.linalg.inv(view.camera.K).T
     cam = rays * z[:, None]
     R, t = pose[:3, :3], pose[:3, 3]
