@@ -29,9 +29,9 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.camera import CameraModel
 from pose.geometry import camera_point, centre_and_size, effective_height, world_point
+from pose.keypoints import to_gray
 from pose.rotations import geodesic_deg
 from pose.serialization import load_arrays, save_arrays
-from pose.keypoints import to_gray
 from pose.view import PoseEstimate, View
 
 MIN_MASK_PIXELS = 16
@@ -174,7 +174,14 @@ class BaselineEstimator(BaseEstimator):
     #: attributes holding fitted models with ``to_arrays``/``load_arrays`` (an RBF network);
     #: :meth:`_new_submodel` makes the empty one that loading fills
     _SUBMODELS: tuple[str, ...] = ()
-    TRANSLATION = ("tr_rotation_", "tr_centre_", "tr_size_", "tr_z_eff_", "tr_z_origin_", "tr_depth_")
+    TRANSLATION = (
+        "tr_rotation_",
+        "tr_centre_",
+        "tr_size_",
+        "tr_z_eff_",
+        "tr_z_origin_",
+        "tr_depth_",
+    )
 
     def _fit_translation(self, views: Sequence[View], poses: np.ndarray) -> None:
         """Per training view: its rotation, mask centroid and size, the height of the point on

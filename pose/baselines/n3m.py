@@ -94,15 +94,14 @@ class N3MEstimator(BaselineEstimator):
                 f"{self.points_per_marker}, {self.n_points}"
             )
         views, P = check_training_set(views, poses)
-        xyz, desc, vid = lifted_features(
-            views, P, self.max_train_features, self.contrast_threshold
-        )
+        xyz, desc, vid = lifted_features(views, P, self.max_train_features, self.contrast_threshold)
         label = _merge_points(xyz, self.merge_radius)
         # Repeatability: in how many distinct training views each physical point was found.
         seen = np.unique(np.c_[label, vid], axis=0)
         score = np.bincount(seen[:, 0], minlength=label.max() + 1)
         keep = np.argsort(-score, kind="stable")[: self.n_points]
-        keep = keep[score[keep] >= 2] if (score[keep] >= 2).sum() >= self.points_per_marker else keep
+        if (score[keep] >= 2).sum() >= self.points_per_marker:  # drop one-view points if we can
+            keep = keep[score[keep] >= 2]
         centres = np.array([xyz[label == p].mean(axis=0) for p in keep])
         marker = np.full(len(keep), -1)
         free = np.ones(len(keep), bool)
