@@ -48,7 +48,9 @@ class PCAEstimator(BaselineEstimator):
     """Eigenspace of mask-cropped appearance; pose by nearest neighbour or RBF regression.
 
     ``n_components`` eigenvectors of ``patch_size x patch_size`` patches; ``regressor`` is
-    ``"nn"`` or ``"rbf"`` (``n_centers``, ``width_scale``, ``ridge``: the RBF network's).
+    ``"nn"`` or ``"rbf"`` (``n_centers``, ``width_scale``, ``ridge``: the RBF network's;
+    narrow normalised units, as the manifold estimator uses, because nearby views of different
+    resting faces must not be blended).
     """
 
     _FITTED = ("mean_", "components_", "coords_", *BaselineEstimator.TRANSLATION)
@@ -59,7 +61,7 @@ class PCAEstimator(BaselineEstimator):
         patch_size: int = 32,
         regressor: str = "nn",
         n_centers: int = 1000,
-        width_scale: float = 1.0,
+        width_scale: float = 0.3,
         ridge: float = 1e-4,
         random_state: int = 0,
     ):
