@@ -4,8 +4,9 @@ The baselines differ in how they find the rotation; the rest is common so that a
 between them measures that one difference:
 
 - :func:`check_training_set` validates ``fit(views, poses)`` as the manifold estimator does;
-- :func:`object_region` decides whether a view shows the object at all (no mask pixels, or no
-  mask and a featureless image, makes ``predict`` return ``valid=False``);
+- :func:`object_region` and :func:`featureless` decide whether a view shows an object at all:
+  an empty mask, or a flat image under the mask, makes an appearance baseline's ``predict``
+  return ``valid=False`` (a keypoint baseline's answer is invalid without enough keypoints);
 - :class:`BaselineEstimator` gives the position from the mask centroid ray and a reference
   training view: the manifold estimator's own geometric position (the ray through the centroid
   cut with the horizontal plane that training view implies), so that no baseline is penalised
@@ -65,6 +66,12 @@ def object_region(view: View) -> np.ndarray | None:
         return None
     m = np.asarray(view.mask, bool)
     return m if np.count_nonzero(m) >= MIN_MASK_PIXELS else None
+
+
+def featureless(view: View, region: np.ndarray) -> bool:
+    """True when the image is flat inside ``region`` (a blank frame under a mask): nothing for
+    an appearance method to describe, even though the mask says "object"."""
+    return float(to_gray(view.image)[region].std()) < 1.0
 
 
 def require_masks(views: Sequence[View], who: str) -> None:

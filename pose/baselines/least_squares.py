@@ -25,6 +25,7 @@ from pose.baselines._common import (
     appearance_patch,
     check_training_set,
     check_view,
+    featureless,
     invalid,
     nearest_rotation,
     object_region,
@@ -79,6 +80,8 @@ class LeastSquaresEstimator(BaselineEstimator):
         region = object_region(view)
         if region is None:
             return invalid("no object mask", timer)
+        if featureless(view, region):
+            return invalid("the object region is featureless", timer)
         y = self._design(appearance_patch(view.image, region, self.patch_size)) @ self.weights_
         R = from_6d(y[0])
         timer.lap("regress")

@@ -28,6 +28,7 @@ from pose.baselines._common import (
     Timer,
     check_training_set,
     check_view,
+    featureless,
     invalid,
     object_region,
     require_masks,
@@ -106,6 +107,8 @@ class PartBasedEstimator(BaselineEstimator):
         region = object_region(view)
         if region is None:
             return invalid("no object mask", timer)
+        if featureless(view, region):
+            return invalid("the object region is featureless", timer)
         H, vis = self._describe(view.image, region)
         timer.lap("parts")
         both = (self.visible_ >= self.min_visible) & (vis >= self.min_visible)  # (N, parts)

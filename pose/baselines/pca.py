@@ -31,6 +31,7 @@ from pose.baselines._common import (
     appearance_patch,
     check_training_set,
     check_view,
+    featureless,
     invalid,
     nearest_rotation,
     object_region,
@@ -122,6 +123,8 @@ class PCAEstimator(BaselineEstimator):
         region = object_region(view)
         if region is None:
             return invalid("no object mask", timer)
+        if featureless(view, region):
+            return invalid("the object region is featureless", timer)
         z = self._project(appearance_patch(view.image, region, self.patch_size))
         timer.lap("project")
         d = np.linalg.norm(self.coords_ - z, axis=1)
