@@ -8,11 +8,21 @@ is a swap of names (the CLI, the sweep runner and the pose sources all resolve t
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
+from pose import baselines
 from pose.estimator import PoseManifoldEstimator
 
 _ESTIMATORS: dict[str, Callable[..., Any]] = {"manifold": PoseManifoldEstimator}
+_ESTIMATORS["chance"] = baselines.ChanceEstimator
+_ESTIMATORS["pca-nn"] = partial(baselines.PCAEstimator, regressor="nn")
+_ESTIMATORS["pca-rbf"] = partial(baselines.PCAEstimator, regressor="rbf")
+_ESTIMATORS["least-squares"] = baselines.LeastSquaresEstimator
+_ESTIMATORS["part-based"] = baselines.PartBasedEstimator
+_ESTIMATORS["n3m"] = baselines.N3MEstimator
+_ESTIMATORS["sift-pnp"] = baselines.SiftPnPEstimator
+_ESTIMATORS["nearest-view"] = baselines.NearestViewEstimator
 
 
 def estimator_names() -> tuple[str, ...]:

@@ -1,0 +1,299 @@
+"""What every baseline shares: input checks, the object region, translation, timing, files.
+
+The baselines differ in how they find the rotation; the rest is common so that a comparison
+between them measures that one difference:
+
+- :func:`check_training_set` validates ``fit(views, poses)`` as the manifold estimator does;
+- :func:`object_region` and :func:`featureless` decide whether a view shows an object at all:
+  an empty mask, or a flat image under the mask, makes an appearance baseline's ``predict``
+  return ``valid=False`` (a keypoint baseline's answer is invalid without enough keypoints);
+- :class:`BaselineEstimator` gives the position from the mask centroid ray and a reference
+  training view: the manifold estimator's own geometric position (the ray through the centroid
+  cut with the horizontal plane that training view implies), so that no baseline is penalised
+  or favoured by a different position method. It also supplies pickle-free
+  ``to_arrays``/``from_arrays``/``save``/``load`` from a list of fitted array attributes;
+- :func:`appearance_patch` is the normalised, mask-cropped image the appearance baselines
+  (PCA, least squares, part-based) describe.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+from sklearn.base import BaseEstimator
+from sklearn.utils.validation import check_is_fitted
+
+from pose.camera import CameraModel
+from pose.geometry import camera_point, centre_and_size, effective_height, world_point
+from pose.keypoints import to_gray
+from pose.rotations import geodesic_deg
+from pose.serialization import load_arrays, save_arrays
+from pose.view import PoseEstimate, View
+
+MIN_MASK_PIXELS = 16
+
+
+def check_training_set(views: Sequence[View], poses) -> tuple[list[View], np.ndarray]:
+    """The views as a list and the poses as ``(N, 4, 4)`` rotations-with-translations."""
+    views = list(views)
+    if not views:
+        raise ValueError("fit needs at least one view")
+    if not all(isinstance(v, View) for v in views):
+        raise ValueError("views must be pose.view.View instances")
+    P = np.asarray(poses, float)
+    if P.shape != (len(views), 4, 4):
+        raise ValueError(
+            f"poses must be ({len(views)}, 4, 4) camera_from_object matrices, got {P.shape}"
+        )
+    if not np.allclose(P[:, :3, :3] @ P[:, :3, :3].transpose(0, 2, 1), np.eye(3), atol=1e-4):
+        raise ValueError("poses[:, :3, :3] must be rotation matrices")
+    return views, P
+
+
+def check_view(view: View) -> None:
+    if not isinstance(view, View):
+        raise ValueError(f"predict expects a pose.view.View, got {type(view).__name__}")
+
+
+def object_region(view: View) -> np.ndarray | None:
+    """The object's visible pixels, or None when the view has no usable mask."""
+    if view.mask is None:
+        return None
+    m = np.asarray(view.mask, bool)
+    return m if np.count_nonzero(m) >= MIN_MASK_PIXELS else None
+
+
+def featureless(view: View, region: np.ndarray) -> bool:
+    """True when the image is flat inside ``region`` (a blank frame under a mask): nothing for
+    an appearance method to describe, even though the mask says "object"."""
+    return float(to_gray(view.image)[region].std()) < 1.0
+
+
+def require_masks(views: Sequence[View], who: str) -> None:
+    """Appearance baselines crop by the mask: training views without one are an input error."""
+    bad = [i for i, v in enumerate(views) if object_region(v) is None]
+    if bad:
+        raise ValueError(
+            f"{who} needs a mask with at least {MIN_MASK_PIXELS} pixels in every training view; "
+            f"views {bad[:5]} have none"
+        )
+
+
+def lift_to_object(view: View, xy: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Object-frame 3-D points of the keypoints ``xy`` with known depth, and which had one.
+
+    The camera point ``z K^-1 (u, v, 1)`` is mapped by the inverse of the training pose.
+    Depth is read at the rounded pixel; 0 (unknown, e.g. under an occluder) or a pixel outside
+    the mask drops the point.
+    """
+    if view.depth is None:
+        raise ValueError("training views need View.depth to lift keypoints to 3-D")
+    h, w = view.depth.shape
+    u = np.clip(np.rint(xy[:, 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
+    z = np.asarray(view.depth, float)[v, u]
+    ok = np.isfinite(z) & (z > 0)
+    region = object_region(view)
+    if region is not None:  # a corner on the silhouette would take the table's depth
+        ok &= region[v, u]
+    rays = np.c_[xy, np.ones(len(xy))] @ np.linalg.inv(view.camera.K).T
+    cam = rays * z[:, None]
+    R, t = pose[:3, :3], pose[:3, 3]
+    return (cam[ok] - t) @ R, ok  # R^T (p - t), row-wise
+
+
+def nearest_rotation(R: np.ndarray, rotations: np.ndarray) -> int:
+    """Index of the training rotation closest (geodesic) to ``R``."""
+    return int(np.argmin(geodesic_deg(rotations, np.asarray(R)[None])))
+
+
+def pnp(
+    obj: np.ndarray, img: np.ndarray, camera: CameraModel, threshold: float, seed: int
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """RANSAC PnP (EPnP hypotheses, iterative refinement on the inliers): ``R, t, inliers``.
+
+    Returns ``(None, None, all-False)`` when OpenCV finds no pose or fewer than 6 matches.
+    """
+    none = np.zeros(len(obj), bool)
+    if len(obj) < 6:
+        return None, None, none
+    cv2.setRNGSeed(int(seed))
+    ok, rvec, tvec, inl = cv2.solvePnPRansac(
+        np.ascontiguousarray(obj, np.float64),
+        np.ascontiguousarray(img, np.float64),
+        np.asarray(camera.K, float),
+        None,
+        iterationsCount=500,
+        reprojectionError=threshold,
+        confidence=0.999,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
+    if not ok or inl is None or len(inl) < 6:
+        return None, None, none
+    mask = none.copy()
+    mask[inl.ravel()] = True
+    rvec, tvec = cv2.solvePnPRefineLM(
+        np.ascontiguousarray(obj[mask], np.float64),
+        np.ascontiguousarray(img[mask], np.float64),
+        np.asarray(camera.K, float),
+        None,
+        rvec,
+        tvec,
+    )
+    R = cv2.Rodrigues(rvec)[0]
+    t = tvec.ravel()
+    if t[2] <= 0 or not np.isfinite(R).all():
+        return None, None, none
+    return R, t, mask
+
+
+class Timer:
+    """Named laps in milliseconds, ending with ``total``: ``PoseEstimate.timings_ms``."""
+
+    def __init__(self) -> None:
+        self.ms: dict[str, float] = {}
+        self._t0 = self._tic = time.perf_counter()
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.ms[name] = (now - self._tic) * 1e3
+        self._tic = now
+
+    def done(self) -> dict[str, float]:
+        self.ms["total"] = (time.perf_counter() - self._t0) * 1e3
+        return self.ms
+
+
+class BaselineEstimator(BaseEstimator):
+    """Shared position method and file format (the params as JSON plus the ``_FITTED`` arrays).
+
+    Subclasses set ``_FITTED`` (array attributes set by ``fit``, ending with ``TRANSLATION``),
+    call :meth:`_fit_translation` in ``fit`` and may override :meth:`_after_load` to rebuild
+    derived state (an index) from the arrays.
+    """
+
+    _FITTED: tuple[str, ...] = ()
+    #: attributes holding fitted models with ``to_arrays``/``load_arrays`` (an RBF network);
+    #: :meth:`_new_submodel` makes the empty one that loading fills
+    _SUBMODELS: tuple[str, ...] = ()
+    TRANSLATION = (
+        "tr_rotation_",
+        "tr_centre_",
+        "tr_size_",
+        "tr_z_eff_",
+        "tr_z_origin_",
+        "tr_depth_",
+    )
+
+    def _fit_translation(self, views: Sequence[View], poses: np.ndarray) -> None:
+        """Per training view: its rotation, mask centroid and size, the height of the point on
+        the centroid's ray above the object origin (:func:`pose.geometry.effective_height`),
+        the origin's table height and its depth."""
+        centres, sizes, z_eff, z_origin = [], [], [], []
+        for view, pose in zip(views, poses, strict=True):
+            region = object_region(view)
+            if region is None:  # keypoint baselines accept mask-less views: the image centre
+                c, s = np.array([view.camera.width, view.camera.height]) / 2.0, 1.0
+            else:
+                c, s = centre_and_size(region, np.zeros((1, 2)))
+            origin_w = world_point(view.camera, pose[:3, 3])
+            centres.append(c)
+            sizes.append(s)
+            z_eff.append(effective_height(view.camera, c, origin_w))
+            z_origin.append(origin_w[2])
+        self.tr_rotation_ = poses[:, :3, :3].copy()
+        self.tr_centre_ = np.array(centres)
+        self.tr_size_ = np.array(sizes)
+        self.tr_z_eff_ = np.array(z_eff)
+        self.tr_z_origin_ = np.array(z_origin)
+        self.tr_depth_ = poses[:, 2, 3].copy()
+
+    def _translation(self, camera: CameraModel, centre: np.ndarray, size: float, ref: int):
+        """Where the ray through ``centre`` meets the height that training view ``ref``
+        implies; a ray parallel to the table falls back to ``ref``'s depth scaled by size."""
+        try:
+            ground = camera.backproject_to_plane(np.asarray(centre)[None], self.tr_z_eff_[ref])[0]
+            ground[2] = self.tr_z_origin_[ref]
+            return camera_point(camera, ground)
+        except ValueError:
+            z = self.tr_depth_[ref] * self.tr_size_[ref] / max(size, 1e-9)
+            return np.linalg.solve(camera.K, np.r_[centre, 1.0]) * z
+
+    def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
+        check_is_fitted(self, self._FITTED[0])
+        out = {prefix + "params": np.array(json.dumps(self.get_params()))}
+        for k in self._FITTED:
+            out[prefix + k] = np.asarray(getattr(self, k))
+        for name in self._SUBMODELS:
+            for k, v in getattr(self, name).to_arrays().items():
+                out[f"{prefix}{name}/{k}"] = v
+        return out
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], prefix: str = ""):
+        try:
+            params = json.loads(str(arrays[prefix + "params"]))
+            est = cls(**params)
+            for k in cls._FITTED:
+                setattr(est, k, np.asarray(arrays[prefix + k]))
+            for name in est._SUBMODELS:
+                p = f"{prefix}{name}/"
+                sub = {k[len(p) :]: v for k, v in arrays.items() if k.startswith(p)}
+                setattr(est, name, est._new_submodel(name).load_arrays(sub))
+        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            raise ValueError(f"model file is missing or has bad entries ({exc})") from exc
+        est._after_load()
+        return est
+
+    def _new_submodel(self, name: str):
+        raise NotImplementedError(f"{type(self).__name__} has no submodel {name!r}")
+
+    def _after_load(self) -> None:
+        """Rebuild state derived from the fitted arrays (nothing by default)."""
+
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the fitted estimator to one ``.npz`` file (atomic, pickle-free, versioned)."""
+        meta = {"kind": "estimator", "class": type(self).__name__}
+        save_arrays(path, self.to_arrays(), meta)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike):
+        header, arrays = load_arrays(path)
+        if header.get("kind") != "estimator" or header.get("class") != cls.__name__:
+            raise ValueError(
+                f"{path} holds a {header.get('class', header.get('kind'))!r}, not a {cls.__name__}"
+            )
+        return cls.from_arrays(arrays)
+
+
+def invalid(reason: str, timer: Timer, n_keypoints: int = 0) -> PoseEstimate:
+    return PoseEstimate.invalid(reason, timer.done(), n_keypoints)
+
+
+def appearance_patch(image: np.ndarray, region: np.ndarray, side: int) -> np.ndarray:
+    """Grey image of the object, cropped to the square around its mask's bounding box, resized
+    to ``side x side``, zero mean and unit norm over the object, 0 outside the mask.
+
+    Scale and position are normalised by the visible mask (what an appearance method sees);
+    an occluder shrinks that box, which is one of the things these baselines do not handle.
+    """
+    gray = to_gray(image).astype(np.float32)
+    x, y, w, h = cv2.boundingRect(region.astype(np.uint8))
+    half = max(w, h) / 2.0
+    cx, cy = x + w / 2.0, y + h / 2.0
+    # Affine crop: the square [cx-half, cx+half] x [cy-half, cy+half] onto [0, side].
+    s = side / (2.0 * half)
+    if s < 1.0:  # anti-alias before shrinking
+        gray = cv2.GaussianBlur(gray, (0, 0), 0.5 / s)
+    A = np.array([[s, 0.0, side / 2.0 - s * cx], [0.0, s, side / 2.0 - s * cy]], np.float32)
+    g = cv2.warpAffine(gray, A, (side, side), flags=cv2.INTER_LINEAR)
+    m = cv2.warpAffine(region.astype(np.float32), A, (side, side)) > 0.5
+    if not m.any():
+        return np.zeros(side * side, np.float32)
+    g = np.where(m, g - g[m].mean(), 0.0)
+    return (g / max(float(np.linalg.norm(g)), 1e-6)).ravel().astype(np.float32)

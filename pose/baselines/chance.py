@@ -1,0 +1,71 @@
+"""The image-blind chance level: one constant rotation, whatever the view shows.
+
+Every table of pose results needs the score of an answer that ignores the image: on a fixed
+camera, objects resting upright on the table have only a few distinct rotations up to
+symmetry, so a constant answer is right more often than "chance" suggests (an upright can is
+always right under its axial symmetry). :class:`ChanceEstimator` answers the *medoid* of the
+training rotations — the one with the smallest summed geodesic distance to all others, i.e. the
+most common resting face at a typical heading — and places it at the mask centroid with the
+shared silhouette position (:class:`pose.baselines._common.BaselineEstimator`), so that its
+position error is the same reference as every other baseline's.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from sklearn.utils.validation import check_is_fitted
+
+from pose.baselines._common import (
+    BaselineEstimator,
+    Timer,
+    check_training_set,
+    check_view,
+    invalid,
+    object_region,
+    require_masks,
+)
+from pose.geometry import centre_and_size
+from pose.rotations import geodesic_deg
+from pose.view import PoseEstimate, View
+
+
+class ChanceEstimator(BaselineEstimator):
+    """Constant rotation (the training medoid), position from the mask centroid.
+
+    ``predict`` is ``valid=False`` only when the view has no object mask: the position needs
+    one, the rotation needs nothing.
+    """
+
+    _FITTED = ("medoid_", *BaselineEstimator.TRANSLATION)
+
+    def fit(self, views: Sequence[View], poses) -> ChanceEstimator:
+        views, P = check_training_set(views, poses)
+        require_masks(views, "ChanceEstimator")
+        R = P[:, :3, :3]
+        cost = np.array([geodesic_deg(R, r[None]).sum() for r in R])
+        self.medoid_ = np.array(int(np.argmin(cost)))
+        self._fit_translation(views, P)
+        return self
+
+    def predict(self, view: View) -> PoseEstimate:
+        check_is_fitted(self, "medoid_")
+        check_view(view)
+        timer = Timer()
+        region = object_region(view)
+        if region is None:
+            return invalid("no object mask", timer)
+        i = int(self.medoid_)
+        centre, size = centre_and_size(region, np.zeros((1, 2)))
+        t = self._translation(view.camera, centre, size, i)
+        timer.lap("constant")
+        return PoseEstimate(
+            rotation=self.tr_rotation_[i].copy(),
+            translation=t,
+            confidence=0.0,
+            valid=True,
+            timings_ms=timer.done(),
+            rotation_coarse=self.tr_rotation_[i].copy(),
+            translation_regressed=t,
+        )
