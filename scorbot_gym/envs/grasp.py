@@ -10,12 +10,15 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from pose.camera import CameraModel
 from scorbot_gym.objects import CATALOGUE, get_object
+from scorbot_gym.envs import arguments as args
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
-from scorbot_gym.sim.simulation import Simulation
+from scorbot_gym.sim.rendering import SceneRenderer
+from scorbot_gym.sim.simulation import Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
 
 ACTION_TYPES = ("joint", "cartesian")
@@ -26,6 +29,7 @@ _INSTABILITY_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
 )
 
 
@@ -80,29 +84,39 @@ class ScorbotGraspEnv(gym.Env):
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
+        image_types = args.name_list("image_types", image_types, "rgb")
         bad = [t for t in image_types if t not in IMAGE_TYPES]
         if bad or not image_types:
             raise ValueError(f"image_types must be a non-empty subset of {IMAGE_TYPES}, got {bad}")
-        if frame_skip < 1:
-            raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
-        names = [object_name] if object_name is not None else list(objects or CATALOGUE)
-        if not names:
-            raise ValueError("objects must name at least one catalogue object")
-        self.object_names = tuple(get_object(n).name for n in names)  # KeyError lists valid names
+        self.object_names = args.object_names(object_name, objects)
+        self.cameras = args.name_list("cameras", cameras, "top")
+        check_render_size(image_width, image_height, "image size")
+        check_render_size(render_width, render_height, "render size")
+        self.frame_skip = args.int_in_range("frame_skip", frame_skip, 1, args.MAX_FRAME_SKIP)
+        steps = {"max_joint_step": max_joint_step, "max_cartesian_step": max_cartesian_step}
+        steps["max_angle_step"] = max_angle_step
+        for key, (_, high) in args.STEP_SCALE_LIMITS.items():
+            setattr(self, key, args.positive_float(key, steps[key], high))
+        self.observe_object_pose = args.flag("observe_object_pose", observe_object_pose)
+        self.shadows = args.flag("shadows", shadows)
         self.action_type, self.reward_type = action_type, reward_type
-        self.cameras, self.image_types = tuple(cameras), tuple(image_types)
+        self.image_types = image_types
         self.image_width, self.image_height = image_width, image_height
-        self.observe_object_pose = observe_object_pose
         self.render_mode, self.render_camera = render_mode, render_camera
         self.render_width, self.render_height = render_width, render_height
-        self.frame_skip = frame_skip
-        self.shadows = shadows
-        self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
-        self.max_angle_step = max_angle_step
 
+        # One GL context for all scenes, its buffer as large as the largest image asked for.
+        sizes = [(image_width, image_height)] if self.cameras else []
+        sizes += [(render_width, render_height)] if render_mode else []
+        self._renderer = SceneRenderer(
+            max((w for w, _ in sizes), default=image_width),
+            max((h for _, h in sizes), default=image_height),
+            self.shadows,
+        )
+        self._needs_reset = True
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
-        for cam in (*self.cameras, *([render_camera] if render_mode else [])):
+        for cam in (*self.cameras, render_camera):
             self.sim.camera_id(cam)  # ValueError listing the valid cameras
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
@@ -132,13 +146,15 @@ class ScorbotGraspEnv(gym.Env):
 
     # --- plumbing ------------------------------------------------------------------------
     def _activate(self, name: str) -> None:
-        """Switch to the scene holding ``name`` (scenes are compiled once and cached)."""
+        """Switch to the scene holding ``name`` (compiled once and cached: ~6 MB each; the
+        scenes share one renderer, which re-uploads the object's assets on a switch)."""
         if name not in self._sims:
             sim = Simulation(
                 name,
                 render_width=self.image_width,
                 render_height=self.image_height,
                 shadows=self.shadows,
+                renderer=self._renderer,
             )
             robot = Robot(sim)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
@@ -161,9 +177,12 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         self.sim.forward()
+        self._needs_reset = False
         return self._observation(), self._info(None, None)
 
     def step(self, action):
+        if self._needs_reset:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
@@ -216,6 +235,12 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self.observe_object_pose:
             obs["object_pos"], obs["object_quat"] = self.sim.object_pose()
+        # MuJoCo's joint limits and contacts are soft: pushed hard (the hand folded onto the
+        # column) a joint passes its stop by up to ~1 mrad and the fingers by ~1 mm. Readings
+        # are clipped to the space, as the real controller's encoders stop at the limits.
+        for key, value in obs.items():
+            space = self.observation_space[key]
+            np.clip(value, space.low, space.high, out=value)
         for cam in self.cameras:  # rendered once per control step, only when asked for
             if "rgb" in self.image_types:
                 obs[f"{cam}_rgb"] = self.sim.render(cam, "rgb")
@@ -271,3 +296,4 @@ class ScorbotGraspEnv(gym.Env):
     def close(self) -> None:
         for sim, _, _ in self._sims.values():
             sim.close()
+        self._renderer.close()
