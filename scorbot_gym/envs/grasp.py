@@ -13,8 +13,8 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from pose.camera import CameraModel
-from scorbot_gym.objects import CATALOGUE, get_object
 from scorbot_gym.envs import arguments as args
+from scorbot_gym.objects import get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
@@ -156,7 +156,8 @@ class ScorbotGraspEnv(gym.Env):
                 shadows=self.shadows,
                 renderer=self._renderer,
             )
-            robot = Robot(sim)
+            first = next(iter(self._sims.values()), None)
+            robot = Robot(sim, first[1].kinematics if first else None)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
         self.sim, self.robot, self.task = self._sims[name]
 

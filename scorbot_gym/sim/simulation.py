@@ -219,6 +219,8 @@ class Simulation:
         return out
 
     def close(self) -> None:
-        """Free the GL state of a renderer this simulation made (a shared one is its owner's)."""
+        """Free this scene's GL state (all of the renderer's if this simulation made it)."""
         if self._owns_renderer:
             self.renderer.close()
+        else:
+            self.renderer.release(self.model)
