@@ -15,6 +15,7 @@ GL state cannot be pickled or copied: :meth:`SceneRenderer.__getstate__` drops i
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import mujoco
@@ -55,16 +56,10 @@ class SceneRenderer:
         return len(self._contexts)
 
     def _make_gl(self) -> None:
-        try:
-            from mujoco.rendering.classic import gl_context
+        from mujoco.rendering.classic import gl_context
 
-            self._gl = gl_context.GLContext(self.width, self.height)
-            self._gl.make_current()
-        except Exception as exc:  # mujoco raises several types when no GL context exists
-            self.close()
-            raise _gl.RenderingUnavailableError(
-                f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
-            ) from exc
+        self._gl = gl_context.GLContext(self.width, self.height)
+        self._gl.make_current()
 
     def _make_context(self, model: mujoco.MjModel) -> tuple:
         vis = model.vis
@@ -86,12 +81,20 @@ class SceneRenderer:
         if width > self.width or height > self.height:
             self.width, self.height = max(width, self.width), max(height, self.height)
             self.close()
-        if self._gl is None:
-            self._make_gl()
-        self._gl.make_current()
         entry = self._contexts.get(id(model))
-        if entry is None:
-            entry = self._contexts[id(model)] = self._make_context(model)
+        try:
+            if self._gl is None:
+                self._make_gl()
+            self._gl.make_current()
+            if entry is None:
+                entry = self._contexts[id(model)] = self._make_context(model)
+        except Exception as exc:  # mujoco raises several types when no GL context exists
+            with contextlib.suppress(Exception):
+                self.close()
+            self._reset_handles()
+            raise _gl.RenderingUnavailableError(
+                f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
+            ) from exc
         # Each render context has its own offscreen framebuffer; bind this one's.
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, entry[1])
         return entry
