@@ -1,13 +1,15 @@
-"""One OpenGL context for every scene of an environment.
+"""One OpenGL render context for every scene of an environment, re-bound to the scene in view.
 
 An environment keeps one compiled MuJoCo scene per catalogue object, so that a scene switch on
-reset is a dictionary lookup. Giving each scene its own ``mujoco.Renderer`` costs a GL context
-(software GL: ~40 MB and ~0.3 s to start) and full-size (1280x960) offscreen buffers per object.
-Here the scenes share one GL context; each keeps only its own small MuJoCo render context
-(textures, meshes and an offscreen buffer as large as the env's images: ~4-6 MB, ~15 ms to make
-on first render), so switching scenes costs nothing. Re-uploading one context's textures and
-meshes on every switch instead (``mjr_uploadTexture`` / ``mjr_uploadMesh``) was measured at
-~10 ms per switch in software GL, too slow for resets.
+reset is a dictionary lookup. A ``mujoco.Renderer`` per scene costs a GL context, full-size
+(1280x960) offscreen buffers and a copy of every texture and mesh per object (software GL:
+~60 MB and ~0.3 s each). All our scenes share one layout (arena, arm, one object with one mesh
+and one texture), so one render context serves them all: when another scene is rendered, the
+textures and meshes that differ are uploaded over the previous ones (``mjr_uploadTexture`` /
+``mjr_uploadMesh``, MuJoCo's way to change assets at run time); a scene with another layout
+rebuilds the context. A switch then costs one object's upload (~10 ms in software GL, paid only
+by resets that change object and render) instead of ~8 MB per object of resident GL state, the
+alternative measured in ``benchmarks/env_memory.py``.
 
 GL state cannot be pickled or copied: :meth:`SceneRenderer.__getstate__` drops it and the next
 :meth:`render` rebuilds it, as Gymnasium's MuJoCo environments do with their renderers.
@@ -29,11 +31,52 @@ _MAX_GEOM = 1000
 _NO_SHADOW_MAP = 1  # texels per side of the shadow map when shadows are off
 
 
+def _layout(model: mujoco.MjModel) -> tuple:
+    """What a render context depends on besides the pixels of textures and the meshes."""
+    return (
+        model.ntex,
+        tuple(model.tex_type.tolist()),
+        model.nmesh,
+        model.nhfield,
+        model.nskin,
+        model.nflex,
+        float(model.stat.extent),  # shadow clipping and depth range are scaled by it
+    )
+
+
+def _texture(model: mujoco.MjModel, i: int) -> np.ndarray:
+    n = model.tex_width[i] * model.tex_height[i] * model.tex_nchannel[i]
+    return model.tex_data[model.tex_adr[i] : model.tex_adr[i] + n]
+
+
+def _mesh(model: mujoco.MjModel, i: int) -> tuple[np.ndarray, ...]:
+    """Every array ``mjr_uploadMesh`` reads for mesh ``i``."""
+    v, nv = model.mesh_vertadr[i], model.mesh_vertnum[i]
+    n, nn = model.mesh_normaladr[i], model.mesh_normalnum[i]
+    t, nt = model.mesh_texcoordadr[i], model.mesh_texcoordnum[i]
+    f, nf = model.mesh_faceadr[i], model.mesh_facenum[i]
+    texcoord = model.mesh_texcoord[t : t + nt] if t >= 0 else model.mesh_texcoord[:0]
+    return (
+        model.mesh_vert[v : v + nv],
+        model.mesh_normal[n : n + nn],
+        texcoord,
+        model.mesh_face[f : f + nf],
+        model.mesh_facenormal[f : f + nf],
+        model.mesh_facetexcoord[f : f + nf],
+    )
+
+
+def _same(a: tuple | np.ndarray, b: tuple | np.ndarray) -> bool:
+    if isinstance(a, np.ndarray):
+        return a.shape == b.shape and np.array_equal(a, b)
+    return all(_same(x, y) for x, y in zip(a, b, strict=True))
+
+
 class SceneRenderer:
-    """Renders RGB, depth and segmentation images of any number of models with one GL context.
+    """Renders RGB, depth and segmentation images of any number of scenes with one GL context.
 
     ``width`` x ``height`` is the offscreen buffer: every image up to that size is rendered
-    into a corner of it; a larger request grows the buffers (the contexts are rebuilt).
+    into a corner of it; a larger request grows the buffer (the context is rebuilt).
     ``shadows`` turns on the key light's shadow map.
     """
 
@@ -44,50 +87,62 @@ class SceneRenderer:
 
     def _reset_handles(self) -> None:
         self._gl: Any = None
-        # id(model) -> (model, render context, visual scene); the model is kept so that its id
-        # is not reused while the entry lives.
-        self._contexts: dict[int, tuple[mujoco.MjModel, mujoco.MjrContext, mujoco.MjvScene]] = {}
+        self._con: mujoco.MjrContext | None = None
+        self._scene: mujoco.MjvScene | None = None
         self._option = mujoco.MjvOption()
+        self._model: mujoco.MjModel | None = None  # whose assets the context holds now
+        self._layout: tuple | None = None
 
     # --- context management ----------------------------------------------------------------
     @property
-    def num_contexts(self) -> int:
-        """How many models have render state now."""
-        return len(self._contexts)
+    def bound_model(self) -> mujoco.MjModel | None:
+        """The model whose textures and meshes are uploaded now (None before any render)."""
+        return self._model
 
-    def _make_gl(self) -> None:
+    def _build(self, model: mujoco.MjModel) -> None:
         from mujoco.rendering.classic import gl_context
 
         self._gl = gl_context.GLContext(self.width, self.height)
         self._gl.make_current()
-
-    def _make_context(self, model: mujoco.MjModel) -> tuple:
         vis = model.vis
         saved = (vis.global_.offwidth, vis.global_.offheight, vis.quality.shadowsize)
         try:  # the buffers are sized from the model: size them for what is rendered
             vis.global_.offwidth, vis.global_.offheight = self.width, self.height
             if not self.shadows:
                 vis.quality.shadowsize = _NO_SHADOW_MAP
-            con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
+            self._con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100.value)
         finally:
             vis.global_.offwidth, vis.global_.offheight, vis.quality.shadowsize = saved
-        con.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
-        scene = mujoco.MjvScene(model, maxgeom=_MAX_GEOM)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, self._con)
+        self._con.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._scene = mujoco.MjvScene(model, maxgeom=_MAX_GEOM)
         # Shadow mapping triples the cost of a frame in software GL, so it is opt-in.
-        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.shadows
-        return model, con, scene
+        self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.shadows
+        self._model, self._layout = model, _layout(model)
 
-    def _bind(self, model: mujoco.MjModel, width: int, height: int) -> tuple:
+    def _upload(self, model: mujoco.MjModel) -> None:
+        """Replace the assets of the bound model that differ in ``model``."""
+        old = self._model
+        for i in range(model.ntex):
+            if old is None or not _same(_texture(model, i), _texture(old, i)):
+                mujoco.mjr_uploadTexture(model, self._con, i)
+        for i in range(model.nmesh):
+            if old is None or not _same(_mesh(model, i), _mesh(old, i)):
+                mujoco.mjr_uploadMesh(model, self._con, i)
+        self._model = model
+
+    def _bind(self, model: mujoco.MjModel, width: int, height: int) -> None:
         if width > self.width or height > self.height:
             self.width, self.height = max(width, self.width), max(height, self.height)
             self.close()
-        entry = self._contexts.get(id(model))
         try:
-            if self._gl is None:
-                self._make_gl()
+            if self._con is not None and _layout(model) != self._layout:
+                self.close()
+            if self._con is None:
+                self._build(model)
             self._gl.make_current()
-            if entry is None:
-                entry = self._contexts[id(model)] = self._make_context(model)
+            if model is not self._model:
+                self._upload(model)
         except Exception as exc:  # mujoco raises several types when no GL context exists
             with contextlib.suppress(Exception):
                 self.close()
@@ -95,16 +150,12 @@ class SceneRenderer:
             raise _gl.RenderingUnavailableError(
                 f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
             ) from exc
-        # Each render context has its own offscreen framebuffer; bind this one's.
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, entry[1])
-        return entry
 
     def release(self, model: mujoco.MjModel) -> None:
-        """Free the render state of one model (e.g. when its simulation is closed)."""
-        entry = self._contexts.pop(id(model), None)
-        if entry is not None and self._gl is not None:
-            self._gl.make_current()
-            entry[1].free()
+        """Forget ``model`` (its simulation is closed): the next scene rendered uploads all of
+        its assets rather than compare them with a model that may be freed."""
+        if model is self._model:
+            self._model = None
 
     # --- rendering -------------------------------------------------------------------------
     def render(
@@ -120,7 +171,8 @@ class SceneRenderer:
         optical axis; ``"segmentation"``: ``int32 (H, W, 2)`` (object id, object type), -1 for
         background (the layout of ``mujoco.Renderer``)."""
         w, h = width or self.width, height or self.height
-        _, con, scene = self._bind(model, w, h)
+        self._bind(model, w, h)
+        con, scene = self._con, self._scene
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FIXED
         cam.fixedcamid = camera_id
@@ -147,11 +199,11 @@ class SceneRenderer:
 
     # --- lifetime --------------------------------------------------------------------------
     def close(self) -> None:
-        """Free all GL state (the next :meth:`render` builds what it needs again)."""
+        """Free the GL state (the next :meth:`render` builds it again)."""
         if self._gl is not None:
             self._gl.make_current()
-            for _, con, _ in self._contexts.values():
-                con.free()
+            if self._con is not None:
+                self._con.free()
             self._gl.free()
         self._reset_handles()
 
