@@ -5,7 +5,9 @@ resets once onto every catalogue object (the cold start: every scene is compiled
 reset, and a vector env pays this again in each subprocess), then resets ``--resets`` more times
 onto random objects (the steady state). Reported: resident memory (VmRSS) after import, after
 ``make``, after the catalogue pass and at the end; the first-reset (compile) times; the median
-and 90th-percentile steady-state reset times, split by whether the reset switched scenes.
+and 90th-percentile steady-state reset times, split by whether the reset switched scenes, as
+wall time and as the process's CPU time (all its threads, software GL's included), which other
+load on a shared machine inflates much less.
 
     python benchmarks/env_memory.py                  # writes benchmarks/results/env_memory.json
     python benchmarks/env_memory.py --resets 50 --out /tmp/m.json
@@ -67,17 +69,20 @@ def worker(config: str, resets: int, seed: int) -> dict:
         env.reset(seed=seed + i, options={"object_name": name})
         first[name] = time.perf_counter() - t0
     rss_catalogue = _rss_mb()
-    switch, same = [], []
+    switch, same, cpu = [], [], []
     current = env.unwrapped.sim.object_spec.name
     for i in range(resets):
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         _, info = env.reset(seed=seed + 1000 + i)
-        dt = time.perf_counter() - t0
+        dt, cpu_dt = time.perf_counter() - t0, time.process_time() - c0
         (same if info["object_name"] == current else switch).append(dt)
+        cpu.append((info["object_name"] != current, cpu_dt))
         current = info["object_name"]
     env.close()
     ms = 1e3
     all_resets = switch + same
+    cpu_switch = [c for switched, c in cpu if switched]
+    cpu_same = [c for switched, c in cpu if not switched]
     return {
         "config": CONFIGS[config],
         "objects": len(CATALOGUE),
@@ -103,6 +108,11 @@ def worker(config: str, resets: int, seed: int) -> dict:
             "median_same_scene": round(ms * _median(same), 3) if same else None,
             "switches": len(switch),
         },
+        "steady_reset_cpu_ms": {
+            "median": round(ms * _median([c for _, c in cpu]), 3),
+            "median_switching_scene": round(ms * _median(cpu_switch), 3) if cpu_switch else None,
+            "median_same_scene": round(ms * _median(cpu_same), 3) if cpu_same else None,
+        },
     }
 
 
@@ -111,6 +121,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--resets", type=int, default=300, help="steady-state resets per config")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path(__file__).parent / "results/env_memory.json")
+    p.add_argument("--label", default="", help="what code was measured (stored in the JSON)")
     p.add_argument("--worker", choices=sorted(CONFIGS), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.resets < 1:
@@ -127,8 +138,10 @@ def main(argv: list[str] | None = None) -> dict:
         print(name, json.dumps(results[name], indent=1))
     report = {
         "benchmark": "env_memory",
+        "label": args.label,
         "machine": {
             "cpu_count": os.cpu_count(),
+            "load_average_1min_at_start": round(os.getloadavg()[0], 2),
             "platform": platform.platform(),
             "MUJOCO_GL": os.environ.get("MUJOCO_GL", ""),
         },
