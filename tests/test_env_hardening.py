@@ -188,7 +188,9 @@ def test_record_video_writes_an_mp4(tmp_path):
         render_height=48,
         max_episode_steps=6,
     )
-    env = RecordVideo(env, str(tmp_path / "videos"), episode_trigger=lambda episode: True, disable_logger=True)
+    env = RecordVideo(
+        env, str(tmp_path / "videos"), episode_trigger=lambda episode: True, disable_logger=True
+    )
     env.reset(seed=0)
     done = False
     while not done:

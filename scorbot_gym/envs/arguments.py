@@ -18,11 +18,11 @@ from scorbot_gym.objects import CATALOGUE, get_object
 
 # Physics substeps per control step: 1 s of simulated time per step at the 2 ms timestep.
 MAX_FRAME_SKIP = 500
-# Per-step action scales: beyond these one step moves more than the arm's whole range.
-STEP_SCALE_LIMITS = {
-    "max_joint_step": (0.0, math.pi),  # rad
-    "max_cartesian_step": (0.0, 0.5),  # m
-    "max_angle_step": (0.0, math.pi),  # rad
+# Largest per-step action scales: beyond these one step moves more than the arm's whole range.
+MAX_STEP_SCALE = {
+    "max_joint_step": math.pi,  # rad
+    "max_cartesian_step": 0.5,  # m
+    "max_angle_step": math.pi,  # rad
 }
 
 
@@ -31,6 +31,11 @@ def positive_float(name: str, value: Any, high: float) -> float:
     if isinstance(value, bool) or not isinstance(value, Real) or not 0.0 < value <= high:
         raise ValueError(f"{name} must be a finite number in (0, {high:.4g}], got {value!r}")
     return float(value)
+
+
+def step_scale(name: str, value: Any) -> float:
+    """An action scale (``max_joint_step`` ...) in (0, :data:`MAX_STEP_SCALE`]."""
+    return positive_float(name, value, MAX_STEP_SCALE[name])
 
 
 def int_in_range(name: str, value: Any, low: int, high: int) -> int:

@@ -46,8 +46,12 @@ class ScorbotGraspEnv(gym.Env):
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
     reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,
-    ``collision``, ``timeout`` (nothing went wrong, there was just no success yet) or
-    ``unstable`` (the physics blew up; the episode is then truncated).
+    ``collision`` (the arm hit the table, knocked the object, or hit itself), ``timeout``
+    (nothing went wrong, there was just no success yet) or ``unstable`` (the physics blew up or
+    a servo command was not finite; the episode is then truncated).
+
+    Every keyword is checked here (:mod:`scorbot_gym.envs.arguments`); ``step`` before ``reset``
+    raises Gymnasium's ``ResetNeeded``.
 
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
@@ -93,10 +97,9 @@ class ScorbotGraspEnv(gym.Env):
         check_render_size(image_width, image_height, "image size")
         check_render_size(render_width, render_height, "render size")
         self.frame_skip = args.int_in_range("frame_skip", frame_skip, 1, args.MAX_FRAME_SKIP)
-        steps = {"max_joint_step": max_joint_step, "max_cartesian_step": max_cartesian_step}
-        steps["max_angle_step"] = max_angle_step
-        for key, (_, high) in args.STEP_SCALE_LIMITS.items():
-            setattr(self, key, args.positive_float(key, steps[key], high))
+        self.max_joint_step = args.step_scale("max_joint_step", max_joint_step)
+        self.max_cartesian_step = args.step_scale("max_cartesian_step", max_cartesian_step)
+        self.max_angle_step = args.step_scale("max_angle_step", max_angle_step)
         self.observe_object_pose = args.flag("observe_object_pose", observe_object_pose)
         self.shadows = args.flag("shadows", shadows)
         self.action_type, self.reward_type = action_type, reward_type
@@ -146,8 +149,9 @@ class ScorbotGraspEnv(gym.Env):
 
     # --- plumbing ------------------------------------------------------------------------
     def _activate(self, name: str) -> None:
-        """Switch to the scene holding ``name`` (compiled once and cached: ~6 MB each; the
-        scenes share one renderer, which re-uploads the object's assets on a switch)."""
+        """Switch to the scene holding ``name``: compiled on first use and kept (~8 MB each),
+        as recompiling takes longer than a reset should; all scenes share one renderer and
+        one arm kinematics model."""
         if name not in self._sims:
             sim = Simulation(
                 name,

@@ -3,7 +3,7 @@
 An environment keeps one compiled MuJoCo scene per catalogue object, so that a scene switch on
 reset is a dictionary lookup. A ``mujoco.Renderer`` per scene costs a GL context, full-size
 (1280x960) offscreen buffers and a copy of every texture and mesh per object (software GL:
-~60 MB and ~0.3 s each). All our scenes share one layout (arena, arm, one object with one mesh
+~50 MB and ~0.3 s each). All our scenes share one layout (arena, arm, one object with one mesh
 and one texture), so one render context serves them all: when another scene is rendered, the
 textures and meshes that differ are uploaded over the previous ones (``mjr_uploadTexture`` /
 ``mjr_uploadMesh``, MuJoCo's way to change assets at run time); a scene with another layout
