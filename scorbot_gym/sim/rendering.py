@@ -24,6 +24,7 @@ import mujoco
 import numpy as np
 
 from scorbot_gym import _gl
+from scorbot_gym.sim._memory import release_freed_memory
 
 # Geoms in the visual scene: arena (~10), arm (~15), one object, plus decorations; MuJoCo
 # drops geoms past this (mjWARN_VGEOMFULL). mujoco.Renderer's 10000 costs ~6 MB per scene.
@@ -130,6 +131,7 @@ class SceneRenderer:
             if old is None or not _same(_mesh(model, i), _mesh(old, i)):
                 mujoco.mjr_uploadMesh(model, self._con, i)
         self._model = model
+        release_freed_memory()  # the replaced GL storage: ~10 MB over many switches otherwise
 
     def _bind(self, model: mujoco.MjModel, width: int, height: int) -> None:
         if width > self.width or height > self.height:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 from collections.abc import Sequence
 from typing import Literal
 
@@ -13,6 +11,7 @@ import numpy as np
 from pose.camera import CameraModel
 from scorbot_gym.objects import ObjectSpec, get_object
 from scorbot_gym.sim import cameras as cam_utils
+from scorbot_gym.sim._memory import release_freed_memory
 from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS
 from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.scene import (
@@ -48,14 +47,9 @@ def _release_compiler_memory() -> None:
     decoded mesh and texture (~9 MB per object) to speed up a recompile of the same file, which
     an env never does (each scene is compiled once and kept; recompiling the same object in
     the same process then takes ~0.15 s instead of ~0.05 s), and glibc keeps the compiler's
-    freed scratch memory unless asked to return it (see ``benchmarks/env_memory.py``)."""
+    freed scratch memory (see ``benchmarks/env_memory.py``)."""
     mujoco.mj_clearCache(mujoco.mj_getCache())
-    libc_name = ctypes.util.find_library("c")
-    if libc_name is None:
-        return
-    trim = getattr(ctypes.CDLL(libc_name), "malloc_trim", None)  # glibc only
-    if trim is not None:
-        trim(0)
+    release_freed_memory()
 
 
 def quat_from_yaw(yaw: float) -> np.ndarray:
@@ -119,7 +113,7 @@ class Simulation:
 
         m = self.model
         self.object_body = m.body(f"{spec.name}/object").id
-        free = m.body_jntadr[self.object_body]
+        free = m.body_jntadr[m.body_rootid[self.object_body]]  # on the attachment frame
         self.object_qpos = slice(m.jnt_qposadr[free], m.jnt_qposadr[free] + 7)
         self.object_qvel = slice(m.jnt_dofadr[free], m.jnt_dofadr[free] + 6)
         self.object_geoms = np.flatnonzero(m.geom_bodyid == self.object_body)
