@@ -10,12 +10,15 @@ import gymnasium as gym
 import mujoco
 import numpy as np
 from gymnasium import spaces
+from gymnasium.error import ResetNeeded
 
 from pose.camera import CameraModel
-from scorbot_gym.objects import CATALOGUE, get_object
+from scorbot_gym.envs import arguments as args
+from scorbot_gym.objects import get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
-from scorbot_gym.sim.simulation import Simulation
+from scorbot_gym.sim.rendering import SceneRenderer
+from scorbot_gym.sim.simulation import Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 
@@ -27,6 +30,7 @@ _INSTABILITY_WARNINGS = (
     mujoco.mjtWarning.mjWARN_BADQPOS,
     mujoco.mjtWarning.mjWARN_BADQVEL,
     mujoco.mjtWarning.mjWARN_BADQACC,
+    mujoco.mjtWarning.mjWARN_BADCTRL,
 )
 
 
@@ -43,8 +47,12 @@ class ScorbotGraspEnv(gym.Env):
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
     reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,
-    ``collision``, ``timeout`` (nothing went wrong, there was just no success yet) or
-    ``unstable`` (the physics blew up; the episode is then truncated).
+    ``collision`` (the arm hit the table, knocked the object, or hit itself), ``timeout``
+    (nothing went wrong, there was just no success yet) or ``unstable`` (the physics blew up or
+    a servo command was not finite; the episode is then truncated).
+
+    Every keyword is checked here (:mod:`scorbot_gym.envs.arguments`); ``step`` before ``reset``
+    raises Gymnasium's ``ResetNeeded``.
 
     ``disturbance`` moves the object while the arm approaches (``"push"``: one seeded push and
     turn before the grasp; ``"slide"``: a slow steady slide until the robot touches it; or a
@@ -87,33 +95,42 @@ class ScorbotGraspEnv(gym.Env):
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
+        image_types = args.name_list("image_types", image_types, "rgb")
         bad = [t for t in image_types if t not in IMAGE_TYPES]
         if bad or not image_types:
             raise ValueError(f"image_types must be a non-empty subset of {IMAGE_TYPES}, got {bad}")
-        if frame_skip < 1:
-            raise ValueError(f"frame_skip must be >= 1, got {frame_skip}")
-        names = [object_name] if object_name is not None else list(objects or CATALOGUE)
-        if not names:
-            raise ValueError("objects must name at least one catalogue object")
-        self.object_names = tuple(get_object(n).name for n in names)  # KeyError lists valid names
+        self.object_names = args.object_names(object_name, objects)
+        self.cameras = args.name_list("cameras", cameras, "top")
+        check_render_size(image_width, image_height, "image size")
+        check_render_size(render_width, render_height, "render size")
+        self.frame_skip = args.int_in_range("frame_skip", frame_skip, 1, args.MAX_FRAME_SKIP)
+        self.max_joint_step = args.step_scale("max_joint_step", max_joint_step)
+        self.max_cartesian_step = args.step_scale("max_cartesian_step", max_cartesian_step)
+        self.max_angle_step = args.step_scale("max_angle_step", max_angle_step)
+        self.observe_object_pose = args.flag("observe_object_pose", observe_object_pose)
+        self.shadows = args.flag("shadows", shadows)
         self.action_type, self.reward_type = action_type, reward_type
-        self.cameras, self.image_types = tuple(cameras), tuple(image_types)
+        self.image_types = image_types
         self.image_width, self.image_height = image_width, image_height
-        self.observe_object_pose = observe_object_pose
         self.render_mode, self.render_camera = render_mode, render_camera
         self.render_width, self.render_height = render_width, render_height
-        self.frame_skip = frame_skip
-        self.shadows = shadows
-        self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
-        self.max_angle_step = max_angle_step
         self.disturbance = disturbance
         self._disturbance = make_disturbance(disturbance)
         self._disturbance_info: dict[str, Any] | None = None
         self._elapsed = 0
 
+        # One GL context for all scenes, its buffer as large as the largest image asked for.
+        sizes = [(image_width, image_height)] if self.cameras else []
+        sizes += [(render_width, render_height)] if render_mode else []
+        self._renderer = SceneRenderer(
+            max((w for w, _ in sizes), default=image_width),
+            max((h for _, h in sizes), default=image_height),
+            self.shadows,
+        )
+        self._needs_reset = True
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
-        for cam in (*self.cameras, *([render_camera] if render_mode else [])):
+        for cam in (*self.cameras, render_camera):
             self.sim.camera_id(cam)  # ValueError listing the valid cameras
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32)
@@ -143,15 +160,19 @@ class ScorbotGraspEnv(gym.Env):
 
     # --- plumbing ------------------------------------------------------------------------
     def _activate(self, name: str) -> None:
-        """Switch to the scene holding ``name`` (scenes are compiled once and cached)."""
+        """Switch to the scene holding ``name``: compiled on first use and kept (~8 MB each),
+        as recompiling takes longer than a reset should; all scenes share one renderer and
+        one arm kinematics model."""
         if name not in self._sims:
             sim = Simulation(
                 name,
                 render_width=self.image_width,
                 render_height=self.image_height,
                 shadows=self.shadows,
+                renderer=self._renderer,
             )
-            robot = Robot(sim)
+            first = next(iter(self._sims.values()), None)
+            robot = Robot(sim, first[1].kinematics if first else None)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
         self.sim, self.robot, self.task = self._sims[name]
 
@@ -176,9 +197,12 @@ class ScorbotGraspEnv(gym.Env):
         if self._disturbance is not None:  # drawn after placement: placements stay the same
             self._disturbance.reset(self.np_random)
             self._disturbance_info = None
+        self._needs_reset = False
         return self._observation(), self._info(None, None)
 
     def step(self, action):
+        if self._needs_reset:
+            raise ResetNeeded("Cannot call env.step() before calling env.reset()")
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
@@ -237,6 +261,12 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self.observe_object_pose:
             obs["object_pos"], obs["object_quat"] = self.sim.object_pose()
+        # MuJoCo's joint limits and contacts are soft: pushed hard (the hand folded onto the
+        # column) a joint passes its stop by up to ~1 mrad and the fingers by ~1 mm. Readings
+        # are clipped to the space, as the real controller's encoders stop at the limits.
+        for key, value in obs.items():
+            space = self.observation_space[key]
+            np.clip(value, space.low, space.high, out=value)
         for cam in self.cameras:  # rendered once per control step, only when asked for
             if "rgb" in self.image_types:
                 obs[f"{cam}_rgb"] = self.sim.render(cam, "rgb")
@@ -297,3 +327,4 @@ class ScorbotGraspEnv(gym.Env):
     def close(self) -> None:
         for sim, _, _ in self._sims.values():
             sim.close()
+        self._renderer.close()

@@ -15,9 +15,10 @@ from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation
 
 
 class Robot:
-    """Reads and commands the arm in a simulation; ``kinematics`` is its FK/IK model."""
+    """Reads and commands the arm in a simulation; ``kinematics`` is its FK/IK model (pass one
+    to share it between the scenes of an env: it is the same arm in every scene)."""
 
-    def __init__(self, sim: Simulation) -> None:
+    def __init__(self, sim: Simulation, kinematics: ArmKinematics | None = None) -> None:
         self.sim = sim
         m = sim.model
         self.qpos_idx = sim.arm_qpos
@@ -33,7 +34,7 @@ class Robot:
         self.finger_geoms = [np.flatnonzero(m.geom_bodyid == b) for b in finger_bodies]
         arm_bodies = [m.body(ARM_PREFIX + b).id for b in ("upper_arm", "forearm", "wrist", "hand")]
         self.link_geoms = np.flatnonzero(np.isin(m.geom_bodyid, arm_bodies))
-        self.kinematics = ArmKinematics()
+        self.kinematics = kinematics or ArmKinematics()
 
     # --- state ---------------------------------------------------------------------------
     @property

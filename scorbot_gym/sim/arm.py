@@ -38,6 +38,11 @@ _KV = {"base": 16.0, "shoulder": 23.0, "elbow": 12.0, "wrist_pitch": 2.0, "wrist
 _FORCE = {"base": 40.0, "shoulder": 60.0, "elbow": 40.0, "wrist_pitch": 12.0, "wrist_roll": 5.0}
 _ARMATURE = {"base": 0.1, "shoulder": 0.1, "elbow": 0.05, "wrist_pitch": 0.01, "wrist_roll": 0.005}
 GRIPPER_FORCE = 25.0  # N per finger at most
+# Joint limits as stiff as the finger contacts (MuJoCo's default limit, solref 0.02 s, is softer
+# than the fingers' 0.004 s contacts, so the hand folding onto the column pushed the fingers 7 mm
+# past their closed stop). Limits stay soft constraints: see ``ScorbotGraspEnv`` for the clip.
+_LIMIT_SOLREF = [0.004, 1.0]
+_LIMIT_SOLIMP = [0.95, 0.99, 0.001, 0.5, 2.0]
 
 # A tucked pose that keeps the arm out of the top camera's view of the workspace.
 HOME_QPOS = np.deg2rad([0.0, 95.0, -115.0, -70.0, 0.0])
@@ -72,6 +77,8 @@ def _revolute(body, name: str, axis) -> None:
         armature=_ARMATURE[name],
         damping=0.05 * _KV[name],
         frictionloss=0.01,
+        solreflimit=_LIMIT_SOLREF,
+        solimplimit=_LIMIT_SOLIMP,
     )
 
 
@@ -179,6 +186,8 @@ def build_arm() -> mjcf.RootElement:
             range=[0, half],
             armature=0.01,
             damping=2.0,
+            solreflimit=_LIMIT_SOLREF,
+            solimplimit=_LIMIT_SOLIMP,
         )
         # Finger body at the closed position; pads face the centre plane y=0.
         f.add(

@@ -20,6 +20,8 @@ TABLE_HEIGHT = 0.75
 WORKSPACE_X = (0.22, 0.34)
 WORKSPACE_Y = (-0.12, 0.12)
 _WS_CX = sum(WORKSPACE_X) / 2
+# Largest image any camera renders (MuJoCo's offscreen framebuffer limit in the model).
+MAX_RENDER_WIDTH, MAX_RENDER_HEIGHT = 1280, 960
 
 DEFAULT_CAMERAS: tuple[CameraSpec, ...] = (
     # Above the workspace looking straight down; image up = away from the robot.
@@ -50,8 +52,8 @@ def _arena(cameras: Sequence[CameraSpec]) -> mjcf.RootElement:
     arena.visual.quality.offsamples = 0
     arena.visual.map.znear = 0.01
     arena.visual.map.zfar = 5.0  # x extent (2 m): nothing is farther than 10 m
-    getattr(arena.visual, "global").offwidth = 1280
-    getattr(arena.visual, "global").offheight = 960
+    getattr(arena.visual, "global").offwidth = MAX_RENDER_WIDTH
+    getattr(arena.visual, "global").offheight = MAX_RENDER_HEIGHT
     arena.visual.headlight.ambient = [0.35, 0.35, 0.35]
     arena.visual.headlight.diffuse = [0.4, 0.4, 0.4]
 

@@ -9,12 +9,15 @@ import mujoco  # the package's __init__ has already chosen the GL backend
 import numpy as np
 
 from pose.camera import CameraModel
-from scorbot_gym import _gl
 from scorbot_gym.objects import ObjectSpec, get_object
 from scorbot_gym.sim import cameras as cam_utils
+from scorbot_gym.sim._memory import release_freed_memory
 from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS
+from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.scene import (
     DEFAULT_CAMERAS,
+    MAX_RENDER_HEIGHT,
+    MAX_RENDER_WIDTH,
     TABLE_HEIGHT,
     WORKSPACE_X,
     WORKSPACE_Y,
@@ -23,6 +26,30 @@ from scorbot_gym.sim.scene import (
 
 RenderKind = Literal["rgb", "depth", "segmentation"]
 ARM_PREFIX = "scorbot/"
+
+
+def check_render_size(width: int, height: int, what: str = "render size") -> None:
+    """ValueError unless ``width`` x ``height`` is a positive size that fits the framebuffer."""
+    for name, v, top in (("width", width, MAX_RENDER_WIDTH), ("height", height, MAX_RENDER_HEIGHT)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+            raise ValueError(f"{what} {name} must be an int in [1, {top}], got {v!r}")
+        if v < 1:
+            raise ValueError(f"{what} {name} must be in [1, {top}], got {v}")
+        if v > top:
+            raise ValueError(
+                f"{what} {width}x{height} exceeds the framebuffer "
+                f"(max {MAX_RENDER_WIDTH}x{MAX_RENDER_HEIGHT})"
+            )
+
+
+def _release_compiler_memory() -> None:
+    """Drop what compiling a scene leaves behind: MuJoCo's process-wide asset cache keeps the
+    decoded mesh and texture (~9 MB per object) to speed up a recompile of the same file, which
+    an env never does (each scene is compiled once and kept; recompiling the same object in
+    the same process then takes ~0.15 s instead of ~0.05 s), and glibc keeps the compiler's
+    freed scratch memory (see ``benchmarks/env_memory.py``)."""
+    mujoco.mj_clearCache(mujoco.mj_getCache())
+    release_freed_memory()
 
 
 def quat_from_yaw(yaw: float) -> np.ndarray:
@@ -50,12 +77,13 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class Simulation:
-    """One scene (arena, SCORBOT arm, one object) and its renderers.
+    """One scene (arena, SCORBOT arm, one object) and its renderer.
 
     ``shadows=True`` turns on the key light's shadow map (slower in software rendering).
 
-    ``render`` is only called when an image is asked for; renderers are created lazily, one per
-    image size, and reused.
+    ``renderer`` lets several simulations share one :class:`SceneRenderer` (one GL context);
+    without it the simulation makes its own. GL state is only created when an image is first
+    asked for.
     """
 
     def __init__(
@@ -65,12 +93,10 @@ class Simulation:
         render_width: int = 640,
         render_height: int = 480,
         shadows: bool = False,
+        renderer: SceneRenderer | None = None,
     ) -> None:
         spec = object_name if isinstance(object_name, ObjectSpec) else get_object(object_name)
-        if render_width <= 0 or render_height <= 0 or render_width > 1280 or render_height > 960:
-            raise ValueError(
-                f"render size must be within 1x1..1280x960, got {render_width}x{render_height}"
-            )
+        check_render_size(render_width, render_height)
         self.object_spec = spec
         self.camera_specs = {c.name: c for c in cameras}
         self.render_width, self.render_height = render_width, render_height
@@ -80,11 +106,14 @@ class Simulation:
             mjcf_model.to_xml_string(), mjcf_model.get_assets()
         )
         self.data = mujoco.MjData(self.model)
-        self._renderers: dict[tuple[int, int], mujoco.Renderer] = {}
+        del mjcf_model
+        _release_compiler_memory()
+        self._owns_renderer = renderer is None
+        self.renderer = renderer or SceneRenderer(render_width, render_height, shadows)
 
         m = self.model
         self.object_body = m.body(f"{spec.name}/object").id
-        free = m.body_jntadr[self.object_body]
+        free = m.body_jntadr[m.body_rootid[self.object_body]]  # on the attachment frame
         self.object_qpos = slice(m.jnt_qposadr[free], m.jnt_qposadr[free] + 7)
         self.object_qvel = slice(m.jnt_dofadr[free], m.jnt_dofadr[free] + 6)
         self.object_geoms = np.flatnonzero(m.geom_bodyid == self.object_body)
@@ -167,21 +196,6 @@ class Simulation:
         T = cam_utils.world_from_camera(self.data.cam_xpos[cam_id], self.data.cam_xmat[cam_id])
         return CameraModel(K=K, world_from_camera=T, width=w, height=h, name=camera)
 
-    def _renderer(self, width: int, height: int) -> mujoco.Renderer:
-        key = (width, height)
-        if key not in self._renderers:
-            try:
-                renderer = mujoco.Renderer(self.model, height, width)
-            except Exception as exc:  # mujoco raises several types when no GL context exists
-                raise _gl.RenderingUnavailableError(
-                    f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
-                ) from exc
-            # Shadow mapping triples the cost of a frame in software GL (~17 vs ~5.5 ms at
-            # 320x240 on one core), so it is opt-in.
-            renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.shadows
-            self._renderers[key] = renderer
-        return self._renderers[key]
-
     def render(
         self,
         camera: str,
@@ -194,31 +208,17 @@ class Simulation:
         if kind not in ("rgb", "depth", "segmentation"):
             raise ValueError(f"render kind must be 'rgb', 'depth' or 'segmentation', got {kind!r}")
         cam_id = self.camera_id(camera)
-        r = self._renderer(width or self.render_width, height or self.render_height)
-        if kind == "depth":
-            r.enable_depth_rendering()
-        elif kind == "segmentation":
-            r.enable_segmentation_rendering()
-        try:
-            r.update_scene(self.data, camera=cam_id)
-            out = r.render()
-        finally:
-            r.disable_depth_rendering()
-            r.disable_segmentation_rendering()
+        w, h = width or self.render_width, height or self.render_height
+        check_render_size(w, h)
+        out = self.renderer.render(self.model, self.data, cam_id, kind, w, h)
         if kind == "segmentation":
             is_geom = out[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)
             return is_geom & np.isin(out[..., 0], self.object_geoms)
-        if kind == "depth":
-            return out.astype(np.float32, copy=False)
         return out
 
     def close(self) -> None:
-        for r in self._renderers.values():
-            r.close()
-        self._renderers.clear()
-
-    def __del__(self) -> None:  # renderers hold GL contexts; free them with the simulation
-        try:
-            self.close()
-        except Exception:
-            pass
+        """Free this scene's GL state (all of the renderer's if this simulation made it)."""
+        if self._owns_renderer:
+            self.renderer.close()
+        else:
+            self.renderer.release(self.model)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scorbot_gym.robot import Robot
-from scorbot_gym.sim.simulation import Simulation, quat_to_mat
+from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation, quat_to_mat
 
 FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
 
@@ -19,6 +19,7 @@ class EpisodeState:
     ever_grasped: bool = False
     closed_empty: bool = False
     arm_collision: bool = False
+    self_collision: bool = False
     success: bool = False
 
 
@@ -40,8 +41,13 @@ class GraspTask:
         self.reward_type = reward_type
         self.lift_height, self.hold_time = lift_height, hold_time
         self.state: EpisodeState | None = None
-        table = sim.model.geom("table_top").id
-        self._table_geom = np.array([table])
+        m = sim.model
+        self._table_geom = np.array([m.geom("table_top").id])
+        # Contacts between two of these are the arm hitting itself (MuJoCo already skips
+        # parent-child pairs and the arm excludes its neighbouring links).
+        self._arm_geoms = np.array(
+            [g for g in range(m.ngeom) if m.geom(g).name.startswith(ARM_PREFIX)]
+        )
 
     def place_object(self, rng: np.random.Generator, resting_index: int = 0) -> None:
         (x0, x1), (y0, y1) = self.sim.workspace_xy_bounds
@@ -69,12 +75,19 @@ class GraspTask:
         st.held_time = st.held_time + dt if (grasped and lifted) else 0.0
         st.ever_grasped |= grasped
         st.arm_collision |= link_obj or link_table
+        st.self_collision |= self.self_collision()
         opening = self.robot.gripper_opening
         st.closed_empty |= opening < 0.004 and not grasped
         st.success |= st.held_time >= self.hold_time - 1e-9
         fell = pos[2] < self.sim.table_height - 0.05
         reach = float(np.linalg.norm(self.robot.tcp_pos - self.grasp_point_world()))
         return {"grasped": grasped, "lift": lift, "reach": reach, "fell": fell}
+
+    def self_collision(self) -> bool:
+        """Whether two parts of the arm touch now (e.g. the hand folded onto the column)."""
+        d = self.sim.data
+        pairs = d.contact.geom[: d.ncon]
+        return bool(np.isin(pairs, self._arm_geoms).all(axis=1).any())
 
     def reward(self, facts: dict) -> float:
         if self.reward_type == "sparse":
@@ -93,7 +106,7 @@ class GraspTask:
             return "unstable"
         if facts["fell"] or (st.ever_grasped and not facts["grasped"]):
             return "dropped"
-        if st.arm_collision and not st.ever_grasped:
+        if st.self_collision or (st.arm_collision and not st.ever_grasped):
             return "collision"
         if st.closed_empty and not st.ever_grasped:
             return "missed"

@@ -1,0 +1,82 @@
+"""Checks of :class:`~scorbot_gym.envs.grasp.ScorbotGraspEnv`'s keyword arguments.
+
+Every keyword is checked when the environment is made, so a typo fails at ``gym.make`` with one
+line naming the argument and what it accepts, instead of deep inside MuJoCo, numpy or the first
+``step`` (a NaN step size used to reach the servos as NaN controls).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from numbers import Real
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.objects import CATALOGUE, get_object
+
+# Physics substeps per control step: 1 s of simulated time per step at the 2 ms timestep.
+MAX_FRAME_SKIP = 500
+# Largest per-step action scales: beyond these one step moves more than the arm's whole range.
+MAX_STEP_SCALE = {
+    "max_joint_step": math.pi,  # rad
+    "max_cartesian_step": 0.5,  # m
+    "max_angle_step": math.pi,  # rad
+}
+
+
+def positive_float(name: str, value: Any, high: float) -> float:
+    """``value`` as a float in (0, high]; ValueError naming ``name`` otherwise (NaN included)."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0.0 < value <= high:
+        raise ValueError(f"{name} must be a finite number in (0, {high:.4g}], got {value!r}")
+    return float(value)
+
+
+def step_scale(name: str, value: Any) -> float:
+    """An action scale (``max_joint_step`` ...) in (0, :data:`MAX_STEP_SCALE`]."""
+    return positive_float(name, value, MAX_STEP_SCALE[name])
+
+
+def int_in_range(name: str, value: Any, low: int, high: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be an int in [{low}, {high}], got {value!r}")
+    if not low <= value <= high:
+        raise ValueError(f"{name} must be in [{low}, {high}], got {value}")
+    return int(value)
+
+
+def flag(name: str, value: Any) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def name_list(name: str, value: Any, example: str) -> tuple[str, ...]:
+    """A sequence of names as a tuple; a bare string is refused (it would be read as letters)."""
+    if isinstance(value, str):
+        raise ValueError(f"{name} must be a list of names, e.g. {name}=[{value!r}], got {value!r}")
+    if not isinstance(value, Sequence) or not all(isinstance(v, str) for v in value):
+        raise ValueError(f"{name} must be a list of names such as [{example!r}], got {value!r}")
+    if len(set(value)) != len(value):
+        raise ValueError(f"{name} must not repeat a name, got {list(value)}")
+    return tuple(value)
+
+
+def object_names(object_name: str | None, objects: Sequence[str] | None) -> tuple[str, ...]:
+    """Canonical catalogue names from ``object_name`` or ``objects`` (None: whole catalogue)."""
+    if object_name is not None and objects is not None:
+        raise ValueError("give object_name or objects, not both")
+    if object_name is not None:
+        if not isinstance(object_name, str):
+            raise ValueError(f"object_name must be a catalogue name, got {object_name!r}")
+        names: tuple[str, ...] = (object_name,)
+    elif objects is None:
+        names = tuple(CATALOGUE)
+    else:
+        names = name_list("objects", objects, "tomato_soup_can")
+        if not names:
+            raise ValueError(
+                "objects must name at least one catalogue object (None means all of them)"
+            )
+    return tuple(get_object(n).name for n in names)  # KeyError lists the valid names
