@@ -48,6 +48,11 @@ class ScorbotGraspEnv(gym.Env):
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
     object's true pose is always in ``info["object_pose"]``.
+
+    ``capture_background=True`` adds ``info["camera_background"]`` at reset: per camera, the
+    empty workspace (object not yet in the scene, arm where it is at reset) as ``{"rgb",
+    "joint_pos", "gripper_opening"}`` - the reference frame a lab captures before placing the
+    object, for background-subtraction segmenters.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -72,6 +77,7 @@ class ScorbotGraspEnv(gym.Env):
         max_joint_step: float = 0.1,
         max_cartesian_step: float = 0.02,
         max_angle_step: float = 0.1,
+        capture_background: bool = False,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -99,6 +105,7 @@ class ScorbotGraspEnv(gym.Env):
         self.shadows = shadows
         self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
         self.max_angle_step = max_angle_step
+        self.capture_background = bool(capture_background)
 
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
@@ -161,7 +168,10 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         self.sim.forward()
-        return self._observation(), self._info(None, None)
+        info = self._info(None, None)
+        if self.capture_background and self.cameras:
+            info["camera_background"] = self._background_frames()
+        return self._observation(), info
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float64)
@@ -225,6 +235,20 @@ class ScorbotGraspEnv(gym.Env):
                 seg = self.sim.render(cam, "segmentation")
                 obs[f"{cam}_privileged_segmentation"] = seg[..., None].astype(np.uint8)
         return obs
+
+    def _background_frames(self) -> dict[str, dict[str, Any]]:
+        """Each camera's view with the object taken out of the scene (then put back)."""
+        pos, quat = self.sim.object_pose()
+        self.sim.set_object_pose(pos + np.array([50.0, 50.0, -50.0]), quat)
+        self.sim.forward()
+        try:
+            arm = {"joint_pos": self.robot.joint_pos}
+            arm["gripper_opening"] = np.array([self.robot.gripper_opening])
+            frames = {cam: {"rgb": self.sim.render(cam, "rgb"), **arm} for cam in self.cameras}
+        finally:
+            self.sim.set_object_pose(pos, quat)
+            self.sim.forward()
+        return frames
 
     def camera_model(self, camera: str) -> CameraModel:
         """Intrinsics and extrinsics (OpenCV convention) of ``camera`` at the observation's image
