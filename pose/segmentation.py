@@ -5,12 +5,14 @@ it (captured once per camera and lighting, before the object is placed) tells th
 by colour change alone: no model of the object, no simulator. The difference is measured in
 CIE L*a*b* with lightness down-weighted, because a matte object and the table often differ
 more in chroma than in brightness while small brightness changes (sensor noise, soft shading)
-are the usual false positives. Morphology removes speckle and thin slivers; the object is the
-largest remaining connected component.
+are the usual false positives. Speckle is dropped by the component-area test; the object is
+the largest remaining connected component, with its enclosed holes filled. Opening and closing
+(``kernel > 1``) are there for noisy cameras and off by default: an opening also erases the
+thin strips of object that show between the gripper's fingers.
 
 Pixels the caller knows are not the object (the robot arm, rendered from its own kinematic
-model) are removed before morphology through ``exclude_mask``, so slivers along the arm's edge
-are opened away rather than merged into the object.
+model) are removed through ``exclude_mask`` after morphology (object and arm are still joined
+then, so no slivers are opened away) and before the largest component is chosen.
 """
 
 from __future__ import annotations
@@ -44,13 +46,14 @@ class BackgroundSubtractionSegmenter(BaseEstimator):
         Weight of the L* difference against a*, b*: below 1 it makes the test less sensitive
         to brightness-only changes (shading, soft shadows).
     kernel : int
-        Side of the square structuring element (pixels) of the opening and closing; 1 turns
-        morphology off.
+        Side of the square structuring element (pixels) of the opening and closing; 1 (the
+        default) turns morphology off.
     min_area : int
         Components smaller than this many pixels are not an object (the result is empty).
     exclude_dilation : int
-        ``exclude_mask`` is grown by this many pixels first: a rendered arm mask and the
-        image disagree by a pixel or so along the arm's edge.
+        ``exclude_mask`` is grown by this many pixels first. 0 (the default) suits a mask
+        rendered from the same model and calibration as the image; grow it when they may
+        disagree by a pixel or so (a real camera's calibration error).
     fill_holes : bool
         Fill holes enclosed by the object's component (texture that happens to match the
         table's colour).
@@ -64,9 +67,9 @@ class BackgroundSubtractionSegmenter(BaseEstimator):
         self,
         threshold: float = 10.0,
         lightness_weight: float = 0.5,
-        kernel: int = 3,
+        kernel: int = 1,
         min_area: int = 30,
-        exclude_dilation: int = 2,
+        exclude_dilation: int = 0,
         fill_holes: bool = True,
     ) -> None:
         self.threshold = threshold
@@ -109,8 +112,17 @@ class BackgroundSubtractionSegmenter(BaseEstimator):
         return np.sqrt((d * d).sum(axis=2))
 
     def foreground(self, rgb: np.ndarray, exclude_mask: np.ndarray | None = None) -> np.ndarray:
-        """All changed pixels (minus excluded ones) after opening and closing, ``(H, W)`` bool."""
+        """All changed pixels after opening and closing, minus excluded ones, ``(H, W)`` bool.
+
+        Morphology runs on the raw change mask (object and arm still joined) and the excluded
+        pixels go afterwards: opening after the removal would erase the thin strips of object
+        that show beside the gripper.
+        """
         fg = (self.difference(rgb) > self.threshold).astype(np.uint8)
+        if self.kernel > 1:
+            se = np.ones((self.kernel, self.kernel), np.uint8)
+            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, se)
+            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, se)
         if exclude_mask is not None:
             ex = np.asarray(exclude_mask, dtype=bool)
             if ex.shape != fg.shape:
@@ -120,10 +132,6 @@ class BackgroundSubtractionSegmenter(BaseEstimator):
                 k = 2 * self.exclude_dilation + 1
                 ex = cv2.dilate(ex, np.ones((k, k), np.uint8))
             fg[ex > 0] = 0
-        if self.kernel > 1:
-            se = np.ones((self.kernel, self.kernel), np.uint8)
-            fg = cv2.morphologyEx(fg, cv2.MORPH_OPEN, se)
-            fg = cv2.morphologyEx(fg, cv2.MORPH_CLOSE, se)
         return fg > 0
 
     def segment(self, rgb: np.ndarray, exclude_mask: np.ndarray | None = None) -> np.ndarray:
