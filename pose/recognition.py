@@ -8,7 +8,9 @@ Two recognisers with one answer type, :class:`Recognition`:
   ambiguities differ, so fusing them resolves most of it.
 - :class:`AppearanceRecognizer`: run every object's pose model on the view and take the one
   whose keypoint matching explains the most RANSAC inliers. It needs texture, not an outline,
-  so a half-hidden object is still recognised from what is left of it.
+  so a half-hidden object is still recognised from what is left of it; when too few
+  keypoints are left for any pose, :class:`DescriptorVoteRecognizer` (nearest training
+  descriptor across all objects, ratio-tested) answers instead.
 
 :class:`RecognitionMemory` is the policy for using either in a control loop: the arm itself
 hides the object during a grasp, so recognise while the view is clear (silhouette away from
@@ -26,6 +28,8 @@ import cv2
 import numpy as np
 from sklearn.base import BaseEstimator, clone
 
+from pose.keypoints import extract_sift
+from pose.matching import DescriptorIndex
 from pose.shape.descriptors import shape_descriptor
 from pose.shape.flr import FLRClassifier
 
@@ -151,6 +155,53 @@ class SilhouetteRecognizer(BaseEstimator):
         )
 
 
+class DescriptorVoteRecognizer:
+    """The class whose training descriptors are nearest to most of the view's SIFT descriptors.
+
+    Each keypoint votes for the object owning its nearest training descriptor (pooled over
+    all objects' fitted ``db_desc_``) if that is closer than ``ratio`` times the nearest
+    descriptor of any *other* object (Lowe's ratio test across objects: descriptors repeated
+    over one object's own training views must not cancel each other). No geometry, so it
+    still answers with a handful of keypoints, where a pose estimate needs more.
+    """
+
+    def __init__(
+        self, estimators: Mapping[str, Any], ratio: float = 0.8, k: int = 10, seed: int = 0
+    ) -> None:
+        if not estimators:
+            raise ValueError("estimators must map at least one class to a fitted estimator")
+        if not 0.0 < ratio <= 1.0:
+            raise ValueError(f"ratio must be in (0, 1], got {ratio!r}")
+        self.estimators, self.ratio, self.k, self.seed = dict(estimators), ratio, k, seed
+        self._index: DescriptorIndex | None = None
+
+    def _build(self) -> DescriptorIndex:
+        names = list(self.estimators)
+        descs = [np.asarray(self.estimators[n].db_desc_, np.float32) for n in names]
+        ids = np.concatenate([np.full(len(d), i) for i, d in enumerate(descs)])
+        self._names = names
+        self._contrast = float(getattr(self.estimators[names[0]], "contrast_threshold", 0.04))
+        return DescriptorIndex(np.concatenate(descs), ids, len(names), self.seed)
+
+    def recognize(self, view: Any) -> Recognition:
+        if self._index is None:
+            self._index = self._build()
+        f = extract_sift(view.image, view.mask, 0, self._contrast)
+        votes = np.zeros(len(self._names))
+        if len(f):
+            idx, dist = self._index.nearest(f.descriptors, self.k)
+            owner = np.where(idx >= 0, self._index.view_ids[np.maximum(idx, 0)], -1)
+            for row_owner, row_dist in zip(owner, dist, strict=True):
+                if row_owner[0] < 0:
+                    continue
+                other = row_dist[(row_owner != row_owner[0]) & (row_owner >= 0)]
+                d2 = other[0] if len(other) else np.inf
+                if row_dist[0] < self.ratio * d2:
+                    votes[row_owner[0]] += 1
+        costs = {n: (-v if v > 0 else np.inf) for n, v in zip(self._names, votes, strict=True)}
+        return Recognition.from_costs(costs)
+
+
 class AppearanceRecognizer:
     """The class whose pose model explains the most keypoints of the view (RANSAC inliers).
 
@@ -158,12 +209,23 @@ class AppearanceRecognizer:
     with ``valid`` and ``n_inliers`` (e.g. :class:`pose.estimator.PoseManifoldEstimator`).
     The cost of a class is ``-n_inliers`` (``inf`` when its estimate is invalid); the winning
     class's estimate comes back in :attr:`Recognition.estimates`, so it need not be re-run.
+    When no class gives a valid estimate (too few keypoints left, e.g. a small object half
+    hidden) the ``fallback`` recogniser answers (default :class:`DescriptorVoteRecognizer`
+    when the estimators keep their training descriptors; ``None``: no answer).
     """
 
-    def __init__(self, estimators: Mapping[str, Any]) -> None:
+    def __init__(self, estimators: Mapping[str, Any], fallback: Any = "votes") -> None:
         if not estimators:
             raise ValueError("estimators must map at least one class to a pose estimator")
         self.estimators = dict(estimators)
+        if isinstance(fallback, str):
+            if fallback != "votes":
+                raise ValueError(
+                    f"fallback must be 'votes', None or a recognizer, got {fallback!r}"
+                )
+            has_db = all(hasattr(e, "db_desc_") for e in self.estimators.values())
+            fallback = DescriptorVoteRecognizer(self.estimators) if has_db else None
+        self.fallback = fallback
 
     def recognize(self, view: Any) -> Recognition:
         costs, estimates = {}, {}
@@ -174,7 +236,11 @@ class AppearanceRecognizer:
             out = est.predict(v)
             estimates[name] = out
             costs[name] = -float(out.n_inliers) if out.valid else np.inf
-        return Recognition.from_costs(costs, estimates=estimates)
+        result = Recognition.from_costs(costs, estimates=estimates)
+        if result.label is None and self.fallback is not None:
+            voted = self.fallback.recognize(view)
+            return dataclasses.replace(voted, estimates=estimates)
+        return result
 
 
 def view_is_clear(

@@ -4,13 +4,17 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from pose.camera import CameraModel
 from pose.recognition import (
+    AppearanceRecognizer,
+    DescriptorVoteRecognizer,
     Recognition,
     RecognitionMemory,
     SilhouetteRecognizer,
     view_is_clear,
 )
 from pose.shape.silhouettes import synthetic_dataset
+from pose.view import View
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation import run_episodes, summarize
 from scorbot_gym.perception.model_set import ModelSetPoseSource
@@ -167,4 +171,31 @@ def test_blank_or_occluded_view_gives_pose_valid_0(models, mode):
     assert info["perception"]["reason"]
     obs, *_ = env.step(np.zeros(6))
     assert obs["pose_valid"][0] == 0.0
+    env.close()
+
+
+def test_descriptor_votes_recognise_a_half_hidden_object(models):
+    env = make_env(
+        pose="oracle",
+        cameras=["top"],
+        image_width=320,
+        image_height=240,
+        image_types=["rgb", "privileged_segmentation"],
+        objects=OBJECTS,
+    )
+    votes = DescriptorVoteRecognizer(models.estimators)
+    appearance = AppearanceRecognizer(models.estimators)
+    for seed in (0, 1, 2):
+        obs, info = env.reset(seed=seed)
+        mask = obs["top_privileged_segmentation"][..., 0] > 0
+        rows = np.nonzero(mask.any(axis=1))[0]
+        half = mask.copy()
+        half[: rows[len(rows) // 2]] = False  # the top half of the silhouette hidden
+        cam = CameraModel(**info["camera_params"]["top"])
+        for m in (mask, half):
+            view = View(obs["top_rgb"], cam, m)
+            assert votes.recognize(view).label == info["object_name"]
+            assert appearance.recognize(view).label == info["object_name"]
+    with pytest.raises(ValueError, match="ratio"):
+        DescriptorVoteRecognizer(models.estimators, ratio=0.0)
     env.close()
