@@ -97,6 +97,9 @@ class SilhouetteRecognizer(BaseEstimator):
     classes_ : ndarray, the class labels (the same for every camera)
     """
 
+    #: what ``recognize`` takes: ``{camera: mask}`` (appearance recognisers take a view)
+    reads = "silhouettes"
+
     def __init__(
         self,
         classifier: Any = None,
@@ -165,6 +168,8 @@ class DescriptorVoteRecognizer:
     still answers with a handful of keypoints, where a pose estimate needs more.
     """
 
+    reads = "view"
+
     def __init__(
         self, estimators: Mapping[str, Any], ratio: float = 0.8, k: int = 10, seed: int = 0
     ) -> None:
@@ -213,6 +218,8 @@ class AppearanceRecognizer:
     hidden) the ``fallback`` recogniser answers (default :class:`DescriptorVoteRecognizer`
     when the estimators keep their training descriptors; ``None``: no answer).
     """
+
+    reads = "view"
 
     def __init__(self, estimators: Mapping[str, Any], fallback: Any = "votes") -> None:
         if not estimators:

@@ -46,7 +46,9 @@ class ModelSetPoseSource:
         the others serve recognition (e.g. ``("top", "side")``).
     recognizer
         Used only when the identity is withheld: ``"flr"`` (default), ``"appearance"`` or an
-        object with ``recognize``; trained or built on the first reset that needs it.
+        object with ``recognize`` (taking ``{camera: mask}`` if its ``reads`` is
+        ``"silhouettes"``, else a :class:`pose.view.View`); built on the first reset that
+        needs it.
     memory
         When to keep a recognition (default :class:`RecognitionMemory`: first clear view).
     clear_min_area
@@ -117,7 +119,7 @@ class ModelSetPoseSource:
         if self.memory.kept is not None:
             return None
         rec = self._recognizer
-        if hasattr(rec, "cameras") and not hasattr(rec, "estimators"):  # silhouettes
+        if getattr(rec, "reads", "view") == "silhouettes":  # masks of all cameras
             masks = {self.camera: view.mask}
             for cam in self.cameras[1:]:
                 masks[cam] = self.segmenter.segment(frame, cam)
