@@ -119,7 +119,10 @@ def main(argv: list[str] | None = None) -> int:
                     if level == 0.5:
                         row = confusion[m].setdefault(name, {})
                         row[str(answers[m])] = row.get(str(answers[m]), 0) + 1
-        print(f"{name}: " + ", ".join(f"{m} {np.mean(hits[m][0.5]):.2f}@50%" for m in methods))
+        right = {
+            m: confusion[m][name].get(name, 0) / sum(confusion[m][name].values()) for m in methods
+        }
+        print(f"{name} at 50 %: " + ", ".join(f"{m} {v:.2f}" for m, v in right.items()))
 
     accuracy = {
         m: {f"{int(100 * lv)}%": float(np.mean(hits[m][lv])) for lv in LEVELS} for m in methods
