@@ -104,6 +104,7 @@ def _records(env, seed, steps=12):
     return obs, recs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("recognizer", ["appearance", "flr"])
 def test_recognize_in_the_loop(models, flr, recognizer):
     env = _env(models, flr if recognizer == "flr" else "appearance", cameras=["top", "side"])
@@ -119,6 +120,7 @@ def test_recognize_in_the_loop(models, flr, recognizer):
     env.close()
 
 
+@pytest.mark.slow
 def test_recognition_is_counted_in_the_summary(models):
     env = _env(models, "appearance", estimate_every=0)
     results = run_episodes(env, ScriptedGraspPolicy.for_env(env), episodes=2, seed=3)
@@ -127,6 +129,7 @@ def test_recognition_is_counted_in_the_summary(models):
     env.close()
 
 
+@pytest.mark.slow
 def test_recognition_in_the_loop_is_deterministic(models):
     env = _env(models, "appearance")
     a, b = _records(env, 7)[1], _records(env, 7)[1]
@@ -161,6 +164,7 @@ class _Blind(gym.Wrapper):
         return (self._edit(obs), *rest)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mode", ["blank", "occluded"])
 def test_blank_or_occluded_view_gives_pose_valid_0(models, mode):
     source = ModelSetPoseSource(models, segmenter="background", recognizer="appearance")
@@ -174,6 +178,7 @@ def test_blank_or_occluded_view_gives_pose_valid_0(models, mode):
     env.close()
 
 
+@pytest.mark.slow
 def test_descriptor_votes_recognise_a_half_hidden_object(models):
     env = make_env(
         pose="oracle",
