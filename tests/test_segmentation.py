@@ -107,6 +107,7 @@ def grasp_frames():
     return frames
 
 
+@pytest.mark.slow
 def test_background_frames_are_the_empty_workspace(grasp_frames):
     obs, _, background = grasp_frames[0]
     for cam in ("top", "side"):
@@ -118,6 +119,7 @@ def test_background_frames_are_the_empty_workspace(grasp_frames):
         assert changed[obj].mean() > 0.9 and changed[~obj].mean() < 0.01  # only the object
 
 
+@pytest.mark.slow
 def test_arm_mask_matches_the_rendered_arm(grasp_frames):
     arm = ArmMaskRenderer()
     obs, params, _ = grasp_frames[2]
@@ -129,6 +131,7 @@ def test_arm_mask_matches_the_rendered_arm(grasp_frames):
     arm.close()
 
 
+@pytest.mark.slow
 def test_segmenter_on_rendered_frames_with_the_arm_in_view(grasp_frames):
     seg = BackgroundSegmenter()
     ious, arm_pixels = [], []
@@ -157,6 +160,7 @@ def test_segmenter_on_rendered_frames_with_the_arm_in_view(grasp_frames):
     assert seg.segment(frame, "top") is None
 
 
+@pytest.mark.slow
 def test_background_segmenter_needs_a_reference_frame(grasp_frames):
     obs, params, _ = grasp_frames[0]
     frame = PerceptionFrame(
