@@ -7,6 +7,7 @@ render exactly those, and wraps it with :class:`PoseEstimateObservation`.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -27,14 +28,28 @@ def make_env(
     classes: list[str] | None = None,
     identity: str = "given",
     keep_images: bool = False,
+    pose_cameras: Sequence[str] | None = None,
     **env_kwargs: Any,
 ) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)`` wrapped with a pose source's estimates.
 
     Camera settings the pose source needs are merged into ``env_kwargs``; a conflicting
-    setting given by the caller is an error, not silently overridden.
+    setting given by the caller is an error, not silently overridden. ``identity="recognize"``
+    withholds the object's identity from the source (it recognises it); ``pose_cameras`` are
+    the cameras a named source may use (``cameras=`` of its factory, e.g. ``["top", "side"]``
+    for recognition fused over both). Examples: ``pose_kwargs={"models": path, "segmenter":
+    "background", "recognizer": "appearance"}``.
     """
-    source = make_pose_source(pose, **(pose_kwargs or {}))
+    pose_kwargs = dict(pose_kwargs or {})
+    if pose_cameras is not None:
+        if not isinstance(pose, str):
+            raise ValueError("pose_cameras is only accepted with a pose source name")
+        if isinstance(pose_cameras, str) or not pose_cameras:
+            raise ValueError(
+                f"pose_cameras must be a non-empty list of camera names, got {pose_cameras!r}"
+            )
+        pose_kwargs["cameras"] = list(pose_cameras)
+    source = make_pose_source(pose, **pose_kwargs)
     needs = dict(getattr(source, "env_requirements", {}))
     if "cameras" in needs:
         cams = list(env_kwargs.get("cameras", ()))

@@ -62,6 +62,11 @@ class ScorbotGraspEnv(gym.Env):
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
     object's true pose is always in ``info["object_pose"]``.
+
+    ``capture_background=True`` adds ``info["camera_background"]`` at reset: per camera, the
+    empty workspace (object not yet in the scene, arm where it is at reset) as ``{"rgb",
+    "joint_pos", "gripper_opening"}`` - the reference frame a lab captures before placing the
+    object, for background-subtraction segmenters.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -87,6 +92,7 @@ class ScorbotGraspEnv(gym.Env):
         max_cartesian_step: float = 0.02,
         max_angle_step: float = 0.1,
         disturbance: str | Disturbance | None = None,
+        capture_background: bool = False,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -118,6 +124,7 @@ class ScorbotGraspEnv(gym.Env):
         self._disturbance = make_disturbance(disturbance)
         self._disturbance_info: dict[str, Any] | None = None
         self._elapsed = 0
+        self.capture_background = args.flag("capture_background", capture_background)
 
         # One GL context for all scenes, its buffer as large as the largest image asked for.
         sizes = [(image_width, image_height)] if self.cameras else []
@@ -198,7 +205,10 @@ class ScorbotGraspEnv(gym.Env):
             self._disturbance.reset(self.np_random)
             self._disturbance_info = None
         self._needs_reset = False
-        return self._observation(), self._info(None, None)
+        info = self._info(None, None)
+        if self.capture_background and self.cameras:
+            info["camera_background"] = self._background_frames()
+        return self._observation(), info
 
     def step(self, action):
         if self._needs_reset:
@@ -276,6 +286,20 @@ class ScorbotGraspEnv(gym.Env):
                 seg = self.sim.render(cam, "segmentation")
                 obs[f"{cam}_privileged_segmentation"] = seg[..., None].astype(np.uint8)
         return obs
+
+    def _background_frames(self) -> dict[str, dict[str, Any]]:
+        """Each camera's view with the object taken out of the scene (then put back)."""
+        pos, quat = self.sim.object_pose()
+        self.sim.set_object_pose(pos + np.array([50.0, 50.0, -50.0]), quat)
+        self.sim.forward()
+        try:
+            arm = {"joint_pos": self.robot.joint_pos}
+            arm["gripper_opening"] = np.array([self.robot.gripper_opening])
+            frames = {cam: {"rgb": self.sim.render(cam, "rgb"), **arm} for cam in self.cameras}
+        finally:
+            self.sim.set_object_pose(pos, quat)
+            self.sim.forward()
+        return frames
 
     def camera_model(
         self, camera: str, width: int | None = None, height: int | None = None

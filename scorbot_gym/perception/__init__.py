@@ -3,15 +3,23 @@
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.model_set import ModelSetPoseSource
 from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
+from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.registry import (
     FunctionPoseSource,
     make_pose_source,
     pose_source_names,
     register_pose_source,
 )
-from scorbot_gym.perception.segmenters import PrivilegedSegmenter, Segmenter
+from scorbot_gym.perception.segmenters import (
+    BackgroundSegmenter,
+    PrivilegedSegmenter,
+    Segmenter,
+    make_segmenter,
+    segmenter_names,
+)
 
 __all__ = [
+    "BackgroundSegmenter",
     "FunctionPoseSource",
     "ModelSetPoseSource",
     "NoisyOraclePoseSource",
@@ -22,6 +30,9 @@ __all__ = [
     "Segmenter",
     "WorldPose",
     "make_pose_source",
+    "make_recognizer",
+    "make_segmenter",
     "pose_source_names",
     "register_pose_source",
+    "segmenter_names",
 ]

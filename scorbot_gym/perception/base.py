@@ -25,7 +25,9 @@ class PerceptionFrame:
     proprioception); ``cameras`` the public calibration of each camera, keyed by name;
     ``object_name`` the object's identity when the user passes it (else ``None``: the source
     must recognise it); ``truth`` the true pose (``{"position", "quaternion"}``), given to
-    privileged sources only; ``step`` the number of env steps since reset.
+    privileged sources only; ``step`` the number of env steps since reset; ``backgrounds``
+    each camera's reference frame of the empty workspace (``info["camera_background"]`` from
+    the reset, when the env captures one: ``{"rgb", "joint_pos", "gripper_opening"}``).
     """
 
     observation: dict[str, np.ndarray] = field(default_factory=dict)
@@ -33,6 +35,7 @@ class PerceptionFrame:
     object_name: str | None = None
     truth: dict[str, Any] | None = None
     step: int = 0
+    backgrounds: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass

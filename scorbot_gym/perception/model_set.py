@@ -3,19 +3,29 @@
 The source segments the object in its camera's image, takes the object's identity (given, or
 recognised), runs that object's estimator from a :class:`pose.model_set.PoseModelSet` and
 converts the camera-frame answer to the world frame with the camera's public calibration.
+
+Recognition (when the wrapper withholds the identity, ``identity="recognize"``) uses a
+recogniser by name (:mod:`scorbot_gym.perception.recognizers`: ``"flr"`` on the silhouettes of
+all ``cameras``, fused; ``"appearance"``: the model explaining the most inliers) under a
+:class:`pose.recognition.RecognitionMemory`: the first confident answer from a clear view is
+kept for the episode, since the arm hides the object later in a grasp.
 """
 
 from __future__ import annotations
 
 import os
 import time
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
 from pose.model_set import PoseModelSet
+from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
-from scorbot_gym.perception.segmenters import PrivilegedSegmenter, Segmenter
+from scorbot_gym.perception.recognizers import make_recognizer
+from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.sim.simulation import mat_to_quat
 
 
@@ -25,18 +35,48 @@ class ModelSetPoseSource:
     ``models`` is a model set or the path of a file from ``scorbot-gym pose train``; its
     ``meta`` names the camera and image size it was trained for, and the env must render that
     camera at that size (``cameras=[camera], image_width=..., image_height=...``).
+
+    Parameters
+    ----------
+    segmenter
+        ``"privileged"`` (default: the simulator's mask), ``"background"`` (background
+        subtraction minus the arm, no simulator) or a segmenter object.
+    cameras
+        Cameras to use; the pose comes from the model set's camera (added first if missing),
+        the others serve recognition (e.g. ``("top", "side")``).
+    recognizer
+        Used only when the identity is withheld: ``"flr"`` (default), ``"appearance"`` or an
+        object with ``recognize`` (taking ``{camera: mask}`` if its ``reads`` is
+        ``"silhouettes"``, else a :class:`pose.view.View`); built on the first reset that
+        needs it.
+    memory
+        When to keep a recognition (default :class:`RecognitionMemory`: first clear view).
+    clear_min_area
+        Pixels a silhouette needs (in every camera used) for its view to count as clear.
     """
 
     def __init__(
         self,
         models: PoseModelSet | str | os.PathLike,
-        segmenter: Segmenter | None = None,
+        segmenter: Segmenter | str | None = None,
+        cameras: Sequence[str] | None = None,
+        recognizer: str | Any = "flr",
+        memory: RecognitionMemory | None = None,
+        clear_min_area: int = 200,
     ) -> None:
         self.models = models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
         self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
-        self.segmenter = segmenter if segmenter is not None else PrivilegedSegmenter()
+        self.segmenter = make_segmenter(segmenter)
+        if isinstance(cameras, str):
+            raise ValueError(f"cameras must be a list of camera names, got the string {cameras!r}")
+        extra = [c for c in (cameras or ()) if c != self.camera]
+        self.cameras = (self.camera, *dict.fromkeys(extra))
+        self.recognizer = recognizer
+        self.memory = memory if memory is not None else RecognitionMemory()
+        self.clear_min_area = int(clear_min_area)
+        self._recognizer: Any = None
 
     @property
     def privileged(self) -> bool:
@@ -44,41 +84,94 @@ class ModelSetPoseSource:
 
     @property
     def required_keys(self) -> tuple[str, ...]:
-        return (f"{self.camera}_rgb", *self.segmenter.required_keys(self.camera))
+        keys: list[str] = []
+        for cam in self.cameras:
+            keys += [f"{cam}_rgb", *self.segmenter.required_keys(cam)]
+        return tuple(keys)
 
     @property
     def env_requirements(self) -> dict:
         """The env keyword arguments that make it render what this source reads."""
         return {
-            "cameras": [self.camera],
+            "cameras": list(self.cameras),
             "image_width": self.width,
             "image_height": self.height,
             "image_types": ["rgb", *self.segmenter.image_types],
+            **getattr(self.segmenter, "env_kwargs", {}),
         }
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
-        self.segmenter.reset(frame, self.camera)
+        for cam in self.cameras:
+            self.segmenter.reset(frame, cam)
+        self.memory.reset()
+        if frame.object_name is None and len(self.models.object_names) > 1:
+            if self._recognizer is None:
+                self._recognizer = make_recognizer(
+                    self.recognizer, self.models, self.cameras, self.width, self.height
+                )
+
+    def _clear(self, mask: np.ndarray | None, cam: str) -> bool:
+        excluded = getattr(self.segmenter, "excluded", lambda c: None)(cam)
+        return view_is_clear(mask, excluded, min_area=self.clear_min_area)
+
+    def _recognise(self, frame: PerceptionFrame, view: View) -> Recognition | None:
+        """This step's recognition (``None`` when a kept one makes it unnecessary)."""
+        if self.memory.kept is not None:
+            return None
+        rec = self._recognizer
+        if getattr(rec, "reads", "view") == "silhouettes":  # masks of all cameras
+            masks = {self.camera: view.mask}
+            for cam in self.cameras[1:]:
+                masks[cam] = self.segmenter.segment(frame, cam)
+            result = rec.recognize(masks)
+            clear = all(self._clear(masks[c], c) for c in masks)
+        else:
+            result = rec.recognize(view)
+            clear = self._clear(view.mask, self.camera)
+        self.memory.offer(result, clear)
+        return result
 
     def estimate(self, frame: PerceptionFrame) -> WorldPose:
         cam_name = self.camera
         t0 = time.perf_counter()
         mask = self.segmenter.segment(frame, cam_name)
         timings = {"segment": (time.perf_counter() - t0) * 1e3}
+        timings.update(
+            {f"segment_{k}": v for k, v in getattr(self.segmenter, "timings_ms", {}).items()}
+        )
         name = frame.object_name
-        if mask is None:
-            return WorldPose.invalid("no object in view", object_name=name, timings_ms=timings)
         if name is None and len(self.models.object_names) == 1:
             name = self.models.object_names[0]
-        if name is None:
-            raise ValueError(
-                "ModelSetPoseSource needs the object's identity (frame.object_name) when its "
-                f"model set holds several objects ({self.models.object_names})"
+        if mask is None:
+            return WorldPose.invalid(
+                "no object in view",
+                object_name=name or self.memory.label_for(None),
+                timings_ms=timings,
             )
         cam = frame.cameras[cam_name]
         image = np.asarray(frame.observation[f"{cam_name}_rgb"])
-        est = self.models.predict(View(image, cam, mask, name))
-        timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
-        timings["estimate"] = est.timings_ms.get("total", 0.0)
+        view = View(image, cam, mask, name)
+        result = None
+        if name is None:
+            if self._recognizer is None:
+                raise ValueError(
+                    "ModelSetPoseSource needs the object's identity (frame.object_name) or a "
+                    f"reset without one to set up recognition ({self.models.object_names})"
+                )
+            t0 = time.perf_counter()
+            result = self._recognise(frame, view)
+            timings["recognise"] = (time.perf_counter() - t0) * 1e3
+            name = self.memory.label_for(result)
+            if name is None:
+                return WorldPose.invalid("object not recognised", timings_ms=timings)
+            view = View(image, cam, mask, name)
+        if result is not None and name in result.estimates:  # timed under "recognise"
+            est = result.estimates[name]
+            timings["estimate"] = 0.0
+        else:
+            est = self.models.predict(view)
+            timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
+            timings["estimate"] = est.timings_ms.get("total", 0.0)
         common = dict(
             object_name=name,
             n_keypoints=est.n_keypoints,

@@ -54,7 +54,9 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         Add ``object_class``, a one-hot over ``classes`` (default: the env's objects).
     identity
         ``"given"``: the source is told the object's true identity (what the user passes;
-        recorded as such). Recognition from the images replaces it when a source does it.
+        recorded as such). ``"recognize"``: it is withheld and the source recognises the
+        object from the images; ``info["perception"]["recognised"]`` records its answer next
+        to ``true_class``, so wrong recognitions are counted.
     keep_images
         Keep the observation entries the source consumed (camera images); dropped by default,
         so a policy sees only the estimate.
@@ -134,6 +136,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._held: WorldPose | None = None
         self._age, self._last_valid, self._t = MAX_AGE, False, 0
         self._cameras: dict = {}
+        self._backgrounds: dict = {}
 
     # --- gym API -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -142,6 +145,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._rng = np.random.default_rng([int(seed), 0x5EED])
         self._held, self._age, self._last_valid, self._t = None, MAX_AGE, False, 0
         self._cameras = {}
+        self._backgrounds = dict(info.get("camera_background", {}))
         self._update_cameras(info)
         frame = self._frame(obs, info)
         self.source.reset(frame, self._rng)
@@ -173,6 +177,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             object_name=info["object_name"] if self.identity == "given" else None,
             truth=info["object_pose"] if self.source.privileged else None,
             step=self._t,
+            backgrounds=self._backgrounds,
         )
 
     def _estimate(self, frame: PerceptionFrame, info: dict) -> dict[str, Any]:

@@ -1,0 +1,206 @@
+"""Recognition: fusion and memory on synthetic silhouettes, then in the loop with real models."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from pose.camera import CameraModel
+from pose.recognition import (
+    AppearanceRecognizer,
+    DescriptorVoteRecognizer,
+    Recognition,
+    RecognitionMemory,
+    SilhouetteRecognizer,
+    view_is_clear,
+)
+from pose.shape.silhouettes import synthetic_dataset
+from pose.view import View
+from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation import run_episodes, summarize
+from scorbot_gym.perception.model_set import ModelSetPoseSource
+from scorbot_gym.perception.recognizers import train_silhouette_recognizer
+from scorbot_gym.perception.training import train_models
+from scorbot_gym.policies import ScriptedGraspPolicy
+from scorbot_gym.wrappers.pose_observation import PoseEstimateObservation
+
+OBJECTS = ["box", "tomato_soup_can"]
+
+
+def test_costs_margin_and_memory():
+    r = Recognition.from_costs({"a": 0.5, "b": 0.1, "c": np.inf})
+    assert r.label == "b" and r.margin == pytest.approx(0.4)
+    assert Recognition.from_costs({"a": np.inf}).label is None
+    memory = RecognitionMemory(min_margin=0.2)
+    assert not memory.offer(r, clear=False) and memory.label_for(r) == "b"  # used, not kept
+    assert not memory.offer(Recognition.from_costs({"a": 0.0, "b": 0.1}), clear=True)
+    assert memory.offer(r, clear=True) and memory.kept is r
+    assert memory.label_for(Recognition.from_costs({"a": 0.0, "b": 9.0})) == "b"  # kept wins
+    memory.reset()
+    assert memory.label_for(None) is None
+    with pytest.raises(ValueError, match="min_margin"):
+        RecognitionMemory(min_margin=-1)
+
+
+def test_view_is_clear():
+    mask = np.zeros((60, 80), bool)
+    mask[20:40, 30:50] = True
+    assert view_is_clear(mask, min_area=100)
+    assert not view_is_clear(mask, min_area=1000)
+    arm = np.zeros_like(mask)
+    arm[41:, :] = True  # touches the silhouette's lower edge
+    assert not view_is_clear(mask, arm, min_area=100)
+    edge = np.zeros_like(mask)
+    edge[0:20, 0:20] = True
+    assert not view_is_clear(edge, min_area=100) and not view_is_clear(None)
+
+
+def test_silhouette_recognizer_fuses_cameras():
+    train, test = synthetic_dataset(12, seed=0), synthetic_dataset(5, seed=1)
+    cams = {"a": train.masks, "b": train.masks[::-1]}
+    labels = {"a": train.labels, "b": train.labels[::-1]}
+    rec = SilhouetteRecognizer().fit(cams, labels)
+    assert rec.cameras == ("a", "b")
+    right = [
+        rec.recognize({"a": m, "b": m}).label == y
+        for m, y in zip(test.masks, test.labels, strict=True)
+    ]
+    assert np.mean(right) > 0.9
+    assert rec.recognize({"a": None, "b": np.zeros((9, 9))}).label is None
+    with pytest.raises(ValueError, match="masks but"):
+        SilhouetteRecognizer().fit({"a": train.masks}, {"a": train.labels[:3]})
+
+
+@pytest.fixture(scope="module")
+def models():
+    return train_models(OBJECTS, n_views=72, progress=False)[0]
+
+
+@pytest.fixture(scope="module")
+def flr(models):
+    return train_silhouette_recognizer(OBJECTS, ["top", "side"], 320, 240, n_per_object=40)
+
+
+def _env(models, recognizer, cameras=None, estimate_every=4):
+    return make_env(
+        pose="manifold",
+        pose_kwargs={"models": models, "segmenter": "background", "recognizer": recognizer},
+        identity="recognize",
+        pose_cameras=cameras,
+        objects=OBJECTS,
+        estimate_every=estimate_every,
+    )
+
+
+def _records(env, seed, steps=12):
+    obs, info = env.reset(seed=seed)
+    policy = ScriptedGraspPolicy.for_env(env)
+    policy.reset(obs, info)
+    recs = [info["perception"]]
+    for _ in range(steps):
+        obs, _, term, trunc, info = env.step(policy.act(obs))
+        recs.append(info["perception"])
+        if term or trunc:
+            break
+    return obs, recs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("recognizer", ["appearance", "flr"])
+def test_recognize_in_the_loop(models, flr, recognizer):
+    env = _env(models, flr if recognizer == "flr" else "appearance", cameras=["top", "side"])
+    assert {"top_rgb", "side_rgb"} <= set(env.unwrapped.observation_space.spaces)
+    for seed in (0, 1):
+        obs, recs = _records(env, seed)
+        first = recs[0]
+        assert first["identity"] == "recognize" and first["valid"]
+        assert first["recognised"] == first["true_class"]  # both objects are easy from above
+        assert first["timings_ms"]["recognise"] > 0 and first["timings_ms"]["segment"] > 0
+        assert {r["recognised"] for r in recs if r["estimated"]} == {first["true_class"]}
+        assert set(obs) >= {"object_pos", "pose_valid", "object_class"}
+    env.close()
+
+
+@pytest.mark.slow
+def test_recognition_is_counted_in_the_summary(models):
+    env = _env(models, "appearance", estimate_every=0)
+    results = run_episodes(env, ScriptedGraspPolicy.for_env(env), episodes=2, seed=3)
+    perception = summarize(results)["perception"]
+    assert perception["recognition_accuracy"] == 1.0
+    env.close()
+
+
+@pytest.mark.slow
+def test_recognition_in_the_loop_is_deterministic(models):
+    env = _env(models, "appearance")
+    a, b = _records(env, 7)[1], _records(env, 7)[1]
+    keys = ("recognised", "valid", "pos_err_cm", "rot_err_deg", "n_inliers")
+    assert [[r[k] for k in keys] for r in a] == [[r[k] for k in keys] for r in b]
+    env.close()
+
+
+class _Blind(gym.Wrapper):
+    """Shows the camera the empty workspace (``"blank"``) or a grey card over the object."""
+
+    def __init__(self, env, mode):
+        super().__init__(env)
+        self.mode, self._bg = mode, None
+
+    def _edit(self, obs):
+        img = obs["top_rgb"].copy()
+        if self.mode == "blank":
+            img = self._bg.copy()
+        else:
+            ys, xs = np.nonzero((img.astype(int) - self._bg).any(axis=2))
+            img[ys.min() - 5 : ys.max() + 5, xs.min() - 5 : xs.max() + 5] = 128
+        return {**obs, "top_rgb": img}
+
+    def reset(self, **kwargs):
+        obs, info = self.env.reset(**kwargs)
+        self._bg = info["camera_background"]["top"]["rgb"]
+        return self._edit(obs), info
+
+    def step(self, action):
+        obs, *rest = self.env.step(action)
+        return (self._edit(obs), *rest)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["blank", "occluded"])
+def test_blank_or_occluded_view_gives_pose_valid_0(models, mode):
+    source = ModelSetPoseSource(models, segmenter="background", recognizer="appearance")
+    base = gym.make("ScorbotGrasp-v0", objects=OBJECTS, **source.env_requirements)
+    env = PoseEstimateObservation(_Blind(base, mode), source, identity="recognize")
+    obs, info = env.reset(seed=0)
+    assert obs["pose_valid"][0] == 0.0 and not info["perception"]["valid"]
+    assert info["perception"]["reason"]
+    obs, *_ = env.step(np.zeros(6))
+    assert obs["pose_valid"][0] == 0.0
+    env.close()
+
+
+@pytest.mark.slow
+def test_descriptor_votes_recognise_a_half_hidden_object(models):
+    env = make_env(
+        pose="oracle",
+        cameras=["top"],
+        image_width=320,
+        image_height=240,
+        image_types=["rgb", "privileged_segmentation"],
+        objects=OBJECTS,
+    )
+    votes = DescriptorVoteRecognizer(models.estimators)
+    appearance = AppearanceRecognizer(models.estimators)
+    for seed in (0, 1, 2):
+        obs, info = env.reset(seed=seed)
+        mask = obs["top_privileged_segmentation"][..., 0] > 0
+        rows = np.nonzero(mask.any(axis=1))[0]
+        half = mask.copy()
+        half[: rows[len(rows) // 2]] = False  # the top half of the silhouette hidden
+        cam = CameraModel(**info["camera_params"]["top"])
+        for m in (mask, half):
+            view = View(obs["top_rgb"], cam, m)
+            assert votes.recognize(view).label == info["object_name"]
+            assert appearance.recognize(view).label == info["object_name"]
+    with pytest.raises(ValueError, match="ratio"):
+        DescriptorVoteRecognizer(models.estimators, ratio=0.0)
+    env.close()
