@@ -89,6 +89,7 @@ def _plot(report: dict, path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=220, help="episodes per main arm")
+    parser.add_argument("--push-episodes", type=int, default=110, help="per disturbed arm")
     parser.add_argument("--curve-episodes", type=int, default=44, help="per robustness point")
     parser.add_argument("--segmenter", default="background", help="mask source for manifold")
     parser.add_argument("--no-recognize", action="store_true", help="give the identity instead")
@@ -98,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--progress", action="store_true")
     args = parser.parse_args(argv)
     if args.quick:
-        args.episodes, args.curve_episodes = 6, 3
+        args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
 
     import cv2
 
@@ -113,26 +114,28 @@ def main(argv: list[str] | None = None) -> int:
     train_s = time.perf_counter() - t0
 
     n, seed = args.episodes, args.seed
+    m_push = args.push_episodes
     manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
     arms = {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
         "oracle, push, servoing": RolloutConfig(
-            pose="oracle", disturbance="push", episodes=n, seed=seed
+            pose="oracle", disturbance="push", episodes=m_push, seed=seed
         ),
         "oracle, push, estimate once": RolloutConfig(
-            pose="oracle", disturbance="push", estimate_every=0, episodes=n, seed=seed
+            pose="oracle", disturbance="push", estimate_every=0, episodes=m_push, seed=seed
         ),
         "manifold, push, servoing": RolloutConfig(
-            **manifold, disturbance="push", episodes=n, seed=seed
+            **manifold, disturbance="push", episodes=m_push, seed=seed
         ),
         "manifold, push, estimate once": RolloutConfig(
-            **manifold, disturbance="push", estimate_every=0, episodes=n, seed=seed
+            **manifold, disturbance="push", estimate_every=0, episodes=m_push, seed=seed
         ),
     }
     report: dict = {
         "benchmark": "closed_loop",
         "episodes_per_arm": n,
+        "episodes_per_disturbed_arm": m_push,
         "seed": seed,
         "pose_model_ready_s": train_s,
         "arms": {},

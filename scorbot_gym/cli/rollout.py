@@ -18,6 +18,8 @@ from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES, RolloutConfig
 from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episode
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception import pose_source_names
+from scorbot_gym.perception.recognizers import RECOGNIZERS
+from scorbot_gym.perception.segmenters import segmenter_names
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
 from scorbot_gym.tasks.disturbance import DISTURBANCES
 
@@ -54,7 +56,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="append",
         choices=CAMERAS,
         default=None,
-        help="camera the estimator looks through (default: top)",
+        help="camera for --pose manifold, repeatable: the pose comes from the first, recognition "
+        "uses all (default: top, plus side with --recognize)",
+    )
+    p.add_argument(
+        "--segmenter",
+        choices=segmenter_names(),
+        default="background",
+        help="object mask for --pose manifold: background (subtraction against the empty "
+        "workspace, arm removed by its own model) or privileged (the simulator's mask)",
+    )
+    p.add_argument(
+        "--recognizer",
+        choices=RECOGNIZERS,
+        default="flr",
+        help="with --recognize: flr (silhouettes) or appearance (the model with most inliers)",
     )
     p.add_argument(
         "--recognize",
@@ -117,7 +133,9 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         policy=args.policy,
         pose=args.pose,
         pose_model=str(args.pose_model) if args.pose_model else None,
-        pose_cameras=tuple(args.pose_cameras or ("top",)),
+        pose_cameras=tuple(args.pose_cameras) if args.pose_cameras else None,
+        segmenter=args.segmenter,
+        recognizer=args.recognizer,
         recognize=args.recognize,
         estimate_every=args.estimate_every,
         disturbance=None if args.disturb == "none" else args.disturb,

@@ -22,16 +22,21 @@ class RolloutConfig:
     """Everything that defines a closed-loop run (JSON-able, recorded with its summary).
 
     ``pose_model`` is a model file for ``pose="manifold"``; without it the default models for
-    ``pose_cameras[0]`` are trained on first use and cached. ``noise`` holds the
-    ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``, ``dropout``).
+    ``pose_cameras[0]`` are trained on first use and cached. The manifold source estimates from
+    the first pose camera and recognises on all of them (default: ``top``, plus ``side`` when
+    ``recognize``: the top view alone confuses discs and squares). ``segmenter`` and
+    ``recognizer`` name the source's components (defaults: background subtraction, FLR).
+    ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
+    ``dropout``).
     """
 
     policy: str = "scripted"
     pose: str = "oracle"
     pose_model: str | None = None
-    pose_cameras: tuple[str, ...] = ("top",)
+    pose_cameras: tuple[str, ...] | None = None
     pose_size: tuple[int, int] = (320, 240)
-    segmenter: str | None = None
+    segmenter: str = "background"
+    recognizer: str = "flr"
     recognize: bool = False
     estimate_every: int = 1
     disturbance: str | None = None
@@ -55,6 +60,9 @@ class RolloutConfig:
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
             )
+        if self.pose_cameras is None:
+            self.pose_cameras = ("top", "side") if self.recognize else ("top",)
+        self.pose_cameras = tuple(self.pose_cameras)
         if not self.pose_cameras:
             raise ValueError("pose_cameras must name at least one camera")
 
@@ -67,10 +75,6 @@ class RolloutConfig:
             return dict(self.noise)
         if self.pose != "manifold":
             return {}
-        if len(self.pose_cameras) > 1:
-            raise ValueError(
-                "the manifold pose source estimates from one camera; pass one pose camera"
-            )
         if self.pose_model is not None:
             models: Any = self.pose_model
         else:
@@ -78,10 +82,12 @@ class RolloutConfig:
 
             w, h = self.pose_size
             models = default_pose_models(self.pose_cameras[0], w, h, progress=progress)
-        kwargs: dict[str, Any] = {"models": models}
-        if self.segmenter is not None:
-            kwargs["segmenter"] = self.segmenter
-        return kwargs
+        return {
+            "models": models,
+            "segmenter": self.segmenter,
+            "recognizer": self.recognizer,
+            "cameras": list(self.pose_cameras),
+        }
 
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""

@@ -39,8 +39,9 @@ class ModelSetPoseSource:
     Parameters
     ----------
     segmenter
-        ``"privileged"`` (default: the simulator's mask), ``"background"`` (background
-        subtraction minus the arm, no simulator) or a segmenter object.
+        ``"background"`` (default: background subtraction minus the arm, no simulator),
+        ``"privileged"`` (the simulator's own mask, for oracle and ablation runs) or a
+        segmenter object.
     cameras
         Cameras to use; the pose comes from the model set's camera (added first if missing),
         the others serve recognition (e.g. ``("top", "side")``).
@@ -58,7 +59,7 @@ class ModelSetPoseSource:
     def __init__(
         self,
         models: PoseModelSet | str | os.PathLike,
-        segmenter: Segmenter | str | None = None,
+        segmenter: Segmenter | str = "background",
         cameras: Sequence[str] | None = None,
         recognizer: str | Any = "flr",
         memory: RecognitionMemory | None = None,
