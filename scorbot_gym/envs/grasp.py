@@ -12,6 +12,7 @@ import numpy as np
 from gymnasium import spaces
 
 from pose.camera import CameraModel
+from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 from scorbot_gym.objects import CATALOGUE, get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
@@ -48,6 +49,11 @@ class ScorbotGraspEnv(gym.Env):
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
     object's true pose is always in ``info["object_pose"]``.
+
+    ``perturbation`` (a :class:`~scorbot_gym.data.perturbations.Perturbation`, off by default)
+    redraws lighting, table/floor look and fixed-camera extrinsics error at every reset and adds
+    blur/noise to every RGB frame, all from the reset seed; ``camera_model`` / ``camera_params``
+    keep reporting the nominal calibration.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -72,6 +78,7 @@ class ScorbotGraspEnv(gym.Env):
         max_joint_step: float = 0.1,
         max_cartesian_step: float = 0.02,
         max_angle_step: float = 0.1,
+        perturbation: Perturbation | None = None,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -99,6 +106,9 @@ class ScorbotGraspEnv(gym.Env):
         self.shadows = shadows
         self.max_joint_step, self.max_cartesian_step = max_joint_step, max_cartesian_step
         self.max_angle_step = max_angle_step
+        self.perturbation = perturbation if perturbation is not None else Perturbation()
+        self._perturbers: dict[str, ScenePerturber] = {}
+        self._episode, self._frame = 0, 0
 
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
         self._activate(self.object_names[0])
@@ -142,6 +152,7 @@ class ScorbotGraspEnv(gym.Env):
             )
             robot = Robot(sim)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
+            self._perturbers[name] = ScenePerturber(sim)
         self.sim, self.robot, self.task = self._sims[name]
 
     @property
@@ -160,6 +171,9 @@ class ScorbotGraspEnv(gym.Env):
         self.task.place_object(self.np_random, int(options.get("resting_index", 0)))
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
+        if self.perturbation.active:  # drawn only when on: unperturbed episodes keep their seeds
+            self._episode, self._frame = int(self.np_random.integers(2**31)), 0
+            self._perturbers[self.sim.object_spec.name].apply(self.perturbation, self._episode)
         self.sim.forward()
         return self._observation(), self._info(None, None)
 
@@ -216,9 +230,12 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self.observe_object_pose:
             obs["object_pos"], obs["object_quat"] = self.sim.object_pose()
-        for cam in self.cameras:  # rendered once per control step, only when asked for
+        self._frame += 1
+        for i, cam in enumerate(self.cameras):  # rendered once per control step, when asked for
             if "rgb" in self.image_types:
-                obs[f"{cam}_rgb"] = self.sim.render(cam, "rgb")
+                img = self.sim.render(cam, "rgb")
+                idx = (self._episode, self._frame, i)
+                obs[f"{cam}_rgb"] = self.perturbation.apply_image(img, idx)
             if "depth" in self.image_types:
                 obs[f"{cam}_depth"] = self.sim.render(cam, "depth")[..., None]
             if "privileged_segmentation" in self.image_types:
@@ -228,7 +245,13 @@ class ScorbotGraspEnv(gym.Env):
 
     def camera_model(self, camera: str) -> CameraModel:
         """Intrinsics and extrinsics (OpenCV convention) of ``camera`` at the observation's image
-        size: the public calibration that wrappers and policies may use."""
+        size: the public calibration that wrappers and policies may use. Under a camera
+        ``perturbation`` this stays the nominal calibration (the images come from the
+        perturbed camera), as with a miscalibrated real camera."""
+        if self.perturbation.active:
+            return self._perturbers[self.sim.object_spec.name].nominal_camera_model(
+                camera, self.image_width, self.image_height
+            )
         return self.sim.camera_model(camera, self.image_width, self.image_height)
 
     def camera_params(self, camera: str) -> dict[str, Any]:
