@@ -54,7 +54,9 @@ class Perturbation:
                 raise ValueError(f"perturbation {f.name} must be a finite value >= 0, got {v}")
         for name in ("lighting", "surfaces"):
             if getattr(self, name) > 1:
-                raise ValueError(f"perturbation {name} must be within [0, 1], got {getattr(self, name)}")
+                raise ValueError(
+                    f"perturbation {name} must be within [0, 1], got {getattr(self, name)}"
+                )
 
     @property
     def active(self) -> bool:
@@ -170,7 +172,9 @@ class ScenePerturber:
             for c in self._fixed:
                 m.cam_pos[c] += rng.normal(0.0, p.camera_pos_m, 3)
                 q = np.empty(4)
-                mujoco.mju_mulQuat(q, _turn(rng, rng.normal(0.0, p.camera_rot_deg)), m.cam_quat[c].copy())
+                mujoco.mju_mulQuat(
+                    q, _turn(rng, rng.normal(0.0, p.camera_rot_deg)), m.cam_quat[c].copy()
+                )
                 m.cam_quat[c] = q
 
     def nominal_camera_model(self, camera: str, width: int, height: int) -> CameraModel:

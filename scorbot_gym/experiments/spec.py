@@ -118,9 +118,9 @@ class SweepSpec:
     perturbation: Perturbation = field(default_factory=Perturbation)
 
     def __post_init__(self) -> None:
+        from pose.registry import estimator_names
         from scorbot_gym.data.protocols import get_protocol
         from scorbot_gym.objects import get_object
-        from pose.registry import estimator_names
 
         get_protocol(self.protocol)
         if not self.estimators:
@@ -131,7 +131,9 @@ class SweepSpec:
             if spec.name not in known:
                 raise ValueError(f"unknown estimator {spec.name!r}; registered: {', '.join(known)}")
         if not self.occlusions or any(not 0.0 <= o <= 0.95 for o in self.occlusions):
-            raise ValueError(f"occlusions must be fractions within [0, 0.95], got {self.occlusions}")
+            raise ValueError(
+                f"occlusions must be fractions within [0, 0.95], got {self.occlusions}"
+            )
         for o in self.objects:
             get_object(o)
         if self.test_views is not None and self.test_views < 1:
