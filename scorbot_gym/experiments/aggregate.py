@@ -4,9 +4,11 @@ stage-ablation table.
 Success@5° counts an invalid answer as a failure; medians are over valid answers. Errors are
 symmetry-aware (:func:`pose.metrics.rotation_error_deg`), so a can's heading is free; because
 such objects make image-blind answers look good, every record also reports the figure over the
-*asymmetric* objects only. The chance level is the registered ``chance`` estimator when it is
-in the sweep, else the constant image-blind answer "resting face 0, heading 0" scored on the
-same views (every trial records it).
+*asymmetric* objects only (``success_5deg_asymmetric``: symmetry kind "none") and over the
+objects without a continuous symmetry (``success_5deg_no_axial``: discrete symmetries such as
+a box's half-turn leave a finite ambiguity that any method must resolve). The chance level is
+the registered ``chance`` estimator when it is in the sweep, else the constant image-blind
+answer "resting face 0, heading 0" scored on the same views (every trial records it).
 """
 
 from __future__ import annotations
@@ -40,17 +42,18 @@ def _median(x: np.ndarray) -> float | None:
     return round(float(np.median(x)), 4) if x.size else None
 
 
-def _pool(trials: Sequence[dict], key: str, asym_only: bool = False) -> np.ndarray:
-    return np.concatenate(
-        [_arr(t["views"][key]) for t in trials if not (asym_only and t["symmetric"])] or [[]]
-    )
+def _pool(trials: Sequence[dict], key: str, symmetries: Sequence[str] | None = None) -> np.ndarray:
+    """One view field pooled over the trials of objects with the given symmetry kinds."""
+    keep = [t for t in trials if symmetries is None or t["symmetry"] in symmetries]
+    return np.concatenate([_arr(t["views"][key]) for t in keep] or [[]])
 
 
 def summarize_trials(trials: Sequence[dict]) -> dict:
     """The figures of one (protocol, estimator, occlusion) cell, pooled over objects."""
     err = _pool(trials, "rot_err_deg")
     k, n = _success(err)
-    ka, na = _success(_pool(trials, "rot_err_deg", asym_only=True))
+    ka, na = _success(_pool(trials, "rot_err_deg", ("none",)))
+    kx, nx = _success(_pool(trials, "rot_err_deg", ("none", "discrete")))
     kc, nc = _success(_pool(trials, "chance_rot_err_deg"))
     coarse = _pool(trials, "coarse_rot_err_deg")
     valid = np.concatenate([np.asarray(t["views"]["valid"], bool) for t in trials])
@@ -65,6 +68,8 @@ def summarize_trials(trials: Sequence[dict]) -> dict:
         if na
         else None,
         "n_asymmetric": na,
+        "success_5deg_no_axial": _rate(kx, nx),
+        "n_no_axial": nx,
         "median_rot_err_deg": _median(err),
         "valid_rate": _rate(int(valid.sum()), valid.size),
         "median_ms": _median(ms),

@@ -28,7 +28,7 @@ import numpy as np
 from pose.fileio import atomic_write_json
 from pose.metrics import rotation_error_deg
 
-TRIAL_FORMAT = 1
+TRIAL_FORMAT = 2
 
 
 @dataclass(frozen=True)
@@ -211,7 +211,7 @@ def run_model_job(job: ModelJob) -> dict:
                 "object": job.object_name,
                 "seed": job.seed,
                 "occlusion": occ,
-                "symmetric": obj.symmetry.kind != "none",
+                "symmetry": obj.symmetry.kind,
                 "views": _score(est, views, obj),
             }
             atomic_write_json(trial_path(job, occ), rec)
