@@ -178,9 +178,12 @@ def format_results(results: Sequence[dict], chance: dict) -> str:
             f"{_pct(r['success_5deg']):>8}{f'{100 * lo:.0f}-{100 * hi:.0f}':>14}"
             f"{_pct(r['success_5deg_asymmetric']):>8}{med:>9}{_pct(r['valid_rate']):>8}{ms:>8}"
         )
-    lines.append(f"chance ({chance['source']}): " + ", ".join(
-        f"{100 * c['occlusion']:.0f}%: {_pct(c['value']).strip()}" for c in chance["success_5deg"]
-    ))  # fmt: skip
+    vals = chance["success_5deg"]
+    if len({c["value"] for c in vals}) == 1:  # the same views at every level: one number
+        text = f"{_pct(vals[0]['value']).strip()} at every level"
+    else:
+        text = ", ".join(f"{100 * c['occlusion']:.0f}%: {_pct(c['value']).strip()}" for c in vals)
+    lines.append(f"chance ({chance['source']}): {text}")
     return "\n".join(lines)
 
 
