@@ -79,6 +79,7 @@ def summarize_trials(trials: Sequence[dict]) -> dict:
     if np.isfinite(coarse).any():  # the estimator reports a pre-refinement answer
         kk, nn = _success(coarse)
         out["coarse_success_5deg"] = _rate(kk, nn)
+        out["coarse_success_5deg_ci95"] = [round(v, 4) for v in wilson_interval(kk, nn)]
     return out
 
 

@@ -1,5 +1,6 @@
 """The seed's Fig. 3: success@5° against occlusion, one curve per estimator with its 95 %
-Wilson band, and the chance level."""
+Wilson band, the chance level, and (dotted) an estimator's answer before refinement where it
+reports one that differs."""
 
 from __future__ import annotations
 
@@ -28,6 +29,16 @@ def plot_success_vs_occlusion(
         hi = [100 * r["success_5deg_ci95"][1] for r in rows]
         (line,) = ax.plot(x, y, marker="o", ms=3, label=label)
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+        coarse = [
+            (xi, r["coarse_success_5deg"], r["success_5deg"])
+            for xi, r in zip(x, rows, strict=True)
+            if r.get("coarse_success_5deg") is not None
+        ]
+        if any(c != s for _, c, s in coarse):
+            ax.plot(
+                [c[0] for c in coarse], [100 * c[1] for c in coarse], ls=":",
+                color=line.get_color(), label=f"{label} [coarse: before refinement]",
+            )  # fmt: skip
     pts = [c for c in chance["success_5deg"] if c["value"] is not None]
     if pts:
         ax.plot(
