@@ -55,6 +55,8 @@ def summarize_trials(trials: Sequence[dict]) -> dict:
     ka, na = _success(_pool(trials, "rot_err_deg", ("none",)))
     kx, nx = _success(_pool(trials, "rot_err_deg", ("none", "discrete")))
     kc, nc = _success(_pool(trials, "chance_rot_err_deg"))
+    kca, nca = _success(_pool(trials, "chance_rot_err_deg", ("none",)))
+    kcx, ncx = _success(_pool(trials, "chance_rot_err_deg", ("none", "discrete")))
     coarse = _pool(trials, "coarse_rot_err_deg")
     valid = np.concatenate([np.asarray(t["views"]["valid"], bool) for t in trials])
     ms = _pool(trials, "ms")
@@ -75,6 +77,8 @@ def summarize_trials(trials: Sequence[dict]) -> dict:
         "median_ms": _median(ms),
         "mean_occlusion_achieved": _median(_pool(trials, "occlusion")),
         "constant_answer_success_5deg": _rate(kc, nc),
+        "constant_answer_success_5deg_asymmetric": _rate(kca, nca),
+        "constant_answer_success_5deg_no_axial": _rate(kcx, ncx),
     }
     if np.isfinite(coarse).any():  # the estimator reports a pre-refinement answer
         kk, nn = _success(coarse)
@@ -105,16 +109,12 @@ def chance_level(results: Sequence[dict]) -> dict:
     else:
         src = "constant answer: resting face 0, heading 0 (image-blind)"
         vals = {r["occlusion"]: r["constant_answer_success_5deg"] for r in results}
-        asym = None
-    out = {
+        asym = {r["occlusion"]: r["constant_answer_success_5deg_asymmetric"] for r in results}
+    return {
         "source": src,
         "success_5deg": [{"occlusion": o, "value": v} for o, v in sorted(vals.items())],
+        "success_5deg_asymmetric": [{"occlusion": o, "value": v} for o, v in sorted(asym.items())],
     }
-    if asym is not None:
-        out["success_5deg_asymmetric"] = [
-            {"occlusion": o, "value": v} for o, v in sorted(asym.items())
-        ]
-    return out
 
 
 def _family(label: str) -> bool:
@@ -179,12 +179,15 @@ def format_results(results: Sequence[dict], chance: dict) -> str:
             f"{_pct(r['success_5deg']):>8}{f'{100 * lo:.0f}-{100 * hi:.0f}':>14}"
             f"{_pct(r['success_5deg_asymmetric']):>8}{med:>9}{_pct(r['valid_rate']):>8}{ms:>8}"
         )
-    vals = chance["success_5deg"]
-    if len({c["value"] for c in vals}) == 1:  # the same views at every level: one number
-        text = f"{_pct(vals[0]['value']).strip()} at every level"
-    else:
-        text = ", ".join(f"{100 * c['occlusion']:.0f}%: {_pct(c['value']).strip()}" for c in vals)
-    lines.append(f"chance ({chance['source']}): {text}")
+    for key, what in (("success_5deg", "all objects"), ("success_5deg_asymmetric", "asymmetric")):
+        vals = chance[key]
+        if len({c["value"] for c in vals}) == 1:  # the same views at every level: one number
+            text = f"{_pct(vals[0]['value']).strip()} at every level"
+        else:
+            text = ", ".join(
+                f"{100 * c['occlusion']:.0f}%: {_pct(c['value']).strip()}" for c in vals
+            )
+        lines.append(f"chance, {what} ({chance['source']}): {text}")
     return "\n".join(lines)
 
 
