@@ -110,8 +110,8 @@ def _fit_or_load(job: ModelJob, spec, train, stats: dict):
             loaded = type(est).load(path)
             stats["model_cache_hits"] += 1
             return loaded
-        except (OSError, ValueError, KeyError):
-            path.unlink(missing_ok=True)  # rebuilt below
+        except (OSError, ValueError, KeyError, TypeError):
+            path.unlink(missing_ok=True)  # unreadable: refitted and rewritten below
     views = [lv.view for lv in train]
     poses = np.stack([lv.camera_from_object for lv in train])
     t0 = time.perf_counter()
@@ -119,7 +119,10 @@ def _fit_or_load(job: ModelJob, spec, train, stats: dict):
     stats["fits"] += 1
     stats["fit_s"] += time.perf_counter() - t0
     if can_save:
-        est.save(path)
+        try:
+            est.save(path)
+        except (OSError, ValueError, TypeError, NotImplementedError):
+            path.unlink(missing_ok=True)  # not cacheable: the trials are still cached
     return est
 
 
