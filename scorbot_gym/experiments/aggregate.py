@@ -197,7 +197,7 @@ def format_stage_ablation(rows: Sequence[dict]) -> str:
     levels = _show_levels(sorted({r["occlusion"] for r in rows}))
     variants = list(dict.fromkeys(r["variant"] for r in rows))
     cell = {(r["variant"], r["occlusion"]): r for r in rows}
-    head = f"{'stage ablation (ok@5 %, delta)':<34}" + "".join(
+    head = f"{'stage ablation (ok@5 %, delta)':<44}" + "".join(
         f"{f'{100 * o:.0f}% occl':>16}" for o in levels
     )
     lines = [head]
@@ -211,5 +211,5 @@ def format_stage_ablation(rows: Sequence[dict]) -> str:
             d = r["delta_vs_reference"]
             text = _pct(r["success_5deg"]) + (f" ({100 * d:+.1f})" if d is not None else "")
             cells.append(f"{text:>16}")
-        lines.append(f"{v[:33]:<34}" + "".join(cells))
+        lines.append(f"{v[:43]:<44}" + "".join(cells))
     return "\n".join(lines)
