@@ -239,7 +239,9 @@ def render_views(
         "depth": bool(depth),
     }
     if perturbation is not None and perturbation.active:  # keys of unperturbed views unchanged
+        code = (Path(__file__).parent / "perturbations.py").read_bytes()
         payload["perturbation"] = perturbation.to_dict()
+        payload["perturbation_code"] = hashlib.sha256(code).hexdigest()[:16]
     path = Path(cache_dir or default_cache_dir()) / "views" / f"{_cache_key(payload)}.npz"
     if path.is_file():
         try:
