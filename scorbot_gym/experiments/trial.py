@@ -199,7 +199,8 @@ def run_model_job(job: ModelJob) -> dict:
         spec = EstimatorSpec.parse(job.estimator)
         obj = get_object(job.object_name)
         size = {"width": job.width, "height": job.height, "cache_dir": job.cache_dir}
-        by_cam = train_views(job.protocol, job.object_name, seed=job.seed, **size)
+        # with depth: estimators that lift keypoints to 3-D (PnP) train on it; test views are RGB
+        by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
         train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
         est = _fit_or_load(job, spec, train, stats)
         pert = Perturbation(**dict(job.perturbation))
