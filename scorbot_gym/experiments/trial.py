@@ -100,8 +100,9 @@ def read_trial(path: Path) -> dict | None:
         return None
 
 
-def _fit_or_load(job: ModelJob, spec, train, stats: dict):
-    """The fitted estimator, from the model cache when the estimator can save and load."""
+def _fit_or_load(job: ModelJob, spec, load_train, stats: dict):
+    """The fitted estimator, from the model cache when the estimator can save and load
+    (``load_train()`` renders or reads the training views only when a fit is needed)."""
     path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
     est = spec.make()
     can_save = callable(getattr(est, "save", None)) and callable(getattr(type(est), "load", None))
@@ -112,6 +113,7 @@ def _fit_or_load(job: ModelJob, spec, train, stats: dict):
             return loaded
         except (OSError, ValueError, KeyError, TypeError):
             path.unlink(missing_ok=True)  # unreadable: refitted and rewritten below
+    train = load_train()
     views = [lv.view for lv in train]
     poses = np.stack([lv.camera_from_object for lv in train])
     t0 = time.perf_counter()
@@ -199,10 +201,13 @@ def run_model_job(job: ModelJob) -> dict:
         spec = EstimatorSpec.parse(job.estimator)
         obj = get_object(job.object_name)
         size = {"width": job.width, "height": job.height, "cache_dir": job.cache_dir}
-        # with depth: estimators that lift keypoints to 3-D (PnP) train on it; test views are RGB
-        by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
-        train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
-        est = _fit_or_load(job, spec, train, stats)
+
+        def load_train() -> list:
+            # with depth: estimators that lift keypoints to 3-D (PnP) train on it; tests are RGB
+            by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
+            return [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
+
+        est = _fit_or_load(job, spec, load_train, stats)
         pert = Perturbation(**dict(job.perturbation))
         for occ in todo:
             views = held_out_views(
