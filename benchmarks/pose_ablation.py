@@ -11,6 +11,12 @@ worker, so ``median_ms`` is a single-core time.
     python benchmarks/pose_ablation.py                      # full: 4 protocols, 0:95:5, catalogue
     python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0:90:10 \\
         --objects banana,box,foam_brick --test-views 10 --jobs 2   # a reduced run
+    python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0,50 \\
+        --estimators manifold --perturbations "none;lighting=0.5;noise_sigma=8"  # robustness
+
+With ``--perturbations`` each protocol is run once per perturbation (test views only; the
+models are the unperturbed ones, from the model cache) and one combined
+``pose_ablation_<protocol>_perturbations.json`` / ``.png`` is written instead.
 """
 
 from __future__ import annotations
@@ -22,10 +28,12 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import argparse  # noqa: E402
+import io  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from pose.fileio import atomic_write_bytes, atomic_write_json  # noqa: E402
 from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
@@ -56,6 +64,51 @@ def targets_for(protocol: str, results: list[dict]) -> list[dict]:
     return out
 
 
+def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_dir, stem: Path):
+    """One protocol under several perturbations: combined records, and success@5° per
+    perturbation and occlusion as grouped bars."""
+    rows, chance = [], {}
+    for spec, label in zip(specs, labels, strict=True):
+        report = ablate(spec, runner, cache_dir)
+        rows += [{**r, "perturbation": label} for r in report["results"]]
+        chance[label] = report["chance"]
+        print(f"\n== {spec.protocol}, perturbation {label}")
+        print(format_results(report["results"], report["chance"]))
+    atomic_write_json(
+        stem.with_suffix(".json"),
+        {"spec": {**specs[0].to_dict(), "perturbation": None}, "perturbations": labels,
+         "results": rows, "chance": chance},
+    )  # fmt: skip
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    levels = sorted({r["occlusion"] for r in rows})
+    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
+    width = 0.8 / max(len(levels), 1)
+    for j, occ in enumerate(levels):
+        for i, label in enumerate(labels):
+            cell = [r for r in rows if r["perturbation"] == label and r["occlusion"] == occ]
+            for r in cell[:1]:  # the first estimator
+                lo, hi = r["success_5deg_ci95"]
+                y = 100 * (r["success_5deg"] or 0.0)
+                ax.bar(i + j * width, y, width, color=f"C{j}",
+                       yerr=[[y - 100 * lo], [100 * hi - y]], capsize=2,
+                       label=f"{100 * occ:.0f} % occlusion" if i == 0 else None)  # fmt: skip
+    ax.set_xticks([i + width * (len(levels) - 1) / 2 for i in range(len(labels))])
+    ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
+    ax.set_ylabel("success @ 5° (%)")
+    ax.set_title(f"{specs[0].protocol}: {specs[0].estimators[0]} under perturbations", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    atomic_write_bytes(stem.with_suffix(".png"), buf.getvalue())
+    print(f"wrote {stem}.json / .png")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--protocols", default=",".join(PROTOCOLS))
@@ -68,6 +121,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--test-views", type=int, default=None)
     ap.add_argument("--train-stride", type=int, default=1)
     ap.add_argument("--perturb", default=None, help="e.g. lighting=0.3,noise_sigma=4")
+    ap.add_argument(
+        "--perturbations", default=None,
+        help='";"-separated perturbations, "none" for the unperturbed views (one combined file)',
+    )  # fmt: skip
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS")
     ap.add_argument("--cache-dir", default=None)
@@ -85,6 +142,26 @@ def main(argv: list[str] | None = None) -> int:
     else:
         runner = LocalRunner(args.jobs)
     for protocol in args.protocols.split(","):
+        if args.perturbations:
+            labels = [t.strip() for t in args.perturbations.split(";") if t.strip()]
+            specs = [
+                SweepSpec(
+                    protocol,
+                    tuple(estimators),
+                    parse_occlusions(args.occlusion),
+                    objects,
+                    args.seed,
+                    args.width,
+                    args.height,
+                    args.test_views,
+                    args.train_stride,
+                    Perturbation.parse(None if t == "none" else t),
+                )  # fmt: skip
+                for t in labels
+            ]
+            stem = Path(args.out_dir) / f"pose_ablation_{protocol}_perturbations{args.suffix}"
+            perturbation_sweep(specs, labels, runner, args.cache_dir, stem)
+            continue
         spec = SweepSpec(
             protocol, tuple(estimators), parse_occlusions(args.occlusion), objects, args.seed,
             args.width, args.height, args.test_views, args.train_stride,
