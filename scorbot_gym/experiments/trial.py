@@ -6,8 +6,9 @@ occlusion share one fitted model, so the unit of work (:class:`ModelJob`) is the
 once (or loads the model from the content-keyed model cache) and runs its trials. Each trial's
 per-view records are cached as one JSON file under a content key, written atomically, so an
 interrupted sweep resumes where it stopped and a repeated one fits nothing. Keys include a hash
-of the ``pose`` package source and of the scene, so editing an estimator or the renderer
-invalidates exactly what it changes. Unreadable cache entries are discarded and recomputed.
+of the ``pose`` package source and of the scene, so after editing an estimator or the renderer
+no stale number is served (coarse but safe: any edit there recomputes every trial). Unreadable
+cache entries are discarded and recomputed.
 
 A job is a plain, picklable value and :func:`run_model_job` a top-level function, so a process
 pool and Ray run the same code.
