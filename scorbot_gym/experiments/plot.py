@@ -20,15 +20,18 @@ def plot_success_vs_occlusion(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
-    for label in dict.fromkeys(r["estimator"] for r in results):
+    labels = list(dict.fromkeys(r["estimator"] for r in results))
+    many = len(labels) > 4  # legend beside the axes, colours from a 20-colour cycle
+    fig, ax = plt.subplots(figsize=(10.5 if many else 7, 4.5), dpi=120)
+    colours = plt.get_cmap("tab20" if many else "tab10").colors
+    for k, label in enumerate(labels):
         rows = sorted((r for r in results if r["estimator"] == label), key=lambda r: r["occlusion"])
         x = [100 * r["occlusion"] for r in rows]
         y = [100 * (r["success_5deg"] or 0.0) for r in rows]
         lo = [100 * r["success_5deg_ci95"][0] for r in rows]
         hi = [100 * r["success_5deg_ci95"][1] for r in rows]
-        (line,) = ax.plot(x, y, marker="o", ms=3, label=label)
-        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.15, lw=0)
+        (line,) = ax.plot(x, y, marker="o", ms=3, label=label, color=colours[k % len(colours)])
+        ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.06 if many else 0.15, lw=0)
         coarse = [
             (xi, r["coarse_success_5deg"], r["success_5deg"])
             for xi, r in zip(x, rows, strict=True)
@@ -50,7 +53,10 @@ def plot_success_vs_occlusion(
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)
     ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="best")
+    if many:
+        ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+    else:
+        ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
