@@ -12,7 +12,8 @@ from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 from scorbot_gym.data.protocols import held_out_views
 from scorbot_gym.experiments.spec import EstimatorSpec, parse_occlusions, split_estimators
 
-ESTIMATORS = "manifold,manifold(refine=False, n_bunches=4)"
+# parameters every version of the manifold estimator has (stage parameters moved over time)
+ESTIMATORS = "manifold,manifold(allocentric=True)"
 SWEEP = [
     "pose", "ablate", "--protocol", "side-turntable", "--estimators", ESTIMATORS,
     "--occlusion", "0,50", "--objects", "banana,box", "--width", "160", "--height", "120",
@@ -26,10 +27,15 @@ RECORD_KEYS = {
 
 # ----------------------------------------------------------------------------- specs
 def test_estimator_specs_parse_and_label():
-    s = EstimatorSpec.parse("manifold( refine=False,n_bunches=4 )")
-    assert s.name == "manifold" and dict(s.params) == {"refine": False, "n_bunches": 4}
-    assert str(s) == "manifold(n_bunches=4, refine=False)" == str(EstimatorSpec.parse(str(s)))
-    assert s.make().get_params()["n_bunches"] == 4
+    s = EstimatorSpec.parse("manifold( random_state=3,allocentric=True )")
+    assert s.name == "manifold" and dict(s.params) == {"allocentric": True, "random_state": 3}
+    assert (
+        str(s) == "manifold(allocentric=True, random_state=3)" == str(EstimatorSpec.parse(str(s)))
+    )
+    params = s.make().get_params()
+    assert params["allocentric"] is True and params["random_state"] == 3
+    nested = EstimatorSpec.parse("manifold(a__b=1, c=2)")
+    assert str(nested) == "manifold(a__b=1, c=2)"
     assert split_estimators("a,b(x=1, y=(2, 3)),c") == ["a", "b(x=1, y=(2, 3))", "c"]
     for bad in ("manifold(4)", "manifold(x=open('f'))", "1abc", "manifold(**k)"):
         with pytest.raises(ValueError, match="estimator spec"):
@@ -74,7 +80,7 @@ def test_local_sweep_records_and_figure(local_sweep):
     res = rep["results"]
     assert len(res) == 4  # 2 estimators x 2 occlusion levels
     assert {(r["estimator"], r["occlusion"]) for r in res} == {
-        (e, o) for e in ("manifold", "manifold(n_bunches=4, refine=False)") for o in (0.0, 0.5)
+        (e, o) for e in ("manifold", "manifold(allocentric=True)") for o in (0.0, 0.5)
     }
     for r in res:
         assert RECORD_KEYS <= set(r)
@@ -141,7 +147,7 @@ def test_bop_export_uses_the_toolkit_field_names(local_sweep):
     assert "symmetries_continuous" not in models_info[str(ids["banana"])]
     targets = json.loads((bop / "test_targets_bop19.json").read_text())
     assert {"im_id", "inst_count", "obj_id", "scene_id"} == set(targets[0]) and len(targets) == 24
-    for name in ("manifold_scorbot-test.csv", "manifold-n-bunches-4-refine-False_scorbot-test.csv"):
+    for name in ("manifold_scorbot-test.csv", "manifold-allocentric-True_scorbot-test.csv"):
         with open(bop / name, newline="") as f:
             rows = list(csv.DictReader(f))
         assert list(rows[0]) == ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]

@@ -2,9 +2,10 @@
 
 Estimators are named by a small *spec* string resolved through :func:`pose.registry.make_estimator`:
 ``name`` or ``name(param=value, ...)`` with Python literal values, e.g. ``manifold``,
-``manifold(refine=False)``, ``manifold(n_bunches=4, use_shape=False)``. The spec string is also
-the estimator's label in every result, so two variants of one estimator stay apart. An ablation
-is therefore a list of names; nothing is registered or flagged for it.
+``manifold(allocentric=True)``, ``manifold(bunches__n_bunches=4)`` (a nested stage parameter,
+set with ``set_params``). The spec string is also the estimator's label in every result, so two
+variants of one estimator stay apart. An ablation is therefore a list of names; nothing is
+registered or flagged for it.
 """
 
 from __future__ import annotations
@@ -54,9 +55,16 @@ class EstimatorSpec:
         return cls(name, tuple(sorted(params.items())))
 
     def make(self) -> Any:
+        """A new estimator: plain parameters go to the registered factory, nested ones
+        (``stage__param``, scikit-learn's convention) through ``set_params`` afterwards."""
         from pose.registry import make_estimator
 
-        return make_estimator(self.name, **dict(self.params))
+        plain = {k: v for k, v in self.params if "__" not in k}
+        nested = {k: v for k, v in self.params if "__" in k}
+        est = make_estimator(self.name, **plain)
+        if nested:
+            est.set_params(**nested)
+        return est
 
     def __str__(self) -> str:
         if not self.params:
