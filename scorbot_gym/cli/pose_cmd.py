@@ -1,10 +1,13 @@
-"""``scorbot-gym pose train|eval``: fit pose-manifold models on rendered views and score them.
+"""``scorbot-gym pose train|eval|ablate``: fit pose-manifold models on rendered views, score
+them, and run ablation sweeps.
 
 ``train`` renders (or reads from the cache) a grid of resting faces x headings, each at random
 table positions, for every object, fits one :class:`pose.estimator.PoseManifoldEstimator` per
 object and writes them to one model file. ``eval`` renders held-out random poses with synthetic
 occlusion and prints, per occlusion level, a table of the BOP-style errors (``--json`` writes
-the same numbers).
+the same numbers). ``ablate`` runs a protocol x estimators x occlusion sweep
+(:mod:`scorbot_gym.experiments`) and writes the seed's Fig. 3 (``--png``), the per-level
+records (``--json``) and optionally a BOP dataset of the test views and estimates (``--bop``).
 """
 
 from __future__ import annotations
@@ -78,6 +81,58 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def _estimator_list(text: str) -> list[str]:
+    from scorbot_gym.experiments.spec import EstimatorSpec, split_estimators
+
+    try:
+        return [str(EstimatorSpec.parse(e)) for e in split_estimators(text)]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def _occlusion_range(text: str) -> tuple[float, ...]:
+    from scorbot_gym.experiments.spec import parse_occlusions
+
+    try:
+        return parse_occlusions(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def run_ablate(args: argparse.Namespace) -> int:
+    from scorbot_gym.data.perturbations import Perturbation
+    from scorbot_gym.evaluation.bop import export_ablation
+    from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
+    from scorbot_gym.experiments.aggregate import format_results, format_stage_ablation
+
+    objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
+    spec = SweepSpec(
+        args.protocol, tuple(args.estimators), args.occlusion, objects, args.seed, args.width,
+        args.height, args.test_views, args.train_stride, Perturbation.parse(args.perturb),
+    )  # fmt: skip
+    if args.ray is not None:
+        runner = RayRunner(None if args.ray == "local" else args.ray, num_cpus=args.jobs)
+    else:
+        runner = LocalRunner(args.jobs or 1)
+    report = ablate(spec, runner, args.cache_dir)
+    print(format_results(report["results"], report["chance"]))
+    table = format_stage_ablation(report["stage_ablation"])
+    if table:
+        print("\n" + table)
+    st = report["stats"]
+    print(
+        f"\n{st['jobs']} models: {st['fits']} fitted, {st['model_cache_hits']} from cache;"
+        f" {st['trials_run']} trials run, {st['trials_cached']} from the cache ({st['wall_s']} s)"
+    )
+    write_report(report, args.json, args.png)
+    for path in (args.json, args.png):
+        if path:
+            print(f"wrote {path}")
+    if args.bop:
+        print(f"wrote BOP dataset {export_ablation(report, args.bop, cache_dir=args.cache_dir)}")
+    return 0
+
+
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser("pose", help="train and evaluate the pose-manifold estimator")
     sub = p.add_subparsers(dest="pose_command", metavar="ACTION")
@@ -118,3 +173,40 @@ def add_parser(subparsers) -> None:
     e.add_argument("--json", default=None, help="also write the numbers to this JSON file")
     e.add_argument("--no-refine", action="store_true", help="score the pure manifold output")
     e.set_defaults(func=run_eval)
+
+    from scorbot_gym.data.protocols import protocol_names
+
+    a = sub.add_parser(
+        "ablate",
+        parents=[common],
+        help="success@5deg vs occlusion for several estimators on one protocol",
+        description="Estimators are registered names, optionally with parameters: "
+        "manifold,manifold(refine=False),pca-nn. Results are cached per trial (a rerun resumes).",
+    )
+    a.add_argument("--protocol", required=True, choices=protocol_names())
+    a.add_argument(
+        "--estimators", type=_estimator_list, default=["manifold"],
+        help="comma-separated estimator specs NAME or NAME(param=value, ...) (default manifold)",
+    )  # fmt: skip
+    a.add_argument(
+        "--occlusion", type=_occlusion_range, default=_occlusion_range("0:95:5"),
+        help="percent levels START:STOP:STEP or a comma list (default 0:95:5)",
+    )  # fmt: skip
+    a.add_argument("--jobs", type=int, default=None, help="parallel workers (default 1)")
+    a.add_argument(
+        "--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+        help="run as Ray tasks: a local instance, or join ADDRESS (auto, ray://host:port)",
+    )  # fmt: skip
+    a.add_argument("--width", type=int, default=320)
+    a.add_argument("--height", type=int, default=240)
+    a.add_argument("--seed", type=int, default=0, help="training seed (tests use seed + 1)")
+    a.add_argument("--test-views", type=int, default=None, help="first N held-out views only")
+    a.add_argument("--train-stride", type=int, default=1, help="every Nth training view only")
+    a.add_argument(
+        "--perturb", default=None, metavar="K=V,...",
+        help="test-view perturbation, e.g. lighting=0.3,noise_sigma=4,camera_rot_deg=1,seed=0",
+    )  # fmt: skip
+    a.add_argument("--json", default=None, help="write the per-level records here")
+    a.add_argument("--png", default=None, help="write success@5deg vs occlusion here")
+    a.add_argument("--bop", default=None, metavar="DIR", help="also export a BOP dataset here")
+    a.set_defaults(func=run_ablate)

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.data.views import (
     LabelledView,
     PoseSample,
@@ -190,6 +191,7 @@ def held_out_views(
     depth: bool = False,
     cache_dir: str | os.PathLike | None = None,
     progress: bool = False,
+    perturbation: Perturbation | None = None,
 ) -> list[LabelledView]:
     """The protocol's held-out test views of one object at one occlusion level.
 
@@ -201,7 +203,7 @@ def held_out_views(
     occ_seed = seed + 1000 * round(100 * occlusion)
     return render_views(
         object_name, samples, p.test_camera, width, height, occlusion, occ_seed, cache_dir,
-        progress, depth,
+        progress, depth, perturbation,
     )  # fmt: skip
 
 

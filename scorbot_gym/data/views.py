@@ -27,6 +27,7 @@ from tqdm import tqdm
 from pose.camera import CameraModel
 from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
 from pose.view import View
+from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 
 CACHE_VERSION = 1
 MAX_OCCLUSION = 0.95
@@ -207,13 +208,16 @@ def render_views(
     cache_dir: str | os.PathLike | None = None,
     progress: bool = True,
     depth: bool = False,
+    perturbation: Perturbation | None = None,
 ) -> list[LabelledView]:
     """Render (or read from the cache) one labelled view per pose sample.
 
     ``occlusion`` is one fraction for all views or one per view; occluders are drawn from
     ``seed``. ``depth=True`` also renders each view's depth (``View.depth``, metres along the
     optical axis; occluder pixels are set to 0, unknown). ``cache_dir=None`` uses
-    ``$SCORBOT_GYM_CACHE`` or ``~/.cache/scorbot-gym``.
+    ``$SCORBOT_GYM_CACHE`` or ``~/.cache/scorbot-gym``. ``perturbation`` draws view ``i``'s
+    lighting, surfaces, camera error and image noise from its seed and ``i``
+    (:mod:`scorbot_gym.data.perturbations`); the views' camera stays the nominal one.
     """
     from scorbot_gym.objects import get_object
 
@@ -236,6 +240,10 @@ def render_views(
         "texture": _file_stamp(spec.texture_path),
         "depth": bool(depth),
     }
+    if perturbation is not None and perturbation.active:  # keys of unperturbed views unchanged
+        code = (Path(__file__).parent / "perturbations.py").read_bytes()
+        payload["perturbation"] = perturbation.to_dict()
+        payload["perturbation_code"] = hashlib.sha256(code).hexdigest()[:16]
     folder = Path(cache_dir or default_cache_dir()) / "views"
     if folder.is_dir():
         remove_orphaned_tmp(folder)
@@ -245,27 +253,37 @@ def render_views(
             return _load(path, spec.name, samples)
         except UNREADABLE as exc:
             discard_cache_entry(path, exc)
-    arrays = _render(spec.name, samples, camera, width, height, occ, seed, progress, depth)
+    arrays = _render(
+        spec.name, samples, camera, width, height, occ, seed, progress, depth, perturbation
+    )
     atomic_savez(path, **arrays)
     return _load(path, spec.name, samples)
 
 
-def _render(name, samples, camera, width, height, occ, seed, progress, depth=False) -> dict:
+def _render(
+    name, samples, camera, width, height, occ, seed, progress, depth=False, perturbation=None
+) -> dict:
     from scorbot_gym.sim import Simulation
     from scorbot_gym.sim.simulation import quat_to_mat
 
     sim = Simulation(object_name=name, render_width=width, render_height=height)
+    perturber = ScenePerturber(sim)
+    p = perturbation if perturbation is not None and perturbation.active else None
     rngs = np.random.default_rng(seed).spawn(len(samples))
     images, masks, depths, world_T, achieved = [], [], [], [], []
     try:
-        for s, f, rng in tqdm(
-            list(zip(samples, occ, rngs, strict=True)),
-            desc=f"render {name}",
-            disable=not progress,
-            leave=False,
+        for i, (s, f, rng) in enumerate(
+            tqdm(
+                list(zip(samples, occ, rngs, strict=True)),
+                desc=f"render {name}",
+                disable=not progress,
+                leave=False,
+            )
         ):
             pos, quat = sample_pose(sim.object_spec, s, sim.table_height)
             sim.set_object_pose(pos, quat)
+            if p is not None and p.scene_active:
+                perturber.apply(p, i)
             sim.forward()
             img = sim.render(camera)
             mask = sim.render(camera, kind="segmentation")
@@ -274,11 +292,13 @@ def _render(name, samples, camera, width, height, occ, seed, progress, depth=Fal
                 z = sim.render(camera, kind="depth")
                 depths.append(np.where((occluded != img).any(axis=2), 0.0, z).astype(np.float32))
             img, mask = occluded, visible
+            if p is not None:
+                img = p.apply_image(img, i)
             images.append(img)
             masks.append(mask)
             achieved.append(a)
             world_T.append(np.r_[np.c_[quat_to_mat(quat), pos], [[0.0, 0.0, 0.0, 1.0]]])
-        cam = sim.camera_model(camera)
+        cam = perturber.nominal_camera_model(camera, width, height)
     finally:
         sim.close()
     out = {

@@ -13,6 +13,7 @@ from gymnasium import spaces
 from gymnasium.error import ResetNeeded
 
 from pose.camera import CameraModel
+from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 from scorbot_gym.envs import arguments as args
 from scorbot_gym.objects import get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
@@ -67,6 +68,11 @@ class ScorbotGraspEnv(gym.Env):
     empty workspace (object not yet in the scene, arm where it is at reset) as ``{"rgb",
     "joint_pos", "gripper_opening"}`` - the reference frame a lab captures before placing the
     object, for background-subtraction segmenters.
+
+    ``perturbation`` (a :class:`~scorbot_gym.data.perturbations.Perturbation`, off by default)
+    redraws lighting, table/floor look and fixed-camera extrinsics error at every reset and adds
+    blur/noise to every RGB frame, all from the reset seed; ``camera_model`` / ``camera_params``
+    keep reporting the nominal calibration.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -93,6 +99,7 @@ class ScorbotGraspEnv(gym.Env):
         max_angle_step: float = 0.1,
         disturbance: str | Disturbance | None = None,
         capture_background: bool = False,
+        perturbation: Perturbation | None = None,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -125,6 +132,11 @@ class ScorbotGraspEnv(gym.Env):
         self._disturbance_info: dict[str, Any] | None = None
         self._elapsed = 0
         self.capture_background = args.flag("capture_background", capture_background)
+        if perturbation is not None and not isinstance(perturbation, Perturbation):
+            raise ValueError(f"perturbation must be a Perturbation or None, got {perturbation!r}")
+        self.perturbation = perturbation if perturbation is not None else Perturbation()
+        self._perturbers: dict[str, ScenePerturber] = {}
+        self._episode, self._frame = 0, 0
 
         # One GL context for all scenes, its buffer as large as the largest image asked for.
         sizes = [(image_width, image_height)] if self.cameras else []
@@ -181,6 +193,7 @@ class ScorbotGraspEnv(gym.Env):
             first = next(iter(self._sims.values()), None)
             robot = Robot(sim, first[1].kinematics if first else None)
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
+            self._perturbers[name] = ScenePerturber(sim)
         self.sim, self.robot, self.task = self._sims[name]
 
     @property
@@ -199,6 +212,9 @@ class ScorbotGraspEnv(gym.Env):
         self.task.place_object(self.np_random, int(options.get("resting_index", 0)))
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
+        if self.perturbation.active:  # drawn only when on: unperturbed episodes keep their seeds
+            self._episode, self._frame = int(self.np_random.integers(2**31)), 0
+            self._perturbers[self.sim.object_spec.name].apply(self.perturbation, self._episode)
         self.sim.forward()
         self._elapsed = 0
         if self._disturbance is not None:  # drawn after placement: placements stay the same
@@ -277,9 +293,12 @@ class ScorbotGraspEnv(gym.Env):
         for key, value in obs.items():
             space = self.observation_space[key]
             np.clip(value, space.low, space.high, out=value)
-        for cam in self.cameras:  # rendered once per control step, only when asked for
+        self._frame += 1
+        for i, cam in enumerate(self.cameras):  # rendered once per control step, when asked for
             if "rgb" in self.image_types:
-                obs[f"{cam}_rgb"] = self.sim.render(cam, "rgb")
+                img = self.sim.render(cam, "rgb")
+                idx = (self._episode, self._frame, i)
+                obs[f"{cam}_rgb"] = self.perturbation.apply_image(img, idx)
             if "depth" in self.image_types:
                 obs[f"{cam}_depth"] = self.sim.render(cam, "depth")[..., None]
             if "privileged_segmentation" in self.image_types:
@@ -306,8 +325,13 @@ class ScorbotGraspEnv(gym.Env):
     ) -> CameraModel:
         """Intrinsics and extrinsics (OpenCV convention) of ``camera`` at the observation's image
         size (or ``width`` x ``height``, e.g. the ``render()`` size): the public calibration that
-        wrappers, policies and video overlays may use."""
-        return self.sim.camera_model(camera, width or self.image_width, height or self.image_height)
+        wrappers, policies and video overlays may use. Under a camera ``perturbation`` this
+        stays the nominal calibration (the images come from the perturbed camera), as with a
+        miscalibrated real camera."""
+        w, h = width or self.image_width, height or self.image_height
+        if self.perturbation.active:
+            return self._perturbers[self.sim.object_spec.name].nominal_camera_model(camera, w, h)
+        return self.sim.camera_model(camera, w, h)
 
     def camera_params(self, camera: str) -> dict[str, Any]:
         """:meth:`camera_model` as plain arrays (``K``, ``world_from_camera``, ``width``,

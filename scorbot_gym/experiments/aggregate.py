@@ -1,0 +1,215 @@
+"""Sweep trials -> one record per (protocol, estimator, occlusion), the chance level, and the
+stage-ablation table.
+
+Success@5° counts an invalid answer as a failure; medians are over valid answers. Errors are
+symmetry-aware (:func:`pose.metrics.rotation_error_deg`), so a can's heading is free; because
+such objects make image-blind answers look good, every record also reports the figure over the
+*asymmetric* objects only (``success_5deg_asymmetric``: symmetry kind "none") and over the
+objects without a continuous symmetry (``success_5deg_no_axial``: discrete symmetries such as
+a box's half-turn leave a finite ambiguity that any method must resolve). The chance level is
+the registered ``chance`` estimator when it is in the sweep, else the constant image-blind
+answer "resting face 0, heading 0" scored on the same views (every trial records it).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Sequence
+
+import numpy as np
+
+from scorbot_gym.evaluation.summary import wilson_interval
+
+THRESHOLD_DEG = 5.0
+CHANCE_ESTIMATOR = "chance"
+REFERENCE = "manifold"
+
+
+def _arr(values) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], float)
+
+
+def _success(err: np.ndarray) -> tuple[int, int]:
+    return int(np.sum(np.nan_to_num(err, nan=np.inf) < THRESHOLD_DEG)), int(err.size)
+
+
+def _rate(k: int, n: int) -> float | None:
+    return round(k / n, 4) if n else None
+
+
+def _median(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return round(float(np.median(x)), 4) if x.size else None
+
+
+def _pool(trials: Sequence[dict], key: str, symmetries: Sequence[str] | None = None) -> np.ndarray:
+    """One view field pooled over the trials of objects with the given symmetry kinds."""
+    keep = [t for t in trials if symmetries is None or t["symmetry"] in symmetries]
+    return np.concatenate([_arr(t["views"][key]) for t in keep] or [[]])
+
+
+def summarize_trials(trials: Sequence[dict]) -> dict:
+    """The figures of one (protocol, estimator, occlusion) cell, pooled over objects."""
+    err = _pool(trials, "rot_err_deg")
+    k, n = _success(err)
+    ka, na = _success(_pool(trials, "rot_err_deg", ("none",)))
+    kx, nx = _success(_pool(trials, "rot_err_deg", ("none", "discrete")))
+    kc, nc = _success(_pool(trials, "chance_rot_err_deg"))
+    kca, nca = _success(_pool(trials, "chance_rot_err_deg", ("none",)))
+    kcx, ncx = _success(_pool(trials, "chance_rot_err_deg", ("none", "discrete")))
+    coarse = _pool(trials, "coarse_rot_err_deg")
+    valid = np.concatenate([np.asarray(t["views"]["valid"], bool) for t in trials])
+    ms = _pool(trials, "ms")
+    out = {
+        "n": n,
+        "n_objects": len({t["object"] for t in trials}),
+        "success_5deg": _rate(k, n),
+        "success_5deg_ci95": [round(v, 4) for v in wilson_interval(k, n)],
+        "success_5deg_asymmetric": _rate(ka, na),
+        "success_5deg_asymmetric_ci95": [round(v, 4) for v in wilson_interval(ka, na)]
+        if na
+        else None,
+        "n_asymmetric": na,
+        "success_5deg_no_axial": _rate(kx, nx),
+        "n_no_axial": nx,
+        "median_rot_err_deg": _median(err),
+        "valid_rate": _rate(int(valid.sum()), valid.size),
+        "median_ms": _median(ms),
+        "mean_occlusion_achieved": _median(_pool(trials, "occlusion")),
+        "constant_answer_success_5deg": _rate(kc, nc),
+        "constant_answer_success_5deg_asymmetric": _rate(kca, nca),
+        "constant_answer_success_5deg_no_axial": _rate(kcx, ncx),
+    }
+    if np.isfinite(coarse).any():  # the estimator reports a pre-refinement answer
+        kk, nn = _success(coarse)
+        out["coarse_success_5deg"] = _rate(kk, nn)
+        out["coarse_success_5deg_ci95"] = [round(v, 4) for v in wilson_interval(kk, nn)]
+    return out
+
+
+def aggregate(trials: Sequence[dict]) -> list[dict]:
+    """One record per (protocol, estimator, occlusion), sorted by those keys."""
+    cells: dict[tuple, list[dict]] = defaultdict(list)
+    for t in trials:
+        cells[(t["protocol"], t["estimator"], t["occlusion"])].append(t)
+    return [
+        {"protocol": p, "estimator": e, "occlusion": o, **summarize_trials(ts)}
+        for (p, e, o), ts in sorted(cells.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2]))
+    ]
+
+
+def chance_level(results: Sequence[dict]) -> dict:
+    """Chance success@5° per occlusion: the ``chance`` estimator's if swept, else the constant
+    answer's (identical for every estimator: the same views)."""
+    from_est = [r for r in results if r["estimator"].split("(")[0] == CHANCE_ESTIMATOR]
+    if from_est:
+        src, rows = f"estimator {from_est[0]['estimator']!r}", from_est
+        vals = {r["occlusion"]: r["success_5deg"] for r in rows}
+        asym = {r["occlusion"]: r["success_5deg_asymmetric"] for r in rows}
+    else:
+        src = "constant answer: resting face 0, heading 0 (image-blind)"
+        vals = {r["occlusion"]: r["constant_answer_success_5deg"] for r in results}
+        asym = {r["occlusion"]: r["constant_answer_success_5deg_asymmetric"] for r in results}
+    return {
+        "source": src,
+        "success_5deg": [{"occlusion": o, "value": v} for o, v in sorted(vals.items())],
+        "success_5deg_asymmetric": [{"occlusion": o, "value": v} for o, v in sorted(asym.items())],
+    }
+
+
+def _family(label: str) -> bool:
+    return label.split("(")[0].startswith(REFERENCE)
+
+
+def stage_ablation(results: Sequence[dict]) -> list[dict]:
+    """Manifold variants side by side: success@5° per occlusion and its change from the full
+    ``manifold`` estimator (or the first variant swept). Rows ``<variant> [coarse]`` are the
+    same models' answers before refinement ("refine off"), free from one run. Empty when the
+    sweep has no manifold variant."""
+    fam = [r for r in results if _family(r["estimator"])]
+    if not fam:
+        return []
+    labels = list(dict.fromkeys(r["estimator"] for r in fam))
+    ref = REFERENCE if REFERENCE in labels else labels[0]
+    base = {
+        (r["protocol"], r["occlusion"]): r["success_5deg"] for r in fam if r["estimator"] == ref
+    }
+    refined = {  # estimators whose refinement changes some answer: show the coarse rows too
+        r["estimator"]
+        for r in fam
+        if r.get("coarse_success_5deg") is not None
+        and r["coarse_success_5deg"] != r["success_5deg"]
+    }
+    rows = []
+    for r in fam:
+        variants = [(r["estimator"], r["success_5deg"])]
+        if r["estimator"] in refined:
+            variants.append((f"{r['estimator']} [coarse]", r.get("coarse_success_5deg")))
+        for label, s in variants:
+            b = base.get((r["protocol"], r["occlusion"]))
+            rows.append({
+                "protocol": r["protocol"], "variant": label, "reference": ref,
+                "occlusion": r["occlusion"], "success_5deg": s,
+                "delta_vs_reference": None if b is None or s is None else round(s - b, 4),
+            })  # fmt: skip
+    return rows
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:5.1f}"
+
+
+def _show_levels(levels: Sequence[float], cap: int = 7) -> list[float]:
+    if len(levels) <= cap:
+        return list(levels)
+    picks = [0.0, 0.25, 0.5, 0.75, 0.9]
+    return [o for o in levels if any(abs(o - p) < 1e-9 for p in picks)] or list(levels[:cap])
+
+
+def format_results(results: Sequence[dict], chance: dict) -> str:
+    """success@5° (95 % CI) per estimator and occlusion, asymmetric-only and chance beside."""
+    lines = [f"{'estimator':<28}{'occl%':>6}{'n':>6}{'ok@5%':>8}{'95% CI':>14}{'asym%':>8}"
+             f"{'med_deg':>9}{'valid%':>8}{'ms':>8}"]  # fmt: skip
+    for r in results:
+        lo, hi = r["success_5deg_ci95"]
+        med = "-" if r["median_rot_err_deg"] is None else f"{r['median_rot_err_deg']:.2f}"
+        ms = "-" if r["median_ms"] is None else f"{r['median_ms']:.1f}"
+        lines.append(
+            f"{r['estimator'][:27]:<28}{100 * r['occlusion']:>6.0f}{r['n']:>6}"
+            f"{_pct(r['success_5deg']):>8}{f'{100 * lo:.0f}-{100 * hi:.0f}':>14}"
+            f"{_pct(r['success_5deg_asymmetric']):>8}{med:>9}{_pct(r['valid_rate']):>8}{ms:>8}"
+        )
+    for key, what in (("success_5deg", "all objects"), ("success_5deg_asymmetric", "asymmetric")):
+        vals = chance[key]
+        if len({c["value"] for c in vals}) == 1:  # the same views at every level: one number
+            text = f"{_pct(vals[0]['value']).strip()} at every level"
+        else:
+            text = ", ".join(
+                f"{100 * c['occlusion']:.0f}%: {_pct(c['value']).strip()}" for c in vals
+            )
+        lines.append(f"chance, {what} ({chance['source']}): {text}")
+    return "\n".join(lines)
+
+
+def format_stage_ablation(rows: Sequence[dict]) -> str:
+    if not rows:
+        return ""
+    levels = _show_levels(sorted({r["occlusion"] for r in rows}))
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    cell = {(r["variant"], r["occlusion"]): r for r in rows}
+    head = f"{'stage ablation (ok@5 %, delta)':<44}" + "".join(
+        f"{f'{100 * o:.0f}% occl':>16}" for o in levels
+    )
+    lines = [head]
+    for v in variants:
+        cells = []
+        for o in levels:
+            r = cell.get((v, o))
+            if r is None:
+                cells.append(f"{'-':>16}")
+                continue
+            d = r["delta_vs_reference"]
+            text = _pct(r["success_5deg"]) + (f" ({100 * d:+.1f})" if d is not None else "")
+            cells.append(f"{text:>16}")
+        lines.append(f"{v[:43]:<44}" + "".join(cells))
+    return "\n".join(lines)

@@ -1,0 +1,126 @@
+"""Run a sweep's model jobs: in a local process pool (default) or as Ray tasks.
+
+Both runners have one contract, ``runner.map(jobs) -> results`` in the jobs' order, and run the
+same top-level :func:`~scorbot_gym.experiments.trial.run_model_job`; results are cached per
+trial on disk by the job itself, so either runner resumes an interrupted sweep. Ray is the
+engine for when a sweep outgrows one machine (``RayRunner("auto")`` or ``"ray://head:10001"``
+joins a cluster, whose workers must share the cache directory); ``RayRunner()`` starts a local
+instance.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import Protocol
+
+from scorbot_gym.experiments.spec import SweepSpec
+from scorbot_gym.experiments.trial import ModelJob, default_cache_dir, run_model_job
+
+
+class Runner(Protocol):
+    def map(self, jobs: Sequence[ModelJob]) -> list[dict]: ...
+
+
+class LocalRunner:
+    """``jobs`` worker processes (spawned: no GL context or thread pool is inherited); with
+    ``jobs=1`` everything runs in this process."""
+
+    def __init__(self, jobs: int = 1, progress: Callable[[int, int], None] | None = None):
+        if jobs < 1:
+            raise ValueError(f"jobs must be >= 1, got {jobs}")
+        self.jobs, self.progress = jobs, progress
+
+    def map(self, jobs: Sequence[ModelJob]) -> list[dict]:
+        out: list[dict] = []
+        if self.jobs == 1 or len(jobs) <= 1:
+            for i, job in enumerate(jobs):
+                out.append(run_model_job(job))
+                if self.progress:
+                    self.progress(i + 1, len(jobs))
+            return out
+        ctx = mp.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(self.jobs, len(jobs)), mp_context=ctx) as pool:
+            futures = [pool.submit(run_model_job, job) for job in jobs]
+            for i, f in enumerate(futures):
+                out.append(f.result())
+                if self.progress:
+                    self.progress(i + 1, len(jobs))
+        return out
+
+
+class RayRunner:
+    """The same jobs as Ray tasks (one CPU each). ``address=None`` starts a local Ray instance
+    (``num_cpus`` caps it), otherwise connects to ``address`` ("auto", "ray://host:port").
+    A Ray instance this runner started is shut down after ``map``."""
+
+    def __init__(self, address: str | None = None, num_cpus: int | None = None):
+        try:
+            import ray  # noqa: F401
+        except ImportError as exc:
+            raise ImportError("the Ray runner needs Ray: pip install 'scorbot-gym[ray]'") from exc
+        self.address, self.num_cpus = address, num_cpus
+
+    def map(self, jobs: Sequence[ModelJob]) -> list[dict]:
+        import os
+
+        import ray
+
+        started = False
+        if not ray.is_initialized():
+            env = {k: os.environ[k] for k in ("PYTHONPATH", "MUJOCO_GL") if k in os.environ}
+            kw = {"runtime_env": {"env_vars": env}} if env else {}
+            if self.address is None:
+                kw.update(num_cpus=self.num_cpus, include_dashboard=False)
+            ray.init(address=self.address, log_to_driver=False, **kw)
+            started = True
+        try:
+            task = ray.remote(num_cpus=1)(run_model_job)
+            return ray.get([task.remote(job) for job in jobs])
+        finally:
+            if started:
+                ray.shutdown()
+
+
+def make_jobs(spec: SweepSpec, cache_dir: str | None = None) -> list[ModelJob]:
+    """One job per (estimator, object): each fits one model and runs all occlusion levels."""
+    cache = str(cache_dir or default_cache_dir())
+    pert = tuple(sorted(spec.perturbation.to_dict().items()))
+    return [
+        ModelJob(
+            spec.protocol,
+            str(est),
+            obj,
+            spec.seed,
+            spec.occlusions,
+            spec.width,
+            spec.height,
+            spec.test_views,
+            spec.train_stride,
+            pert,
+            cache,
+        )  # fmt: skip
+        for est in spec.estimator_specs
+        for obj in spec.object_names
+    ]
+
+
+def run_sweep(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None = None) -> dict:
+    """Run (or resume) ``spec``; returns the per-trial records and the run's statistics.
+
+    Aggregate with :func:`scorbot_gym.experiments.aggregate.aggregate`.
+    """
+    runner = runner or LocalRunner()
+    jobs = make_jobs(spec, cache_dir)
+    t0 = time.perf_counter()
+    results = runner.map(jobs)
+    stats: dict = {"jobs": len(jobs), "wall_s": round(time.perf_counter() - t0, 2)}
+    for r in results:
+        for k, v in r["stats"].items():
+            stats[k] = stats.get(k, 0) + v
+    stats["fit_s"] = round(stats.get("fit_s", 0.0), 2)
+    stats["runner"] = type(runner).__name__
+    trials = [t for r in results for t in r["trials"]]
+    return {"spec": spec.to_dict(), "trials": trials, "stats": stats}

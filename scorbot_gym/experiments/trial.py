@@ -1,0 +1,237 @@
+"""One unit of sweep work: fit one estimator on one object's protocol training views, then
+predict its held-out views at each occlusion level.
+
+A *trial* is (protocol, estimator, object, seed, occlusion). Trials sharing everything but the
+occlusion share one fitted model, so the unit of work (:class:`ModelJob`) is the model: it fits
+once (or loads the model from the content-keyed model cache) and runs its trials. Each trial's
+per-view records are cached as one JSON file under a content key, written atomically, so an
+interrupted sweep resumes where it stopped and a repeated one fits nothing. Keys include a hash
+of the ``pose`` package source and of the scene, so after editing an estimator or the renderer
+no stale number is served (coarse but safe: any edit there recomputes every trial). Unreadable
+cache entries are discarded and recomputed.
+
+A job is a plain, picklable value and :func:`run_model_job` a top-level function, so a process
+pool and Ray run the same code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+from pose.fileio import atomic_write_json
+from pose.metrics import rotation_error_deg
+
+TRIAL_FORMAT = 2
+
+
+@dataclass(frozen=True)
+class ModelJob:
+    """Everything one worker needs; see :func:`run_model_job`."""
+
+    protocol: str
+    estimator: str  # canonical estimator spec string
+    object_name: str
+    seed: int
+    occlusions: tuple[float, ...]
+    width: int
+    height: int
+    test_views: int | None
+    train_stride: int
+    perturbation: tuple[tuple[str, float], ...]  # Perturbation.to_dict() items
+    cache_dir: str
+
+
+@lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """Hash of the ``pose`` package source and the view renderer's scene fingerprint."""
+    import pose
+    from scorbot_gym.data.views import _scene_fingerprint
+
+    h = hashlib.sha256(_scene_fingerprint().encode())
+    for f in sorted(Path(pose.__file__).parent.rglob("*.py")):
+        h.update(str(f.relative_to(Path(pose.__file__).parent)).encode() + f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _key(payload: dict) -> str:
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def model_key(job: ModelJob) -> str:
+    from scorbot_gym.data.protocols import get_protocol
+
+    return _key({
+        "protocol": job.protocol, "version": get_protocol(job.protocol).version,
+        "estimator": job.estimator, "object": job.object_name, "seed": job.seed,
+        "size": [job.width, job.height], "train_stride": job.train_stride,
+        "code": code_fingerprint(),
+    })  # fmt: skip
+
+
+def trial_key(job: ModelJob, occlusion: float) -> str:
+    return _key({
+        "model": model_key(job), "occlusion": occlusion, "test_views": job.test_views,
+        "perturbation": dict(job.perturbation), "format": TRIAL_FORMAT,
+    })  # fmt: skip
+
+
+def trial_path(job: ModelJob, occlusion: float) -> Path:
+    return Path(job.cache_dir) / "experiments" / "trials" / f"{trial_key(job, occlusion)}.json"
+
+
+def read_trial(path: Path) -> dict | None:
+    """A cached trial, or None (missing; an unreadable entry is deleted)."""
+    if not path.is_file():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        if rec.get("format") != TRIAL_FORMAT or not isinstance(rec.get("views"), dict):
+            raise ValueError("stale format")
+        return rec
+    except (OSError, ValueError):
+        path.unlink(missing_ok=True)
+        return None
+
+
+def _fit_or_load(job: ModelJob, spec, load_train, stats: dict):
+    """The fitted estimator, from the model cache when the estimator can save and load
+    (``load_train()`` renders or reads the training views only when a fit is needed)."""
+    path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
+    est = spec.make()
+    can_save = callable(getattr(est, "save", None)) and callable(getattr(type(est), "load", None))
+    if can_save and path.is_file():
+        try:
+            loaded = type(est).load(path)
+            stats["model_cache_hits"] += 1
+            return loaded
+        except (OSError, ValueError, KeyError, TypeError):
+            path.unlink(missing_ok=True)  # unreadable: refitted and rewritten below
+    train = load_train()
+    views = [lv.view for lv in train]
+    poses = np.stack([lv.camera_from_object for lv in train])
+    t0 = time.perf_counter()
+    est.fit(views, poses)
+    stats["fits"] += 1
+    stats["fit_s"] += time.perf_counter() - t0
+    if can_save:
+        try:
+            est.save(path)
+        except (OSError, ValueError, TypeError, NotImplementedError):
+            path.unlink(missing_ok=True)  # not cacheable: the trials are still cached
+    return est
+
+
+def _constant_rotation(spec, camera) -> np.ndarray:
+    """The image-blind answer "resting face 0, heading 0" in the test camera's frame."""
+    from scorbot_gym.sim.simulation import quat_to_mat
+
+    R_world = quat_to_mat(np.asarray(spec.resting_quats[0], float))
+    return camera.camera_from_world[:3, :3] @ R_world
+
+
+def _score(est, views, spec) -> dict:
+    sym = spec.symmetry
+    keys = ("rot_err_deg", "coarse_rot_err_deg", "chance_rot_err_deg", "trans_err_m", "valid",
+            "ms", "occlusion", "score", "R", "t", "R_gt", "t_gt")  # fmt: skip
+    rec: dict[str, list] = {k: [] for k in keys}
+    R0 = _constant_rotation(spec, views[0].view.camera) if views else None
+    for lv in views:
+        t0 = time.perf_counter()
+        e = est.predict(lv.view)
+        wall_ms = 1e3 * (time.perf_counter() - t0)
+        R_gt, t_gt = lv.camera_from_object[:3, :3], lv.camera_from_object[:3, 3]
+        R, t = np.asarray(e.rotation, float), np.asarray(e.translation, float)
+        coarse = getattr(e, "rotation_coarse", None)
+        rec["rot_err_deg"].append(rotation_error_deg(R, R_gt, sym))
+        rec["coarse_rot_err_deg"].append(
+            rotation_error_deg(coarse, R_gt, sym) if coarse is not None else float("nan")
+        )
+        rec["chance_rot_err_deg"].append(rotation_error_deg(R0, R_gt, sym))
+        rec["trans_err_m"].append(float(np.linalg.norm(t - t_gt)))
+        rec["valid"].append(bool(e.valid))
+        rec["ms"].append(float(getattr(e, "timings_ms", {}).get("total", wall_ms)))
+        rec["occlusion"].append(float(lv.occlusion))
+        rec["score"].append(float(getattr(e, "confidence", 1.0 if e.valid else 0.0)))
+        rec["R"].append(R.tolist())
+        rec["t"].append(t.tolist())
+        rec["R_gt"].append(R_gt.tolist())
+        rec["t_gt"].append(t_gt.tolist())
+    # JSON has no NaN: invalid answers are stored as null
+    return {k: [_jsonable(v) for v in vs] for k, vs in rec.items()}
+
+
+def _jsonable(v):
+    if isinstance(v, float):
+        return v if np.isfinite(v) else None
+    if isinstance(v, list):
+        return [_jsonable(x) for x in v]
+    return v
+
+
+def run_model_job(job: ModelJob) -> dict:
+    """Run the job's trials, reading cached ones; returns ``{"trials": [...], "stats": {...}}``.
+
+    The model is fitted (or loaded) only if some trial is not cached yet.
+    """
+    import cv2
+
+    from scorbot_gym.data.perturbations import Perturbation
+    from scorbot_gym.data.protocols import held_out_views, train_views
+    from scorbot_gym.experiments.spec import EstimatorSpec
+    from scorbot_gym.objects import get_object
+
+    cv2.setNumThreads(1)  # one worker per core: no nested thread pools
+    stats = {"fits": 0, "fit_s": 0.0, "model_cache_hits": 0, "trials_cached": 0, "trials_run": 0}
+    trials, todo = [], []
+    for occ in job.occlusions:
+        rec = read_trial(trial_path(job, occ))
+        if rec is None:
+            todo.append(occ)
+        else:
+            stats["trials_cached"] += 1
+            trials.append(rec)
+    if todo:
+        spec = EstimatorSpec.parse(job.estimator)
+        obj = get_object(job.object_name)
+        size = {"width": job.width, "height": job.height, "cache_dir": job.cache_dir}
+
+        def load_train() -> list:
+            # with depth: estimators that lift keypoints to 3-D (PnP) train on it; tests are RGB
+            by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
+            return [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
+
+        est = _fit_or_load(job, spec, load_train, stats)
+        pert = Perturbation(**dict(job.perturbation))
+        for occ in todo:
+            views = held_out_views(
+                job.protocol, job.object_name, occ, seed=job.seed + 1, perturbation=pert, **size
+            )[: job.test_views]
+            rec = {
+                "format": TRIAL_FORMAT,
+                "protocol": job.protocol,
+                "estimator": job.estimator,
+                "object": job.object_name,
+                "seed": job.seed,
+                "occlusion": occ,
+                "symmetry": obj.symmetry.kind,
+                "views": _score(est, views, obj),
+            }
+            atomic_write_json(trial_path(job, occ), rec)
+            stats["trials_run"] += 1
+            trials.append(rec)
+    trials.sort(key=lambda r: r["occlusion"])
+    return {"trials": trials, "stats": stats, "job": asdict(job)}
+
+
+def default_cache_dir() -> str:
+    from scorbot_gym.data.views import default_cache_dir as views_cache
+
+    return os.fspath(views_cache())

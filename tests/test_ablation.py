@@ -1,0 +1,243 @@
+"""Ablation sweeps (local and Ray), per-trial resume, BOP export, perturbation axes."""
+
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from scorbot_gym.cli import main
+from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
+from scorbot_gym.data.protocols import held_out_views
+from scorbot_gym.experiments.spec import EstimatorSpec, parse_occlusions, split_estimators
+
+# parameters every version of the manifold estimator has (stage parameters moved over time)
+ESTIMATORS = "manifold,manifold(allocentric=True)"
+SWEEP = [
+    "pose", "ablate", "--protocol", "side-turntable", "--estimators", ESTIMATORS,
+    "--occlusion", "0,50", "--objects", "banana,box", "--width", "160", "--height", "120",
+    "--test-views", "6", "--train-stride", "3", "--quiet",
+]  # fmt: skip
+RECORD_KEYS = {
+    "protocol", "estimator", "occlusion", "n", "success_5deg", "success_5deg_ci95",
+    "median_rot_err_deg", "valid_rate", "median_ms", "success_5deg_asymmetric",
+}  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- specs
+def test_estimator_specs_parse_and_label():
+    s = EstimatorSpec.parse("manifold( random_state=3,allocentric=True )")
+    assert s.name == "manifold" and dict(s.params) == {"allocentric": True, "random_state": 3}
+    assert (
+        str(s) == "manifold(allocentric=True, random_state=3)" == str(EstimatorSpec.parse(str(s)))
+    )
+    params = s.make().get_params()
+    assert params["allocentric"] is True and params["random_state"] == 3
+    nested = EstimatorSpec.parse("manifold(a__b=1, c=2)")
+    assert str(nested) == "manifold(a__b=1, c=2)"
+    assert split_estimators("a,b(x=1, y=(2, 3)),c") == ["a", "b(x=1, y=(2, 3))", "c"]
+    for bad in ("manifold(4)", "manifold(x=open('f'))", "1abc", "manifold(**k)"):
+        with pytest.raises(ValueError, match="estimator spec"):
+            EstimatorSpec.parse(bad)
+
+
+def test_occlusion_ranges():
+    assert parse_occlusions("0:95:5") == tuple(round(0.05 * i, 4) for i in range(20))
+    assert parse_occlusions("0,50") == (0.0, 0.5)
+    for bad in ("0:100:5", "a,b", "0:50:0", ""):
+        with pytest.raises(ValueError, match="occlusion"):
+            parse_occlusions(bad)
+
+
+def test_cli_rejects_unknown_estimator(tmp_path, capsys):
+    argv = SWEEP[:5] + ["nope,manifold", "--cache-dir", str(tmp_path)]
+    assert main(argv) == 2
+    assert "unknown estimator 'nope'; registered: " in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- sweep
+@pytest.fixture(scope="session")
+def local_sweep(tmp_path_factory):
+    """The tiny sweep run twice on one cache: (first report, second report, second stdout)."""
+    d = tmp_path_factory.mktemp("ablate")
+    cache = d / "cache"
+    argv = SWEEP + ["--cache-dir", str(cache), "--jobs", "2"]
+    assert main(argv + ["--json", str(d / "a.json"), "--png", str(d / "a.png")]) == 0
+    import contextlib
+    import io
+
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        assert main(argv + ["--json", str(d / "b.json"), "--bop", str(d / "bop")]) == 0
+    first, second = (json.loads((d / f).read_text()) for f in ("a.json", "b.json"))
+    return d, first, second, out.getvalue()
+
+
+@pytest.mark.slow
+def test_local_sweep_records_and_figure(local_sweep):
+    d, rep, _, _ = local_sweep
+    res = rep["results"]
+    assert len(res) == 4  # 2 estimators x 2 occlusion levels
+    assert {(r["estimator"], r["occlusion"]) for r in res} == {
+        (e, o) for e in ("manifold", "manifold(allocentric=True)") for o in (0.0, 0.5)
+    }
+    for r in res:
+        assert RECORD_KEYS <= set(r)
+        assert r["n"] == 12 and r["n_asymmetric"] == 6  # 6 views x (banana, box)
+        lo, hi = r["success_5deg_ci95"]
+        assert 0 <= lo <= r["success_5deg"] <= hi <= 1
+    assert rep["chance"]["source"].startswith("constant answer")
+    assert {row["variant"] for row in rep["stage_ablation"]} >= {"manifold"}
+    assert rep["spec"]["test_views"] == 6 and rep["spec"]["objects"] == ["banana", "box"]
+    assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_second_run_resumes_from_the_trial_cache(local_sweep):
+    _, first, second, out = local_sweep
+    assert second["stats"]["fits"] == 0 and second["stats"]["trials_run"] == 0
+    assert second["stats"]["trials_cached"] == 8
+    assert "0 fitted" in out
+    assert second["results"] == first["results"]
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_ray_runner_gives_the_local_numbers(local_sweep, tmp_path):
+    pytest.importorskip("ray")
+    d, first, _, _ = local_sweep
+    shutil.copytree(d / "cache" / "views", tmp_path / "views")  # render once, fit in Ray
+    argv = SWEEP + ["--cache-dir", str(tmp_path), "--ray", "--jobs", "2"]
+    assert main(argv + ["--json", str(tmp_path / "r.json")]) == 0
+    rep = json.loads((tmp_path / "r.json").read_text())
+    assert rep["stats"]["runner"] == "RayRunner" and rep["stats"]["fits"] == 4
+    strip = [{k: v for k, v in r.items() if k != "median_ms"} for r in first["results"]]
+    assert [{k: v for k, v in r.items() if k != "median_ms"} for r in rep["results"]] == strip
+
+
+# ----------------------------------------------------------------------------- BOP
+@pytest.mark.slow
+def test_bop_export_uses_the_toolkit_field_names(local_sweep):
+    d, _, _, _ = local_sweep
+    bop = d / "bop"
+    scenes = json.loads((bop / "scenes.json").read_text())
+    assert len(scenes) == 4  # (banana, box) x (0, 50 %)
+    sid = next(s for s, v in scenes.items() if v["object"] == "banana" and v["occlusion"] == 0)
+    scene = bop / "test" / f"{int(sid):06d}"
+    cam = json.loads((scene / "scene_camera.json").read_text())
+    gt = json.loads((scene / "scene_gt.json").read_text())
+    info = json.loads((scene / "scene_gt_info.json").read_text())
+    assert sorted(cam, key=int) == [str(i) for i in range(6)] == sorted(gt, key=int)
+    for k in ("cam_K", "depth_scale", "cam_R_w2c", "cam_t_w2c"):
+        assert k in cam["0"]
+    g = gt["0"][0]
+    assert set(g) == {"cam_R_m2c", "cam_t_m2c", "obj_id"} and len(g["cam_R_m2c"]) == 9
+    R = np.reshape(g["cam_R_m2c"], (3, 3))
+    assert np.allclose(R @ R.T, np.eye(3), atol=1e-6)
+    assert 300 < np.linalg.norm(g["cam_t_m2c"]) < 3000  # millimetres
+    assert info["0"][0]["visib_fract"] == 1.0
+    assert (scene / "rgb" / "000000.png").is_file()
+    assert (scene / "mask_visib" / "000000_000000.png").is_file()
+    ids = json.loads((bop / "obj_ids.json").read_text())
+    assert g["obj_id"] == ids["banana"]
+    assert (bop / "models" / f"obj_{ids['banana']:06d}.ply").is_file()
+    models_info = json.loads((bop / "models" / "models_info.json").read_text())
+    assert models_info[str(ids["banana"])]["diameter"] > 50  # mm
+    assert "symmetries_continuous" not in models_info[str(ids["banana"])]
+    targets = json.loads((bop / "test_targets_bop19.json").read_text())
+    assert {"im_id", "inst_count", "obj_id", "scene_id"} == set(targets[0]) and len(targets) == 24
+    for name in ("manifold_scorbot-test.csv", "manifold-allocentric-True_scorbot-test.csv"):
+        with open(bop / name, newline="") as f:
+            rows = list(csv.DictReader(f))
+        assert list(rows[0]) == ["scene_id", "im_id", "obj_id", "score", "R", "t", "time"]
+        for r in rows:
+            assert len(r["R"].split()) == 9 and len(r["t"].split()) == 3
+            assert float(r["time"]) > 0 and 0 <= int(r["im_id"]) < 6
+
+
+# ----------------------------------------------------------------------------- protocols
+def test_held_out_views_are_deterministic(tmp_path):
+    a = held_out_views(
+        "side-turntable", "banana", 0.3, width=96, height=72, cache_dir=tmp_path / "a"
+    )
+    b = held_out_views(
+        "side-turntable", "banana", 0.3, width=96, height=72, cache_dir=tmp_path / "b"
+    )
+    assert all(np.array_equal(x.view.image, y.view.image) for x, y in zip(a, b, strict=True))
+    assert all(
+        np.allclose(x.camera_from_object, y.camera_from_object) for x, y in zip(a, b, strict=True)
+    )
+
+
+# ----------------------------------------------------------------------------- perturbations
+def _views(tmp_path, p, occ=0.0):
+    return held_out_views(
+        "top-resting", "banana", occ, width=96, height=72, cache_dir=tmp_path, perturbation=p
+    )[:4]
+
+
+def test_perturbed_views_are_seeded_change_the_image_and_keep_the_nominal_camera(tmp_path):
+    clean = _views(tmp_path / "c", None)
+    p = Perturbation(lighting=0.5, surfaces=0.5, camera_rot_deg=1.0, noise_sigma=4, blur_sigma=1)
+    a, b = _views(tmp_path / "a", p), _views(tmp_path / "b", p)
+    other = _views(tmp_path / "a", Perturbation(**{**p.to_dict(), "seed": 1}))
+    for x, y, c, o in zip(a, b, clean, other, strict=True):
+        assert np.array_equal(x.view.image, y.view.image)  # seeded
+        assert np.abs(x.view.image.astype(int) - c.view.image).mean() > 2  # changed
+        assert not np.array_equal(x.view.image, o.view.image)  # the seed matters
+        assert np.allclose(x.view.camera.world_from_camera, c.view.camera.world_from_camera)
+        assert np.allclose(x.camera_from_object, c.camera_from_object)
+
+
+def test_each_axis_draws_from_its_own_stream():
+    from scorbot_gym.sim import Simulation
+
+    sim = Simulation("banana", render_width=64, render_height=48)
+    pt = ScenePerturber(sim)
+    pt.apply(Perturbation(lighting=0.5, seed=3), 7)
+    light = sim.model.light_dir.copy()
+    pt.apply(Perturbation(lighting=0.5, camera_pos_m=0.02, surfaces=1.0, seed=3), 7)
+    assert np.allclose(sim.model.light_dir, light)  # other axes on: same lighting draw
+    cam = sim.camera_id("top")
+    moved = np.linalg.norm(sim.model.cam_pos[cam] - pt._nominal["cam_pos"][cam])
+    assert 0 < moved < 0.2
+    pt.restore()
+    assert np.array_equal(sim.model.cam_pos, pt._nominal["cam_pos"])
+    assert np.array_equal(sim.model.light_dir, pt._nominal["light_dir"])
+    sim.close()
+
+
+def test_perturbation_validation():
+    assert not Perturbation().active
+    assert Perturbation.parse("lighting=0.3,noise_sigma=4,seed=2") == Perturbation(
+        lighting=0.3, noise_sigma=4.0, seed=2
+    )
+    with pytest.raises(ValueError, match="KEY=VALUE"):
+        Perturbation.parse("fog=1")
+    with pytest.raises(ValueError, match="lighting must be within"):
+        Perturbation(lighting=2.0)
+    with pytest.raises(ValueError, match="noise_sigma must be"):
+        Perturbation(noise_sigma=-1)
+
+
+def test_env_perturbation_is_seeded_and_off_by_default():
+    from scorbot_gym.envs.grasp import ScorbotGraspEnv
+
+    kw = {"object_name": "banana", "cameras": ("top",), "image_width": 96, "image_height": 72}
+    p = Perturbation(lighting=0.5, camera_pos_m=0.01, noise_sigma=5)
+    env, plain = ScorbotGraspEnv(**kw, perturbation=p), ScorbotGraspEnv(**kw)
+    (o1, i1), (o2, _), (o0, i0) = env.reset(seed=4), env.reset(seed=4), plain.reset(seed=4)
+    assert np.array_equal(o1["top_rgb"], o2["top_rgb"])
+    assert np.abs(o1["top_rgb"].astype(int) - o0["top_rgb"]).mean() > 2
+    assert np.allclose(
+        i1["camera_params"]["top"]["world_from_camera"],
+        i0["camera_params"]["top"]["world_from_camera"],
+    )  # the nominal calibration
+    np.testing.assert_allclose(o1["joint_pos"], o0["joint_pos"])
+    s1, *_ = env.step(np.zeros(6, np.float32))
+    assert not np.array_equal(s1["top_rgb"], o1["top_rgb"])  # fresh noise every frame
+    off = ScorbotGraspEnv(**kw, perturbation=Perturbation())
+    assert np.array_equal(off.reset(seed=4)[0]["top_rgb"], o0["top_rgb"])
+    for e in (env, plain, off):
+        e.close()
