@@ -12,8 +12,9 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation import format_summary, run_episode, run_episodes, summarize
 from scorbot_gym.perception import pose_source_names
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
 
-POLICIES = ("scripted", "random")
+POLICIES = ("scripted", "random", "rl")
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
@@ -46,7 +47,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="catalogue object (default: a random one per episode)",
     )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--action-type", choices=("joint", "cartesian"), default="joint")
+    p.add_argument(
+        "--action-type",
+        choices=("joint", "cartesian"),
+        default=None,
+        help="default: joint; for --policy rl the shipped policy's (cartesian)",
+    )
     p.add_argument("--camera", default="overview", help="camera for --video")
     p.add_argument("--video", type=Path, default=None, help="MP4 or GIF of the first episode")
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
@@ -67,6 +73,8 @@ def _env_id(action_type: str) -> str:
 
 
 def _policy(args: argparse.Namespace, env):
+    if args.policy == "rl":
+        return SB3Policy.load(SHIPPED_POLICY).bind(env)
     if args.policy == "random":
         return RandomPolicy(env.action_space, args.seed)
     return ScriptedGraspPolicy.for_env(env)
@@ -107,6 +115,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--estimate-every must be >= 0, got {args.estimate_every}")
     if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
         raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
+    if args.action_type is None:
+        rl = args.policy == "rl"
+        args.action_type = SB3Policy.load(SHIPPED_POLICY).meta["action_type"] if rl else "joint"
     pose_kwargs = _pose_kwargs(args)
     env = make_env(
         _env_id(args.action_type),
