@@ -35,12 +35,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
     args = parser.parse_args(argv)
 
+    import torch
+
     import scorbot_gym
     from pose.fileio import atomic_write_json
     from scorbot_gym.cli.compare import format_report
     from scorbot_gym.evaluation.compare import compare, plot_comparison
-
-    import torch
 
     torch.set_num_threads(1)  # one-sample predictions: threads only add contention
     policies = ["scripted", "rl", *args.extra]
