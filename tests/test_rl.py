@@ -9,11 +9,13 @@ import pytest
 
 from scorbot_gym.cli import main
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation import run_episode
 from scorbot_gym.evaluation.compare import newcombe_paired_diff
 from scorbot_gym.policies import ScriptedGraspPolicy
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
 from scorbot_gym.rl import ResidualActionWrapper, TrainConfig, resume, train
 from scorbot_gym.rl.training import build_model, make_vec_env
+from scorbot_gym.tasks import FAILURE_CAUSES
 
 pytestmark = pytest.mark.rl
 
@@ -126,6 +128,16 @@ def test_shipped_policy_loads_and_acts_inside_the_action_space():
     joint = make_env("ScorbotGrasp-v0", objects=["mug"])
     with pytest.raises(ValueError, match="cartesian actions"):
         policy.bind(joint)
+
+
+def test_shipped_policy_on_a_user_added_object(user_object):
+    """An object registered by the user is a class the policy never saw (no one-hot slot)."""
+    policy = SB3Policy.load(SHIPPED_POLICY)
+    kw = policy.env_kwargs()
+    env = make_env(kw.pop("env_id"), objects=[user_object.name])
+    result = run_episode(env, policy.bind(env), seed=0)
+    assert result.object_name == user_object.name
+    assert result.steps > 0 and result.failure_cause in (None, *FAILURE_CAUSES)
 
 
 def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):

@@ -156,7 +156,8 @@ class SB3Policy:
     def bind(self, env) -> SB3Policy:
         """Check that ``env`` gives the observations the model was trained on and remember the
         env's class names, so that an ``object_class`` one-hot over other classes (``--object
-        box`` makes a one-class env) is re-ordered into the model's. Returns ``self``."""
+        box`` makes a one-class env; a user-added object is a class the model never saw) is
+        re-ordered into the model's. Returns ``self``."""
         env_type = env.get_wrapper_attr("action_type")
         if env_type != self.meta["action_type"]:
             raise ValueError(
@@ -170,32 +171,28 @@ class SB3Policy:
         self._env_classes = None
         if "object_class" in want and "object_class" in have:
             names = tuple(env.get_wrapper_attr("class_names"))
-            unknown = [n for n in names if n not in self.classes]
-            if unknown:
-                raise ValueError(
-                    f"the policy was trained without objects {unknown}; it knows "
-                    f"{list(self.classes)}"
-                )
             self._env_classes = names if names != self.classes else None
             have["object_class"] = want["object_class"]
+            if self.base is not None:
+                self.base.classes = names  # the base reads the env's one-hot as it is
         if have != want:
             diff = sorted(set(have.items()) ^ set(want.items()))
             raise ValueError(f"wrong observation space for this policy: entries that differ {diff}")
         return self
 
     def _model_onehot(self, onehot: np.ndarray) -> np.ndarray:
+        """The env's one-hot in the model's class order; an object the model has no class
+        for (a user-added one) shows as no class at all."""
         out = np.zeros(len(self.classes))
         for name, v in zip(self._env_classes, onehot, strict=True):
-            out[self.classes.index(name)] = v
+            if name in self.classes:
+                out[self.classes.index(name)] = v
         return out
 
     def env_kwargs(self) -> dict[str, Any]:
         """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations."""
-        env_id = (
-            "ScorbotGraspCartesian-v0"
-            if self.meta["action_type"] == "cartesian"
-            else ("ScorbotGrasp-v0")
-        )
+        cartesian = self.meta["action_type"] == "cartesian"
+        env_id = "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0"
         return {"env_id": env_id, "classes": list(self.classes) or None}
 
     # --- Policy protocol -------------------------------------------------------------------
