@@ -116,7 +116,7 @@ def test_zero_residual_reproduces_the_scripted_controller():
 def test_shipped_policy_loads_and_acts_inside_the_action_space():
     policy = SB3Policy.load(SHIPPED_POLICY)
     kw = policy.env_kwargs()
-    env = make_env(kw.pop("env_id"), objects=["mug"])  # one-class one-hot, re-ordered by bind
+    env = make_env(kw.pop("env_id"), objects=["banana"])  # one-class one-hot, re-ordered by bind
     policy.bind(env)
     obs, info = env.reset(seed=0)
     policy.reset(obs, info)
@@ -125,7 +125,7 @@ def test_shipped_policy_loads_and_acts_inside_the_action_space():
         assert action.shape == env.action_space.shape
         assert env.action_space.contains(action)
         obs, *_ = env.step(action)
-    joint = make_env("ScorbotGrasp-v0", objects=["mug"])
+    joint = make_env("ScorbotGrasp-v0", objects=["banana"])
     with pytest.raises(ValueError, match="cartesian actions"):
         policy.bind(joint)
 

@@ -64,20 +64,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _label(policy: str) -> str:
+    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``)."""
+    p = Path(policy)
+    return p.parent.name if p.name == "policy" else p.name
+
+
 def format_report(report: dict) -> str:
-    lines = [f"{'policy':<12} {'pose':<14} {'success':>8}  {'95% CI':<15} {'steps':>6}  failures"]
+    lines = [f"{'policy':<20} {'pose':<14} {'success':>8}  {'95% CI':<15} {'steps':>6}  failures"]
     for r in report["results"]:
         lo, hi = r["ci95"]
         steps = r["median_steps_to_success"]
         fails = ", ".join(f"{k} {v}" for k, v in r["failure_causes"].items() if v) or "-"
         lines.append(
-            f"{Path(r['policy']).name:<12} {r['pose']:<14} {r['success_rate']:>8.1%}  "
+            f"{_label(r['policy']):<20} {r['pose']:<14} {r['success_rate']:>8.1%}  "
             f"{lo:.1%} - {hi:.1%}  {'-' if steps is None else f'{steps:.0f}':>6}  {fails}"
         )
     for d in report["differences"]:
         lo, hi = d["ci95"]
         lines.append(
-            f"{Path(d['a']).name} - {Path(d['b']).name} ({d['pose']}): {d['diff']:+.1%} "
+            f"{_label(d['a'])} - {_label(d['b'])} ({d['pose']}): {d['diff']:+.1%} "
             f"(95% CI {lo:+.1%} to {hi:+.1%}, McNemar p={d['mcnemar_p']:.3g})"
         )
     return "\n".join(lines)
