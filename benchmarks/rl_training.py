@@ -31,7 +31,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 ARMS = {
     "residual": {"residual": True, "timesteps": 30_000},
     "bc": {"bc_demos": 100, "bc_steps": 3000, "timesteps": 10_000, "eval_every": 2500},
-    "scratch": {"timesteps": 10_000, "eval_every": 2500},
+    "scratch": {"timesteps": 3000, "eval_every": 1000, "checkpoint_every": 1000},
 }
 RUN_NAMES = {
     "residual": "residual_sac_oracle",
@@ -65,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             state = json.loads((out / "checkpoint" / "state.json").read_text())
             if state["timesteps"] < config.timesteps:
-                state = resume(out)
+                state = resume(out, timesteps=config.timesteps)
         used = json.loads((out / "config.json").read_text())
         report["arms"][arm] = {
             "run": str(out),
