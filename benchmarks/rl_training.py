@@ -30,7 +30,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 ARMS = {
     "residual": {"residual": True, "timesteps": 10_000},
-    "bc": {"bc_demos": 100, "bc_steps": 3000, "timesteps": 10_000, "eval_every": 2500},
+    "bc": {"bc_demos": 100, "bc_steps": 3000, "timesteps": 5000, "eval_every": 2500},
     "scratch": {"timesteps": 3000, "eval_every": 1000, "checkpoint_every": 1000},
 }
 RUN_NAMES = {
