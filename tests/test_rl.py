@@ -81,6 +81,19 @@ def test_train_refuses_to_overwrite_a_run(trained_run):
         train(tiny_config(), out)
 
 
+@pytest.mark.parametrize("algo", ["tqc", "ppo"])
+def test_other_algorithms_train_and_export(algo, tmp_path):
+    cfg = tiny_config(algo=algo, timesteps=64, n_steps=32, learning_starts=32, eval_every=64)
+    state = train(cfg, tmp_path / algo)
+    assert state["timesteps"] >= 64
+    policy = SB3Policy.load(tmp_path / algo / "policy")
+    assert policy.meta["algo"] == algo
+    env = make_env(policy.env_kwargs()["env_id"], objects=["box"])
+    obs, info = env.reset(seed=1)
+    policy.bind(env).reset(obs, info)
+    assert env.action_space.contains(policy.act(obs))
+
+
 def test_same_seed_same_first_updates():
     def params(seed):
         cfg = tiny_config(residual=False, learning_starts=50, normalize=False, seed=seed)

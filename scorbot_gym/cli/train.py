@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.rl.training import ALGOS, POSES, TrainConfig, resume, train
 
 
@@ -54,9 +53,6 @@ def run(args: argparse.Namespace) -> int:
         state = resume(args.resume)
         out = args.resume
     else:
-        for name in args.objects or []:
-            if name not in CATALOGUE:
-                raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
         config = TrainConfig(
             algo=args.algo,
             pose=args.pose,

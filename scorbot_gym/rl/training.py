@@ -64,6 +64,7 @@ class TrainConfig:
     batch_size: int = 256
     buffer_size: int = 50_000
     learning_starts: int = 1000
+    n_steps: int = 1024  # PPO: env steps per update, over all envs
     ent_coef_init: float = 0.05
     log_std_init: float = -2.0  # of a residual actor: small exploration around the base
     normalize: bool = True
@@ -225,10 +226,11 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
         "tensorboard_log": str(tb_dir) if tb_dir else None,
     }
     if config.algo == "ppo":
+        n_steps = max(8, config.n_steps // config.n_envs)
         kwargs = {"log_std_init": config.log_std_init} if config.residual else {}
         model = PPO(
-            n_steps=max(64, 1024 // config.n_envs),
-            batch_size=64,
+            n_steps=n_steps,
+            batch_size=min(64, n_steps * config.n_envs),
             policy_kwargs={"net_arch": list(config.net_arch), **kwargs},
             **common,
         )
