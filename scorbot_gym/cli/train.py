@@ -20,7 +20,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pose-model", type=Path, default=None, help="with --pose manifold")
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
     p.add_argument("--objects", nargs="+", default=None, help="training objects (default: all)")
-    p.add_argument("--timesteps", type=int, default=20_000, help="total env steps")
+    p.add_argument(
+        "--timesteps",
+        type=int,
+        default=None,
+        help="total env steps (default 20000; with --resume: a new total to continue to)",
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--n-envs", type=int, default=1, help="SubprocVecEnv workers (1: in-process)")
     p.add_argument("--out", type=Path, default=None, help="run directory (new)")
@@ -50,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.out is None) == (args.resume is None):
         raise ValueError("give exactly one of --out DIR (a new run) or --resume DIR")
     if args.resume is not None:
-        state = resume(args.resume)
+        state = resume(args.resume, timesteps=args.timesteps)
         out = args.resume
     else:
         config = TrainConfig(
@@ -59,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             pose_model=str(args.pose_model) if args.pose_model else None,
             action_type=args.action_type,
             objects=args.objects,
-            timesteps=args.timesteps,
+            timesteps=20_000 if args.timesteps is None else args.timesteps,
             seed=args.seed,
             n_envs=args.n_envs,
             residual=args.residual,
