@@ -176,6 +176,8 @@ def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
     with pytest.raises(FileNotFoundError, match="missing policy.json"):
         SB3Policy.load(bad)
     assert main(["rollout", "--policy", "rl", "--episodes", "0"]) == 2
+    assert main(["train"]) == 2  # neither --out nor --resume
+    assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2  # no checkpoint
 
 
 def test_compare_writes_json_and_png_with_the_documented_keys(tmp_path):
