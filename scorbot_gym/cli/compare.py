@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from pose.fileio import atomic_write_json
-from scorbot_gym.evaluation.compare import compare, plot_comparison
+from scorbot_gym.evaluation.compare import compare, plot_comparison, policy_label
 
 
 def _floats(text: str) -> list[float]:
@@ -64,12 +64,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _label(policy: str) -> str:
-    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``)."""
-    p = Path(policy)
-    return p.parent.name if p.name == "policy" else p.name
-
-
 def format_report(report: dict) -> str:
     lines = [f"{'policy':<20} {'pose':<14} {'success':>8}  {'95% CI':<15} {'steps':>6}  failures"]
     for r in report["results"]:
@@ -77,13 +71,13 @@ def format_report(report: dict) -> str:
         steps = r["median_steps_to_success"]
         fails = ", ".join(f"{k} {v}" for k, v in r["failure_causes"].items() if v) or "-"
         lines.append(
-            f"{_label(r['policy']):<20} {r['pose']:<14} {r['success_rate']:>8.1%}  "
+            f"{policy_label(r['policy']):<20} {r['pose']:<14} {r['success_rate']:>8.1%}  "
             f"{lo:.1%} - {hi:.1%}  {'-' if steps is None else f'{steps:.0f}':>6}  {fails}"
         )
     for d in report["differences"]:
         lo, hi = d["ci95"]
         lines.append(
-            f"{_label(d['a'])} - {_label(d['b'])} ({d['pose']}): {d['diff']:+.1%} "
+            f"{policy_label(d['a'])} - {policy_label(d['b'])} ({d['pose']}): {d['diff']:+.1%} "
             f"(95% CI {lo:+.1%} to {hi:+.1%}, McNemar p={d['mcnemar_p']:.3g})"
         )
     return "\n".join(lines)

@@ -66,6 +66,12 @@ def pose_conditions(
     return out
 
 
+def policy_label(policy: str) -> str:
+    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``)."""
+    p = Path(policy)
+    return p.parent.name if p.name == "policy" else p.name
+
+
 def load_policy(name: str) -> SB3Policy | None:
     """``rl`` (the shipped policy) or a policy directory; ``None`` for scripted/random."""
     if name in ("scripted", "random"):
@@ -223,7 +229,14 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> None:
             errs[0].append(max(0.0, p - lo) if v["episodes"] else 0.0)
             errs[1].append(max(0.0, hi - p) if v["episodes"] else 0.0)
         x = np.arange(len(objects)) + (i - (len(res) - 1) / 2) * width
-        ax1.bar(x, rates, width, yerr=errs, capsize=2, label=f"{r['policy']} / {r['pose']}")
+        ax1.bar(
+            x,
+            rates,
+            width,
+            yerr=errs,
+            capsize=2,
+            label=f"{policy_label(r['policy'])} / {r['pose']}",
+        )
     ax1.set_xticks(np.arange(len(objects)), objects, rotation=30, ha="right")
     ax1.set_ylim(0, 1.05)
     ax1.set_ylabel("success rate")
@@ -240,7 +253,7 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> None:
             ys = [p[1] for p in pts]
             yerr = [[y - p[2][0] for y, p in zip(ys, pts, strict=True)]]
             yerr.append([p[2][1] - y for y, p in zip(ys, pts, strict=True)])
-            ax2.errorbar(xs, ys, yerr=yerr, marker="o", capsize=3, label=name)
+            ax2.errorbar(xs, ys, yerr=yerr, marker="o", capsize=3, label=policy_label(name))
     ax2.set_xlabel(f"pose noise: position std (cm); heading std = {DEG_PER_M / 100:g} deg per cm")
     ax2.set_ylabel("success rate")
     ax2.set_ylim(0, 1.05)
