@@ -240,7 +240,8 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> None:
     ax1.set_xticks(np.arange(len(objects)), objects, rotation=30, ha="right")
     ax1.set_ylim(0, 1.05)
     ax1.set_ylabel("success rate")
-    ax1.set_title(f"success per object ({report['episodes']} paired episodes per arm)")
+    counts = sorted({r["episodes"] for r in res})
+    ax1.set_title(f"success per object ({'/'.join(map(str, counts))} paired episodes per arm)")
     ax1.legend(fontsize=7)
     for name in dict.fromkeys(r["policy"] for r in res):
         pts = sorted(
