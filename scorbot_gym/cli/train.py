@@ -88,5 +88,5 @@ def run(args: argparse.Namespace) -> int:
         f"{last['episodes']} held-out episodes: {last['success_rate']:.1%} "
         f"(95% CI {lo:.1%} - {hi:.1%})"
     )
-    print(f"policy: {out / 'policy'}  (scorbot-gym rollout --policy {out / 'policy'})")
+    print(f"policy: {out / 'policy'}  (scorbot-gym compare --policies scripted,{out / 'policy'})")
     return 0
