@@ -13,7 +13,7 @@ the curves of runs started with the CLI are collected rather than recomputed. Su
 measured by the runs' own evaluation callback: deterministic policy, held-out seeds from
 1,000,000, 20 episodes per point.
 
-    python benchmarks/rl_training.py [--runs /tmp/rl_runs] [--arms residual bc scratch]
+    python benchmarks/rl_training.py [--runs runs] [--arms residual bc scratch]
 """
 
 from __future__ import annotations
