@@ -17,6 +17,8 @@ _COMMAND_MODULES = (
     "scorbot_gym.cli.doctor",
     "scorbot_gym.cli.pose_cmd",
     "scorbot_gym.cli.shapes_cmd",
+    "scorbot_gym.cli.train",
+    "scorbot_gym.cli.compare",
 )
 
 

@@ -34,7 +34,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "that carry the object pose from the chosen pose source, re-estimated every "
         "--estimate-every steps. Prints success, failure causes and perception figures.",
     )
-    p.add_argument("--policy", choices=POLICIES, default="scripted", help="who acts")
+    p.add_argument(
+        "--policy",
+        choices=POLICIES,
+        default="scripted",
+        help="who acts: scripted (PBVS controller), random, rl (the shipped learned policy)",
+    )
     p.add_argument(
         "--pose",
         choices=sorted({*pose_source_names(), *POSE_ALIASES}),
@@ -99,7 +104,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--episodes", type=positive_int, default=20)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
-    p.add_argument("--action-type", choices=("joint", "cartesian"), default="joint")
+    p.add_argument(
+        "--action-type",
+        choices=("joint", "cartesian"),
+        default=None,
+        help="default: joint; for --policy rl the learned policy's own (cartesian)",
+    )
     p.add_argument("--camera", choices=CAMERAS, default="overview", help="camera for --video")
     p.add_argument(
         "--video", type=Path, default=None, help="MP4 or GIF of the first episode (after the run)"

@@ -6,6 +6,7 @@ what the README's main job measures is what the benchmark measures.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
 from scorbot_gym.envs.factory import make_env
@@ -13,7 +14,7 @@ from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
-POLICIES = ("scripted", "random")
+POLICIES = ("scripted", "random", "rl")
 POSE_ALIASES = {"noisy": "noisy_oracle"}
 
 
@@ -27,7 +28,9 @@ class RolloutConfig:
     ``recognize``: the top view alone confuses discs and squares). ``segmenter`` and
     ``recognizer`` name the source's components (defaults: background subtraction, FLR).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
-    ``dropout``).
+    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy) or
+    the directory of a policy exported by ``scorbot-gym train``; ``action_type=None`` takes
+    the learned policy's action type (joint for the others).
     """
 
     policy: str = "scripted"
@@ -41,15 +44,21 @@ class RolloutConfig:
     estimate_every: int = 1
     disturbance: str | None = None
     noise: dict[str, float] = field(default_factory=dict)
-    action_type: str = "joint"
+    action_type: str | None = None
     objects: tuple[str, ...] | None = None
     episodes: int = 20
     seed: int = 0
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
-        if self.policy not in POLICIES:
-            raise ValueError(f"policy must be one of {POLICIES}, got {self.policy!r}")
+        if self.policy not in POLICIES and not Path(self.policy).is_dir():
+            raise ValueError(
+                f"policy must be one of {POLICIES} or a policy directory from `scorbot-gym "
+                f"train`, got {self.policy!r}"
+            )
+        if self.action_type is None:
+            learned = self._learned()
+            self.action_type = learned.meta["action_type"] if learned else "joint"
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.estimate_every < 0:
@@ -103,10 +112,20 @@ class RolloutConfig:
             **env_kwargs,
         )
 
+    def _learned(self):
+        """The SB3 policy this configuration runs, if any (loaded with clear errors)."""
+        if self.policy in ("scripted", "random"):
+            return None
+        from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+
+        return SB3Policy.load(SHIPPED_POLICY if self.policy == "rl" else self.policy)
+
     def make_policy(self, env):
         if self.policy == "random":
             return RandomPolicy(env.action_space, self.seed)
-        return ScriptedGraspPolicy.for_env(env)
+        if self.policy == "scripted":
+            return ScriptedGraspPolicy.for_env(env)
+        return self._learned().bind(env)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

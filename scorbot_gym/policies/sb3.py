@@ -1,0 +1,221 @@
+"""A trained stable-baselines3 model as a :class:`~scorbot_gym.policies.base.Policy`.
+
+A saved policy is a directory (what ``scorbot-gym train`` exports and what ships in
+``scorbot_gym/policies/data/``):
+
+- ``model.zip``: the SB3 model (``SAC``/``TQC``/``PPO``.save);
+- ``policy.json``: what the model needs around it: algorithm, action type, the classes of the
+  ``object_class`` one-hot, the observation entries and shapes, the residual base controller's
+  settings (if the policy is residual), and what it saw in training;
+- ``normalize.npz`` (optional): the observation normalisation statistics (mean and variance
+  per entry, as SB3's ``VecNormalize``), stored as plain arrays rather than a pickle.
+
+The policy acts on the same observations as the scripted controller, so it runs through
+:func:`scorbot_gym.evaluation.run_episode` and the comparison unchanged.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.policies.scripted import ScriptedGraspPolicy
+
+FORMAT = "scorbot-gym-policy"
+VERSION = 1
+SHIPPED_POLICY = Path(__file__).parent / "data" / "residual_sac_oracle"
+
+
+def _algorithms() -> dict[str, Any]:
+    from sb3_contrib import TQC
+    from stable_baselines3 import PPO, SAC
+
+    return {"sac": SAC, "tqc": TQC, "ppo": PPO}
+
+
+class ObservationNormalizer:
+    """``clip((x - mean) / sqrt(var + eps), -clip, clip)`` per observation entry (as
+    ``VecNormalize``), from arrays; entries without statistics pass unchanged."""
+
+    def __init__(
+        self, mean: dict[str, np.ndarray], var: dict[str, np.ndarray], clip: float, eps: float
+    ) -> None:
+        self.mean, self.var, self.clip, self.eps = mean, var, float(clip), float(eps)
+
+    def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out = dict(obs)
+        for k, m in self.mean.items():
+            x = (np.asarray(obs[k], np.float64) - m) / np.sqrt(self.var[k] + self.eps)
+            out[k] = np.clip(x, -self.clip, self.clip).astype(np.float32)
+        return out
+
+    @classmethod
+    def from_vec_normalize(cls, venv) -> ObservationNormalizer:
+        keys = venv.norm_obs_keys or list(venv.obs_rms)
+        return cls(
+            {k: np.array(venv.obs_rms[k].mean) for k in keys},
+            {k: np.array(venv.obs_rms[k].var) for k in keys},
+            venv.clip_obs,
+            venv.epsilon,
+        )
+
+    def save(self, path: Path) -> None:
+        arrays = {f"mean/{k}": v for k, v in self.mean.items()}
+        arrays.update({f"var/{k}": v for k, v in self.var.items()})
+        np.savez(path, clip=self.clip, eps=self.eps, **arrays)
+
+    @classmethod
+    def load(cls, path: Path) -> ObservationNormalizer:
+        with np.load(path, allow_pickle=False) as z:
+            mean = {k[5:]: z[k] for k in z.files if k.startswith("mean/")}
+            var = {k[4:]: z[k] for k in z.files if k.startswith("var/")}
+            return cls(mean, var, float(z["clip"]), float(z["eps"]))
+
+
+class SB3Policy:
+    """Deterministic actions of an SB3 model, on raw observations from ``make_env``.
+
+    ``meta`` is the content of ``policy.json``. For a residual policy the scripted base runs
+    here too (built from ``meta["residual"]["base"]``), so the caller's env is the plain one.
+    """
+
+    def __init__(
+        self,
+        model: Any,
+        meta: dict[str, Any],
+        normalizer: ObservationNormalizer | None = None,
+    ) -> None:
+        self.model, self.meta, self.normalizer = model, meta, normalizer
+        res = meta.get("residual")
+        self.residual_scale = float(res["scale"]) if res else None
+        self.base = ScriptedGraspPolicy(**res["base"]) if res else None
+        self.classes = tuple(meta.get("classes") or ())
+        self._env_classes: tuple[str, ...] | None = None
+
+    # --- loading ---------------------------------------------------------------------------
+    @classmethod
+    def load(cls, path: str | Path) -> SB3Policy:
+        """A policy directory (or its ``model.zip``); clear one-line errors for bad files."""
+        path = Path(path)
+        if path.is_file() and path.name == "model.zip":
+            path = path.parent
+        if not path.is_dir():
+            raise FileNotFoundError(
+                f"no policy directory at {path} (expected model.zip and "
+                "policy.json from `scorbot-gym train`)"
+            )
+        meta_path, model_path = path / "policy.json", path / "model.zip"
+        for p in (meta_path, model_path):
+            if not p.is_file():
+                raise FileNotFoundError(f"policy {path} is missing {p.name}")
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ValueError(f"{meta_path} is not valid JSON ({exc})") from None
+        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+            raise ValueError(f"{meta_path} is not a scorbot-gym policy description")
+        if meta.get("version") != VERSION:
+            raise ValueError(
+                f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
+                f"version {VERSION}"
+            )
+        algos = _algorithms()
+        if meta.get("algo") not in algos:
+            raise ValueError(
+                f"{meta_path}: algo must be one of {sorted(algos)}, got {meta.get('algo')!r}"
+            )
+        if not zipfile.is_zipfile(model_path):
+            raise ValueError(f"{model_path} is not a stable-baselines3 model (not a zip file)")
+        try:
+            model = algos[meta["algo"]].load(model_path, device="cpu")
+        except Exception as exc:  # SB3 raises many kinds on a damaged archive
+            raise ValueError(
+                f"{model_path} could not be loaded as a {meta['algo']} model: "
+                f"{type(exc).__name__}: {exc}"
+            ) from None
+        norm_path = path / "normalize.npz"
+        normalizer = ObservationNormalizer.load(norm_path) if norm_path.is_file() else None
+        policy = cls(model, meta, normalizer)
+        policy._check_model()
+        return policy
+
+    def _check_model(self) -> None:
+        """The model's observation space must be the one ``policy.json`` describes."""
+        space = self.model.observation_space
+        want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
+        have = {k: tuple(s.shape) for k, s in getattr(space, "spaces", {}).items()}
+        if have != want:
+            raise ValueError(
+                f"incompatible policy: the model observes {have}, policy.json says {want}"
+            )
+
+    def bind(self, env) -> SB3Policy:
+        """Check that ``env`` gives the observations the model was trained on and remember the
+        env's class names, so that an ``object_class`` one-hot over other classes (``--object
+        box`` makes a one-class env; a user-added object is a class the model never saw) is
+        re-ordered into the model's. Returns ``self``."""
+        env_type = env.get_wrapper_attr("action_type")
+        if env_type != self.meta["action_type"]:
+            raise ValueError(
+                f"the policy outputs {self.meta['action_type']} actions, the env takes "
+                f"{env_type} actions (use action_type={self.meta['action_type']!r})"
+            )
+        have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
+        if self.base is not None:
+            have["base_action"] = tuple(env.action_space.shape)
+        want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
+        self._env_classes = None
+        if "object_class" in want and "object_class" in have:
+            names = tuple(env.get_wrapper_attr("class_names"))
+            self._env_classes = names if names != self.classes else None
+            have["object_class"] = want["object_class"]
+            if self.base is not None:
+                self.base.classes = names  # the base reads the env's one-hot as it is
+        if have != want:
+            diff = sorted(set(have.items()) ^ set(want.items()))
+            raise ValueError(f"wrong observation space for this policy: entries that differ {diff}")
+        return self
+
+    def _model_onehot(self, onehot: np.ndarray) -> np.ndarray:
+        """The env's one-hot in the model's class order; an object the model has no class
+        for (a user-added one) shows as no class at all."""
+        out = np.zeros(len(self.classes))
+        for name, v in zip(self._env_classes, onehot, strict=True):
+            if name in self.classes:
+                out[self.classes.index(name)] = v
+        return out
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations."""
+        cartesian = self.meta["action_type"] == "cartesian"
+        env_id = "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0"
+        return {"env_id": env_id, "classes": list(self.classes) or None}
+
+    # --- Policy protocol -------------------------------------------------------------------
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> None:
+        if self.base is not None:
+            self.base.reset(obs, info)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        base = None
+        if self.base is not None:
+            base = np.asarray(self.base.act(obs), np.float32)
+            obs = {**obs, "base_action": base}
+        if self._env_classes is not None:
+            obs = {**obs, "object_class": self._model_onehot(obs["object_class"])}
+        x = {k: np.asarray(obs[k]) for k in self.meta["observation_shapes"]}
+        if self.normalizer is not None:
+            x = self.normalizer(x)
+        action, _ = self.model.predict(x, deterministic=True)
+        action = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
+        if base is not None:
+            action = base + self.residual_scale * action
+        return np.clip(action, -1.0, 1.0).astype(np.float32)
+
+    @property
+    def replans(self) -> int:
+        return self.base.replans if self.base is not None else 0

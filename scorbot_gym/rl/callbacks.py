@@ -1,0 +1,131 @@
+"""Training callbacks: success-rate evaluation on held-out seeds, and atomic checkpoints.
+
+Both keep their state in the run directory, so an interrupted run resumes with its learning
+curve intact (``state.json`` holds the evaluation history and the training wall time so far).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+
+from pose.fileio import atomic_write_json
+from scorbot_gym.evaluation.episodes import run_episodes
+from scorbot_gym.evaluation.summary import summarize
+
+
+class TrainingClock:
+    """Training wall time, cumulative over resumed runs, not counting evaluations."""
+
+    def __init__(self, offset_s: float = 0.0) -> None:
+        self.offset_s, self._t0, self._paused = offset_s, time.perf_counter(), 0.0
+
+    def pause(self) -> Callable[[], None]:
+        t = time.perf_counter()
+
+        def resume() -> None:
+            self._paused += time.perf_counter() - t
+
+        return resume
+
+    @property
+    def seconds(self) -> float:
+        return self.offset_s + time.perf_counter() - self._t0 - self._paused
+
+
+class SuccessEvalCallback(BaseCallback):
+    """Every ``every`` env steps (and before the first update), run ``episodes`` deterministic
+    episodes with seeds ``seed, seed + 1, ...`` (never used for training) through the same
+    :func:`~scorbot_gym.evaluation.run_episode` loop as the comparison, and log the success
+    rate (``eval/success_rate``, from ``info["is_success"]``) with its Wilson interval.
+
+    ``make_policy(model)`` builds the :class:`~scorbot_gym.policies.sb3.SB3Policy` to evaluate
+    (with the current normalisation statistics); ``env`` is a plain ``make_env`` env.
+    """
+
+    def __init__(
+        self,
+        env,
+        make_policy: Callable[[Any], Any],
+        history: list[dict],
+        clock: TrainingClock,
+        every: int,
+        episodes: int,
+        seed: int,
+    ) -> None:
+        super().__init__()
+        self.env, self.make_policy, self.history, self.clock = env, make_policy, history, clock
+        self.every, self.episodes, self.seed = every, episodes, seed
+        self._next = 0
+
+    def _on_training_start(self) -> None:
+        done = self.history[-1]["timesteps"] if self.history else -1
+        self._next = (done // self.every + 1) * self.every if done >= 0 else 0
+        if self.num_timesteps >= self._next:
+            self.evaluate()
+
+    def _on_step(self) -> bool:
+        if self.every > 0 and self.num_timesteps >= self._next:
+            self.evaluate()
+        return True
+
+    def evaluate(self) -> dict:
+        resume = self.clock.pause()
+        results = run_episodes(
+            self.env, self.make_policy(self.model), self.episodes, self.seed, progress=False
+        )
+        resume()
+        s = summarize(results)
+        rec = {
+            "timesteps": int(self.num_timesteps),
+            "wall_s": round(self.clock.seconds, 2),
+            "episodes": s["episodes"],
+            "success_rate": s["success_rate"],
+            "ci95": s["success_rate_ci95"],
+            "mean_steps_to_success": s["mean_steps_to_success"],
+            "failure_causes": s["failure_causes"],
+        }
+        self.history.append(rec)
+        self.logger.record("eval/success_rate", rec["success_rate"])
+        self.logger.record("eval/wall_s", rec["wall_s"])
+        self._next = (self.num_timesteps // self.every + 1) * self.every
+        return rec
+
+
+class CheckpointCallback(BaseCallback):
+    """Every ``every`` env steps, ``save(model)`` (which writes each file atomically)."""
+
+    def __init__(self, save: Callable[[Any], None], every: int) -> None:
+        super().__init__()
+        self.save, self.every = save, every
+        self._last = 0
+
+    def _on_training_start(self) -> None:
+        self._last = self.num_timesteps
+
+    def _on_step(self) -> bool:
+        if self.every > 0 and self.num_timesteps - self._last >= self.every:
+            self.save(self.model)
+            self._last = self.num_timesteps
+        return True
+
+
+def atomic_save(path: Path, write: Callable[[Path], None]) -> None:
+    """``write(tmp)`` then ``os.replace(tmp, path)``: a reader never sees half a file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_state(path: Path, **state: Any) -> None:
+    atomic_write_json(path, state)

@@ -1,0 +1,209 @@
+"""Learned policies: training, resuming, the shipped policy, the comparison (issue #9)."""
+
+import json
+import shutil
+import zipfile
+
+import numpy as np
+import pytest
+
+from scorbot_gym.cli import main
+from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation import run_episode
+from scorbot_gym.evaluation.compare import newcombe_paired_diff
+from scorbot_gym.policies import ScriptedGraspPolicy
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+from scorbot_gym.rl import ResidualActionWrapper, TrainConfig, resume, train
+from scorbot_gym.rl.training import build_model, make_vec_env
+from scorbot_gym.tasks import FAILURE_CAUSES
+
+pytestmark = pytest.mark.rl
+
+
+def tiny_config(**kw) -> TrainConfig:
+    base = dict(
+        algo="sac",
+        objects=["box"],
+        residual=True,
+        timesteps=300,
+        learning_starts=100,
+        batch_size=64,
+        buffer_size=2000,
+        net_arch=[32, 32],
+        eval_every=150,
+        eval_episodes=2,
+        checkpoint_every=150,
+        bc_demos=1,
+        bc_steps=20,
+        progress_bar=False,
+    )
+    return TrainConfig(**{**base, **kw})
+
+
+@pytest.fixture(scope="session")
+def trained_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rl") / "run"
+    state = train(tiny_config(), out)
+    return out, state
+
+
+def test_training_writes_a_loadable_model_checkpoints_and_curve(trained_run):
+    out, state = trained_run
+    assert state["timesteps"] == 300
+    assert [e["timesteps"] for e in state["eval"]] == [0, 150, 300]
+    assert all(0.0 <= e["success_rate"] <= 1.0 and e["episodes"] == 2 for e in state["eval"])
+    assert state["demos"]["transitions"] > 0
+    for name in ("model.zip", "replay_buffer.pkl", "vecnormalize.pkl", "state.json"):
+        assert (out / "checkpoint" / name).is_file(), name
+    assert list((out / "tb").rglob("events.out.tfevents.*"))
+    policy = SB3Policy.load(out / "policy")
+    assert policy.meta["trained_timesteps"] == 300
+    assert policy.meta["saw_scripted_controller"] == {"residual_base": True, "bc_demo_episodes": 1}
+    assert not list(out.rglob(".*tmp*")), "temporary files left behind"
+
+
+def test_resume_continues_from_the_checkpoint(trained_run, tmp_path):
+    out, state = trained_run
+    copy = tmp_path / "run"
+    shutil.copytree(out, copy)
+    resumed = resume(copy, timesteps=450)
+    assert resumed["timesteps"] == 450
+    assert resumed["eval"][:3] == state["eval"], "the learning curve so far is kept"
+    assert resumed["eval"][-1]["timesteps"] == 450
+    assert resumed["wall_s"] > state["wall_s"]
+    assert SB3Policy.load(copy / "policy").meta["trained_timesteps"] == 450
+    assert json.loads((copy / "config.json").read_text())["timesteps"] == 450
+
+
+def test_train_refuses_to_overwrite_a_run(trained_run):
+    out, _ = trained_run
+    with pytest.raises(ValueError, match="already holds a run"):
+        train(tiny_config(), out)
+
+
+@pytest.mark.parametrize("algo", ["tqc", "ppo"])
+def test_other_algorithms_train_and_export(algo, tmp_path):
+    cfg = tiny_config(algo=algo, timesteps=64, n_steps=32, learning_starts=32, eval_every=64)
+    state = train(cfg, tmp_path / algo)
+    assert state["timesteps"] >= 64
+    policy = SB3Policy.load(tmp_path / algo / "policy")
+    assert policy.meta["algo"] == algo
+    env = make_env(policy.env_kwargs()["env_id"], objects=["box"])
+    obs, info = env.reset(seed=1)
+    policy.bind(env).reset(obs, info)
+    assert env.action_space.contains(policy.act(obs))
+
+
+def test_same_seed_same_first_updates():
+    def params(seed):
+        cfg = tiny_config(residual=False, learning_starts=50, normalize=False, seed=seed)
+        venv = make_vec_env(cfg)
+        model = build_model(cfg, venv, None)
+        model.learn(120)
+        venv.close()
+        return np.concatenate([p.detach().numpy().ravel() for p in model.actor.parameters()])
+
+    a, b, c = params(3), params(3), params(4)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+
+
+def test_zero_residual_reproduces_the_scripted_controller():
+    plain = make_env("ScorbotGraspCartesian-v0", objects=["box"])
+    wrapped = ResidualActionWrapper(make_env("ScorbotGraspCartesian-v0", objects=["box"]))
+    scripted = ScriptedGraspPolicy.for_env(plain)
+    obs, info = plain.reset(seed=7)
+    scripted.reset(obs, info)
+    wobs, _ = wrapped.reset(seed=7)
+    for _ in range(40):
+        action = scripted.act(obs)
+        np.testing.assert_allclose(wobs["base_action"], action, atol=1e-6)
+        obs, *_ = plain.step(action)
+        wobs, _, _, _, winfo = wrapped.step(np.zeros(6, np.float32))
+        np.testing.assert_allclose(winfo["applied_action"], action, atol=1e-6)
+    np.testing.assert_allclose(wobs["ee_pos"], obs["ee_pos"], atol=1e-9)
+    with pytest.raises(ValueError, match="scale"):
+        ResidualActionWrapper(plain, scale=0.0)
+
+
+def test_shipped_policy_loads_and_acts_inside_the_action_space():
+    policy = SB3Policy.load(SHIPPED_POLICY)
+    kw = policy.env_kwargs()
+    env = make_env(kw.pop("env_id"), objects=["banana"])  # one-class one-hot, re-ordered by bind
+    policy.bind(env)
+    obs, info = env.reset(seed=0)
+    policy.reset(obs, info)
+    for _ in range(10):
+        action = policy.act(obs)
+        assert action.shape == env.action_space.shape
+        assert env.action_space.contains(action)
+        obs, *_ = env.step(action)
+    joint = make_env("ScorbotGrasp-v0", objects=["banana"])
+    with pytest.raises(ValueError, match="cartesian actions"):
+        policy.bind(joint)
+
+
+def test_shipped_policy_on_a_user_added_object(user_object):
+    """An object registered by the user is a class the policy never saw (no one-hot slot)."""
+    policy = SB3Policy.load(SHIPPED_POLICY)
+    kw = policy.env_kwargs()
+    env = make_env(kw.pop("env_id"), objects=[user_object.name])
+    result = run_episode(env, policy.bind(env), seed=0)
+    assert result.object_name == user_object.name
+    assert result.steps > 0 and result.failure_cause in (None, *FAILURE_CAUSES)
+
+
+def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(SHIPPED_POLICY, bad)
+    (bad / "model.zip").write_bytes(b"not a zip at all")
+    with pytest.raises(ValueError, match="not a zip file"):
+        SB3Policy.load(bad)
+    with zipfile.ZipFile(bad / "model.zip", "w") as z:
+        z.writestr("data", "{broken")
+    with pytest.raises(ValueError, match="could not be loaded"):
+        SB3Policy.load(bad)
+    shutil.copy(SHIPPED_POLICY / "model.zip", bad / "model.zip")
+    meta = json.loads((bad / "policy.json").read_text())
+    meta["observation_shapes"]["joint_pos"] = [7]
+    (bad / "policy.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="incompatible policy"):
+        SB3Policy.load(bad)
+    (bad / "policy.json").write_text("{")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        SB3Policy.load(bad)
+    (bad / "policy.json").unlink()
+    with pytest.raises(FileNotFoundError, match="missing policy.json"):
+        SB3Policy.load(bad)
+    assert main(["rollout", "--policy", "rl", "--episodes", "0"]) == 2
+    assert main(["train"]) == 2  # neither --out nor --resume
+    assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2  # no checkpoint
+
+
+def test_compare_writes_json_and_png_with_the_documented_keys(tmp_path):
+    js, png = tmp_path / "cmp.json", tmp_path / "cmp.png"
+    argv = ["compare", "--policies", "scripted,rl", "--pose", "oracle", "--noise", "0.02"]
+    argv += ["--episodes", "2", "--objects", "box", "--json", str(js), "--png", str(png)]
+    assert main([*argv, "--no-progress"]) == 0
+    report = json.loads(js.read_text())
+    assert len(report["results"]) == 4  # 2 policies x (oracle, noisy@0.02)
+    for rec in report["results"]:
+        for key in ("policy", "pose", "episodes", "success_rate", "ci95", "failure_causes"):
+            assert key in rec, key
+        assert rec["episodes"] == 2 and len(rec["ci95"]) == 2
+        assert set(rec["per_object"]) == {"box"}
+    assert [(d["a"], d["b"]) for d in report["differences"]] == [("rl", "scripted")] * 2
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main(["compare", "--pose", "manifold", "--episodes", "1"]) == 2  # no --pose-model
+
+
+def test_newcombe_paired_difference():
+    same = newcombe_paired_diff([True] * 30, [True] * 30)
+    assert same["diff"] == 0 and same["ci95"][0] < 0 < same["ci95"][1]
+    assert same["mcnemar_p"] == 1.0
+    better = newcombe_paired_diff([True] * 30, [False] * 30)
+    assert better["diff"] == 1.0 and better["ci95"][0] > 0.7 and better["mcnemar_p"] < 1e-6
+    rng = np.random.default_rng(0)
+    a, b = rng.random(200) < 0.8, rng.random(200) < 0.6
+    d = newcombe_paired_diff(list(a), list(b))
+    assert d["ci95"][0] < d["diff"] < d["ci95"][1]
