@@ -47,7 +47,9 @@ class ScorbotGraspEnv(gym.Env):
 
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
-    object's true pose is always in ``info["object_pose"]``.
+    object's true pose is always in ``info["object_pose"]``; the cameras' calibration is in
+    ``info["camera_params"]`` after ``reset`` (the cameras are fixed) and from
+    :meth:`camera_params` at any time.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -161,7 +163,7 @@ class ScorbotGraspEnv(gym.Env):
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         self.sim.forward()
-        return self._observation(), self._info(None, None)
+        return self._observation(), self._info(None, None, calibration=True)
 
     def step(self, action):
         a = np.asarray(action, dtype=np.float64)
@@ -244,7 +246,9 @@ class ScorbotGraspEnv(gym.Env):
             "name": camera,
         }
 
-    def _info(self, facts: dict | None, cause: str | None) -> dict[str, Any]:
+    def _info(
+        self, facts: dict | None, cause: str | None, calibration: bool = False
+    ) -> dict[str, Any]:
         pos, quat = self.sim.object_pose()
         st = self.task.state
         info = {
@@ -255,7 +259,10 @@ class ScorbotGraspEnv(gym.Env):
             "failure_cause": cause,
             "held_time": st.held_time,
         }
-        if self.cameras:  # calibration travels with the images (as ManiSkill's sensor_param)
+        # Calibration travels with the images (as ManiSkill's sensor_param), at reset only: the
+        # cameras are fixed, and re-sending constant arrays every step is what made vector envs
+        # slow (pickled through a pipe and merged per step); camera_params() gives them anytime.
+        if calibration and self.cameras:
             info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
         return info
 

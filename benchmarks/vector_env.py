@@ -1,0 +1,216 @@
+"""Vector-env scaling: env steps/s of 1, 2 and 4 ScorbotGrasp-v0 copies, sync and async, without
+images and with one 320x240 image per step, against one plain env.
+
+Run:  python benchmarks/vector_env.py [--repeats 3] [--out benchmarks/results/vector_env.json]
+
+Every configuration runs in a fresh process (rendering settings are per process), and the
+repetitions interleave the configurations so that a change in the machine's load hits all of
+them alike; medians are reported. Nothing is pinned: the vector envs are meant to use every core.
+The figure is env steps per wall second over a rollout of random actions, resets included (the
+plain env resets itself when an episode ends, the vector envs autoreset).
+
+Configurations: ``plain`` is ``gym.make`` stepped in a loop (Mesa's default rendering threads);
+``sync-N`` and ``async-N`` are ``scorbot_gym.make_vec_env`` (shared-memory observations,
+calibration at reset only, one rendering thread per worker, at most one worker stepping per
+core); ``gym-async-N`` is ``gymnasium.make_vec(..., vectorization_mode="async")`` with
+Gymnasium's defaults, for comparison.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+ENV_ID = "ScorbotGrasp-v0"
+COUNTS = (1, 2, 4)
+SETTINGS = {
+    "no_images": {},
+    "camera_320x240": {"cameras": ["top"], "image_width": 320, "image_height": 240},
+}
+
+
+def configurations(counts: tuple[int, ...]) -> list[str]:
+    names = ["plain"]
+    for kind in ("sync", "async", "gym-async"):
+        names += [f"{kind}-{n}" for n in counts]
+    return names
+
+
+def build(config: str, env_kwargs: dict):
+    """The env a configuration names, and its number of sub-environments (0: a plain env)."""
+    import gymnasium as gym
+
+    import scorbot_gym
+
+    if config == "plain":
+        return gym.make(ENV_ID, **env_kwargs), 0
+    kind, n = config.rsplit("-", 1)
+    if kind == "gym-async":
+        return gym.make_vec(ENV_ID, int(n), vectorization_mode="async", **env_kwargs), int(n)
+    return scorbot_gym.make_vec_env(ENV_ID, int(n), kind, **env_kwargs), int(n)
+
+
+def time_config(config: str, setting: str, env_steps: int, seed: int) -> dict:
+    """Env steps per wall second over ``env_steps`` env steps (after a short warm-up)."""
+    env, n = build(config, {"object_name": "tomato_soup_can", **SETTINGS[setting]})
+    calls = max(1, env_steps // max(n, 1))
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(calls + 10)]
+    env.reset(seed=seed)
+    for a in actions[:10]:  # warm-up: GL contexts, caches, worker start-up
+        _step(env, a, n)
+    t0 = time.perf_counter()
+    for a in actions[10:]:
+        _step(env, a, n)
+    elapsed = time.perf_counter() - t0
+    env.close()
+    return {"env_steps_per_second": calls * max(n, 1) / elapsed, "env_steps": calls * max(n, 1)}
+
+
+def _step(env, action, n: int) -> None:
+    _, _, terminated, truncated, _ = env.step(action)
+    if n == 0 and (terminated or truncated):
+        env.reset()
+
+
+def _median(xs: list[float]) -> float:
+    s = sorted(xs)
+    k = len(s)
+    return s[k // 2] if k % 2 else 0.5 * (s[k // 2 - 1] + s[k // 2])
+
+
+def run_child(config: str, setting: str, env_steps: int, seed: int) -> dict:
+    cmd = [sys.executable, __file__, "--child", config, setting, str(env_steps), str(seed)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
+        return {"error": f"exit {proc.returncode}: {tail[0]}"}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def summarize(runs: dict[str, dict[str, list[dict]]]) -> dict:
+    results: dict[str, dict] = {}
+    for setting, per_config in runs.items():
+        out: dict[str, dict] = {}
+        for config, rs in per_config.items():
+            ok = [r["env_steps_per_second"] for r in rs if "env_steps_per_second" in r]
+            out[config] = (
+                {"env_steps_per_second_median": _median(ok), "env_steps_per_second_runs": ok}
+                if ok
+                else {"error": rs[-1]["error"]}
+            )
+        plain = out["plain"].get("env_steps_per_second_median")
+        for r in out.values():
+            if plain and "env_steps_per_second_median" in r:
+                r["ratio_to_plain"] = r["env_steps_per_second_median"] / plain
+        results[setting] = out
+    return results
+
+
+def plot(report: dict, path: Path) -> None:
+    """Scaling curves: ratio to one plain env against the number of envs, per setting."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pose.fileio import atomic_write
+
+    settings = list(report["results"])
+    fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 3.4), sharey=True)
+    for ax, setting in zip(axes, settings, strict=True):
+        res = report["results"][setting]
+        for kind, style in (("sync", "s--"), ("async", "o-"), ("gym-async", "^:")):
+            pts = [
+                (n, res[f"{kind}-{n}"]["ratio_to_plain"])
+                for n in report["counts"]
+                if "ratio_to_plain" in res.get(f"{kind}-{n}", {})
+            ]
+            if pts:
+                ax.plot(*zip(*pts, strict=True), style, label=kind)
+        ax.axhline(1.0, color="#999", lw=0.8)
+        ax.set_xticks(report["counts"])
+        ax.set_xlabel("number of envs")
+        ax.set_title(setting.replace("_", " "))
+        ax.legend(fontsize=8)
+    axes[0].set_ylabel("env steps/s ÷ one plain env")
+    fig.tight_layout()
+    atomic_write(path, lambda f: fig.savefig(f, dpi=100, format="png"))
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        config, setting, steps, seed = argv[1:5]
+        print(json.dumps(time_config(config, setting, int(steps), int(seed))))
+        return 0
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--steps", type=int, default=4000, help="env steps without images")
+    parser.add_argument("--image-steps", type=int, default=400, help="env steps with images")
+    parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vector_env.json"))
+    args = parser.parse_args(argv)
+    if args.repeats < 1 or args.steps < 1 or args.image_steps < 1 or min(args.counts) < 1:
+        parser.error("--repeats, --steps, --image-steps and --counts must be >= 1")
+
+    import scorbot_gym
+    from pose.fileio import atomic_write_json
+
+    configs = configurations(tuple(args.counts))
+    steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
+    runs = {s: {c: [] for c in configs} for s in SETTINGS}
+    load_before, t0 = os.getloadavg(), time.time()
+    for rep in range(args.repeats):
+        for setting in SETTINGS:
+            for config in configs if rep % 2 == 0 else configs[::-1]:
+                r = run_child(config, setting, steps[setting], seed=rep)
+                runs[setting][config].append(r)
+                shown = r.get("error") or f"{r['env_steps_per_second']:8.1f} env steps/s"
+                print(f"rep {rep} {setting:>14} {config:>12}: {shown}", flush=True)
+    report = {
+        "benchmark": "vector_env",
+        "env": f"{ENV_ID} (joint actions, tomato_soup_can, random actions)",
+        "counts": args.counts,
+        "configurations": __doc__.split("Configurations: ")[1].strip(),
+        "steps_per_run": steps,
+        "repeats": args.repeats,
+        "results": summarize(runs),
+        "load": {
+            "loadavg_before": load_before,
+            "loadavg_after": os.getloadavg(),
+            "wall_seconds": time.time() - t0,
+            "note": "the machine is shared; loadavg counts other users' processes too",
+        },
+        "machine": {
+            "platform": platform.platform(),
+            "python": sys.version.split()[0],
+            "usable_cores": scorbot_gym.envs.vector.available_cores(),
+            "scorbot_gym": scorbot_gym.__version__,
+            "mujoco_gl": os.environ.get("MUJOCO_GL"),
+        },
+    }
+    atomic_write_json(args.out, report)
+    plot(report, args.out.with_suffix(".png"))
+    for setting, res in report["results"].items():
+        for config, r in res.items():
+            shown = r.get("error") or (
+                f"{r['env_steps_per_second_median']:8.1f} env steps/s "
+                f"({r['ratio_to_plain']:.2f}x plain)"
+            )
+            print(f"{setting:>14} {config:>12}: {shown}")
+    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
