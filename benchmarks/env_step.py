@@ -31,6 +31,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 TIMER = HERE / "peers" / "time_env.py"
 SCORBOT = "ScorbotGrasp-v0"
+# Its default renders without shadows; the peers render theirs (see render_settings in the JSON).
+SCORBOT_SHADOWS = "ScorbotGrasp-v0/shadows"
 VENV_ROOT = Path.home() / ".cache" / "scorbot-gym" / "peer-venvs"
 # Each peer's venv and the pins it is built from (versions that install and run here).
 PEERS: dict[str, dict] = {
@@ -107,6 +109,8 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
     for rep in range(repeats):
         for setting, image in SETTINGS.items():
             for env in order if rep % 2 == 0 else order[::-1]:
+                if env == SCORBOT_SHADOWS and not image:
+                    continue  # identical to SCORBOT when nothing is rendered
                 r = time_once(envs[env], env, image, steps[setting], seed=rep)
                 runs[setting][env].append(r)
                 rate = r.get("steps_per_second")
@@ -116,6 +120,8 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
     for setting, per_env in runs.items():
         results[setting] = {}
         for env, rs in per_env.items():
+            if not rs:
+                continue
             ok = [r for r in rs if "steps_per_second" in r]
             if not ok:
                 results[setting][env] = {"error": rs[-1]["error"]}
@@ -129,15 +135,22 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
                 "steps_per_run": steps[setting],
                 "failed_runs": len(rs) - len(ok),
                 "note": ok[0]["note"],
+                "render_settings": ok[0]["render_settings"],
                 "versions": ok[0]["versions"],
             }
-        ours = results[setting][SCORBOT].get("steps_per_second_median")
-        ours_sim = results[setting][SCORBOT].get("sim_seconds_per_wall_second_median")
-        for env, r in results[setting].items():
-            if env != SCORBOT and ours and "steps_per_second_median" in r:
-                r["scorbot_ratio_steps_per_second"] = ours / r["steps_per_second_median"]
-                r["scorbot_ratio_sim_seconds_per_wall_second"] = (
-                    ours_sim / r["sim_seconds_per_wall_second_median"]
+        for ours_name, prefix in ((SCORBOT, "scorbot"), (SCORBOT_SHADOWS, "scorbot_shadows")):
+            ours = results[setting].get(ours_name, {})
+            if "steps_per_second_median" not in ours:
+                continue
+            for env, r in results[setting].items():
+                if env.startswith(SCORBOT) or "steps_per_second_median" not in r:
+                    continue
+                r[f"{prefix}_ratio_steps_per_second"] = (
+                    ours["steps_per_second_median"] / r["steps_per_second_median"]
+                )
+                r[f"{prefix}_ratio_sim_seconds_per_wall_second"] = (
+                    ours["sim_seconds_per_wall_second_median"]
+                    / r["sim_seconds_per_wall_second_median"]
                 )
     return results
 
@@ -188,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     import scorbot_gym
     from pose.fileio import atomic_write_json
 
-    envs = {SCORBOT: Path(sys.executable)}
+    envs = {SCORBOT: Path(sys.executable), SCORBOT_SHADOWS: Path(sys.executable)}
     if args.peers:
         envs.update({name: peer_python(name, args.rebuild_peers) for name in PEERS})
     load_before = os.getloadavg()

@@ -33,6 +33,18 @@ class Timed:
     def __init__(self, step, reset, sample, dt: float, packages: tuple[str, ...], note: str):
         self.step, self.reset, self.sample = step, reset, sample
         self.dt, self.packages, self.note = dt, packages, note
+        self.render_settings: dict = {}
+
+
+def render_settings(model, shadows: bool | None = None) -> dict:
+    """What makes a frame expensive in a software rasterizer: shadow maps and reflections."""
+    casting = int(sum(model.light_castshadow))
+    return {
+        "shadow_casting_lights": casting,
+        "shadows_rendered": bool(casting) if shadows is None else bool(shadows and casting),
+        "shadow_map_size": int(model.vis.quality.shadowsize),
+        "max_material_reflectance": float(max(model.mat_reflectance, default=0.0)),
+    }
 
 
 def _gym_env(env, dt: float, image: bool, packages: tuple[str, ...], note: str) -> Timed:
@@ -52,15 +64,17 @@ def _gym_env(env, dt: float, image: bool, packages: tuple[str, ...], note: str) 
     return Timed(step, reset, env.action_space.sample, dt, packages, note)
 
 
-def scorbot(image: bool) -> Timed:
+def scorbot(image: bool, shadows: bool = False) -> Timed:
     import gymnasium as gym
 
     import scorbot_gym  # noqa: F401  (registers the ids)
 
     kw = {"cameras": ["top"], "image_width": WIDTH, "image_height": HEIGHT} if image else {}
-    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", **kw)
+    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", shadows=shadows, **kw)
     note = "image = the 'top' camera's RGB in the observation (rendered inside step)"
-    return _gym_env(env, env.unwrapped.dt, False, ("scorbot-gym", "mujoco", "gymnasium"), note)
+    timed = _gym_env(env, env.unwrapped.dt, False, ("scorbot-gym", "mujoco", "gymnasium"), note)
+    timed.render_settings = render_settings(env.unwrapped.sim.model, shadows)
+    return timed
 
 
 def fetch(image: bool) -> Timed:
@@ -72,7 +86,9 @@ def fetch(image: bool) -> Timed:
     env = gym.make("FetchPickAndPlace-v4", **kw)
     note = "image = env.render() after each step (its default external camera)"
     pkgs = ("gymnasium-robotics", "mujoco", "gymnasium")
-    return _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed.render_settings = render_settings(env.unwrapped.model)
+    return timed
 
 
 def metaworld(image: bool) -> Timed:
@@ -83,7 +99,9 @@ def metaworld(image: bool) -> Timed:
     env = gym.make("Meta-World/MT1", env_name="pick-place-v3", camera_name="corner", **kw)
     note = "image = env.render() after each step ('corner' camera)"
     pkgs = ("metaworld", "mujoco", "gymnasium")
-    return _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed.render_settings = render_settings(env.unwrapped.model)
+    return timed
 
 
 def robosuite_lift(image: bool) -> Timed:
@@ -116,7 +134,7 @@ def robosuite_lift(image: bool) -> Timed:
         env.reset()
 
     note = "image = 'agentview' RGB in the observation (use_camera_obs); default OSC controller"
-    return Timed(
+    timed = Timed(
         step,
         reset,
         lambda: rng.uniform(low, high),
@@ -124,10 +142,13 @@ def robosuite_lift(image: bool) -> Timed:
         ("robosuite", "mujoco"),
         note,
     )
+    timed.render_settings = render_settings(env.sim.model._model)
+    return timed
 
 
 ENVS: dict[str, Callable[[bool], Timed]] = {
     "ScorbotGrasp-v0": scorbot,
+    "ScorbotGrasp-v0/shadows": lambda image: scorbot(image, shadows=True),
     "FetchPickAndPlace-v4": fetch,
     "Meta-World/pick-place-v3": metaworld,
     "robosuite/Lift-Panda": robosuite_lift,
@@ -179,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         "sim_seconds_per_step": env.dt,
         "sim_seconds_per_wall_second": rate * env.dt,
         "note": env.note,
+        "render_settings": env.render_settings,
         "versions": {p: _version(p) for p in env.packages},
         "python": sys.version.split()[0],
         "cpu_affinity": sorted(os.sched_getaffinity(0)),
