@@ -10,10 +10,11 @@ The figure is env steps per wall second over a rollout of random actions, resets
 plain env resets itself when an episode ends, the vector envs autoreset).
 
 Configurations: ``plain`` is ``gym.make`` stepped in a loop (Mesa's default rendering threads);
-``sync-N`` and ``async-N`` are ``scorbot_gym.make_vec_env`` (shared-memory observations,
-calibration at reset only, one rendering thread per worker, at most one worker stepping per
-core); ``gym-async-N`` is ``gymnasium.make_vec(..., vectorization_mode="async")`` with
-Gymnasium's defaults, for comparison.
+``sync-N`` and ``async-N`` are ``scorbot_gym.make_vec_env`` with its defaults (shared-memory
+observations, calibration at reset only, Mesa's default rendering threads, at most one worker
+stepping per core); ``async_render1-N`` asks llvmpipe for one thread per worker and
+``async_nocap-N`` lifts the concurrency cap; ``gym-async-N`` is
+``gymnasium.make_vec(..., vectorization_mode="async")`` with Gymnasium's defaults.
 """
 
 from __future__ import annotations
@@ -31,16 +32,26 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 ENV_ID = "ScorbotGrasp-v0"
 COUNTS = (1, 2, 4)
+# make_vec_env variants: its defaults, then one setting changed (the ablations behind them).
+FAMILIES: dict[str, dict] = {
+    "sync": {"vectorization_mode": "sync"},
+    "async": {"vectorization_mode": "async"},
+    "async_render1": {"vectorization_mode": "async", "render_threads": 1},
+    "async_nocap": {"vectorization_mode": "async", "max_concurrency": None},
+}
 SETTINGS = {
     "no_images": {},
     "camera_320x240": {"cameras": ["top"], "image_width": 320, "image_height": 240},
 }
 
 
-def configurations(counts: tuple[int, ...]) -> list[str]:
+def configurations(counts: tuple[int, ...], ablations: bool) -> list[str]:
     names = ["plain"]
     for kind in ("sync", "async", "gym-async"):
         names += [f"{kind}-{n}" for n in counts]
+    if ablations:
+        names += [f"async_render1-{n}" for n in counts if n > 1]
+        names += [f"async_nocap-{n}" for n in counts if n > 2]  # the cap acts above the cores
     return names
 
 
@@ -55,7 +66,7 @@ def build(config: str, env_kwargs: dict):
     kind, n = config.rsplit("-", 1)
     if kind == "gym-async":
         return gym.make_vec(ENV_ID, int(n), vectorization_mode="async", **env_kwargs), int(n)
-    return scorbot_gym.make_vec_env(ENV_ID, int(n), kind, **env_kwargs), int(n)
+    return scorbot_gym.make_vec_env(ENV_ID, int(n), **FAMILIES[kind], **env_kwargs), int(n)
 
 
 def time_config(config: str, setting: str, env_steps: int, seed: int) -> dict:
@@ -155,9 +166,12 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--steps", type=int, default=4000, help="env steps without images")
-    parser.add_argument("--image-steps", type=int, default=400, help="env steps with images")
+    parser.add_argument("--steps", type=int, default=3000, help="env steps without images")
+    parser.add_argument("--image-steps", type=int, default=300, help="env steps with images")
     parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS))
+    parser.add_argument(
+        "--ablations", action="store_true", help="also async_render1-N and async_nocap-N"
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vector_env.json"))
     args = parser.parse_args(argv)
     if args.repeats < 1 or args.steps < 1 or args.image_steps < 1 or min(args.counts) < 1:
@@ -166,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
     import scorbot_gym
     from pose.fileio import atomic_write_json
 
-    configs = configurations(tuple(args.counts))
+    configs = configurations(tuple(args.counts), args.ablations)
     steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
     runs = {s: {c: [] for c in configs} for s in SETTINGS}
     load_before, t0 = os.getloadavg(), time.time()

@@ -7,8 +7,8 @@ processes. ``make_vec_env`` builds a :class:`gymnasium.vector.AsyncVectorEnv` se
 - observations (images included) come back through shared memory, not pickled through pipes;
 - the per-step ``info`` stays small: the env sends the constant camera calibration at reset
   only (``info["camera_params"]``), not every step;
-- each worker asks Mesa's software rasterizer (llvmpipe) for ``render_threads`` threads, so N
-  rendering workers do not each spawn one thread per core and fight over the cores;
+- ``render_threads`` sets the software rasterizer's (llvmpipe's) threads per worker; by default
+  Mesa's own choice (one per core) is kept, which measured faster on a shared 2-core machine;
 - at most ``max_concurrency`` workers (default: the cores this process may use) step at once, so
   more envs than cores queue instead of being time-sliced mid-step.
 
@@ -53,7 +53,7 @@ def make_vec_env(
     num_envs: int = 2,
     vectorization_mode: str = "async",
     *,
-    render_threads: int | None = 1,
+    render_threads: int | None = None,
     max_concurrency: int | None = -1,
     copy: bool = True,
     context: str | None = None,
