@@ -6,8 +6,10 @@ Run:  python benchmarks/vector_env.py [--repeats 3] [--out benchmarks/results/ve
 Every configuration runs in a fresh process (rendering settings are per process), and the
 repetitions interleave the configurations so that a change in the machine's load hits all of
 them alike; medians are reported. Nothing is pinned: the vector envs are meant to use every core.
-The figure is env steps per wall second over a rollout of random actions, resets included (the
-plain env resets itself when an episode ends, the vector envs autoreset).
+The figures are env steps per wall second over a rollout of random actions, resets included
+(the plain env resets itself when an episode ends, the vector envs autoreset), and the CPU time
+per env step of the process and its workers, all threads: on a machine shared with other work,
+wall-clock ratios depend on the load, the CPU cost of a step much less so.
 
 Configurations: ``plain`` is ``gym.make`` stepped in a loop (Mesa's default rendering threads);
 ``sync-N`` and ``async-N`` are ``scorbot_gym.make_vec_env`` with its defaults (shared-memory
@@ -78,12 +80,29 @@ def time_config(config: str, setting: str, env_steps: int, seed: int) -> dict:
     env.reset(seed=seed)
     for a in actions[:10]:  # warm-up: GL contexts, caches, worker start-up
         _step(env, a, n)
-    t0 = time.perf_counter()
+    pids = [p.pid for p in getattr(env, "processes", [])]
+    cpu0, t0 = _cpu_seconds(pids), time.perf_counter()
     for a in actions[10:]:
         _step(env, a, n)
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, _cpu_seconds(pids) - cpu0
     env.close()
-    return {"env_steps_per_second": calls * max(n, 1) / elapsed, "env_steps": calls * max(n, 1)}
+    steps = calls * max(n, 1)
+    return {
+        "env_steps_per_second": steps / elapsed,
+        "env_steps": steps,
+        "cpu_ms_per_env_step": 1e3 * cpu / steps,
+    }
+
+
+def _cpu_seconds(worker_pids: list[int]) -> float:
+    """CPU time of this process and its env workers, all threads (Linux ``/proc``): the work a
+    step costs, which unlike wall time does not depend on how busy the machine is."""
+    total = time.process_time()
+    tick = os.sysconf("SC_CLK_TCK")
+    for pid in worker_pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        total += (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+    return total
 
 
 def _step(env, action, n: int) -> None:
@@ -112,9 +131,14 @@ def summarize(runs: dict[str, dict[str, list[dict]]]) -> dict:
     for setting, per_config in runs.items():
         out: dict[str, dict] = {}
         for config, rs in per_config.items():
-            ok = [r["env_steps_per_second"] for r in rs if "env_steps_per_second" in r]
+            good = [r for r in rs if "env_steps_per_second" in r]
+            ok = [r["env_steps_per_second"] for r in good]
             out[config] = (
-                {"env_steps_per_second_median": _median(ok), "env_steps_per_second_runs": ok}
+                {
+                    "env_steps_per_second_median": _median(ok),
+                    "env_steps_per_second_runs": ok,
+                    "cpu_ms_per_env_step_median": _median([r["cpu_ms_per_env_step"] for r in good]),
+                }
                 if ok
                 else {"error": rs[-1]["error"]}
             )
@@ -122,6 +146,9 @@ def summarize(runs: dict[str, dict[str, list[dict]]]) -> dict:
         for r in out.values():
             if plain and "env_steps_per_second_median" in r:
                 r["ratio_to_plain"] = r["env_steps_per_second_median"] / plain
+                r["cpu_overhead_ms_per_env_step"] = (
+                    r["cpu_ms_per_env_step_median"] - out["plain"]["cpu_ms_per_env_step_median"]
+                )
         results[setting] = out
     return results
 
@@ -219,7 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         for config, r in res.items():
             shown = r.get("error") or (
                 f"{r['env_steps_per_second_median']:8.1f} env steps/s "
-                f"({r['ratio_to_plain']:.2f}x plain)"
+                f"({r['ratio_to_plain']:.2f}x plain), {r['cpu_ms_per_env_step_median']:.2f} ms CPU"
             )
             print(f"{setting:>14} {config:>12}: {shown}")
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
