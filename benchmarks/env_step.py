@@ -132,6 +132,7 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
                 "steps_per_second_runs": [r["steps_per_second"] for r in ok],
                 "sim_seconds_per_step": ok[0]["sim_seconds_per_step"],
                 "sim_seconds_per_wall_second_median": med * ok[0]["sim_seconds_per_step"],
+                "steps_per_cpu_second_median": _median([r["steps_per_cpu_second"] for r in ok]),
                 "steps_per_run": steps[setting],
                 "failed_runs": len(rs) - len(ok),
                 "note": ok[0]["note"],
@@ -139,20 +140,32 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
                 "versions": ok[0]["versions"],
             }
         for ours_name, prefix in ((SCORBOT, "scorbot"), (SCORBOT_SHADOWS, "scorbot_shadows")):
-            ours = results[setting].get(ours_name, {})
-            if "steps_per_second_median" not in ours:
-                continue
             for env, r in results[setting].items():
-                if env.startswith(SCORBOT) or "steps_per_second_median" not in r:
-                    continue
-                r[f"{prefix}_ratio_steps_per_second"] = (
-                    ours["steps_per_second_median"] / r["steps_per_second_median"]
-                )
-                r[f"{prefix}_ratio_sim_seconds_per_wall_second"] = (
-                    ours["sim_seconds_per_wall_second_median"]
-                    / r["sim_seconds_per_wall_second_median"]
-                )
+                if not env.startswith(SCORBOT) and "steps_per_second_median" in r:
+                    r.update(_paired_ratios(per_env.get(ours_name, []), per_env[env], prefix))
     return results
+
+
+def _paired_ratios(ours: list[dict], theirs: list[dict], prefix: str) -> dict:
+    """Ratios of runs taken in the same repetition (next to each other in time, so under about
+    the same load), then their median: steadier than a ratio of medians on a busy machine."""
+    pairs = [
+        (a, b)
+        for a, b in zip(ours, theirs, strict=False)
+        if "steps_per_second" in a and "steps_per_second" in b
+    ]
+    if not pairs:
+        return {}
+    ratios = [a["steps_per_second"] / b["steps_per_second"] for a, b in pairs]
+    cpu = [a["steps_per_cpu_second"] / b["steps_per_cpu_second"] for a, b in pairs]
+    dt = pairs[0][0]["sim_seconds_per_step"] / pairs[0][1]["sim_seconds_per_step"]
+    return {
+        f"{prefix}_ratio_steps_per_second": _median(ratios),
+        f"{prefix}_ratio_steps_per_second_runs": ratios,
+        f"{prefix}_ratio_sim_seconds_per_wall_second": _median(ratios) * dt,
+        f"{prefix}_ratio_steps_per_cpu_second": _median(cpu),
+        f"{prefix}_ratio_steps_per_cpu_second_runs": cpu,
+    }
 
 
 def plot(report: dict, path: Path) -> None:
@@ -237,7 +250,8 @@ def main(argv: list[str] | None = None) -> int:
     for setting, per_env in results.items():
         for env, r in per_env.items():
             ratio = r.get("scorbot_ratio_steps_per_second")
-            extra = f"  (scorbot {ratio:.2f}x)" if ratio else ""
+            cpu = r.get("scorbot_ratio_steps_per_cpu_second")
+            extra = f"  (scorbot {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
             shown = r.get("error") or f"{r['steps_per_second_median']:8.1f} steps/s"
             print(f"{setting:>14} {env:>26}: {shown}{extra}")
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
