@@ -105,6 +105,39 @@ def _cpu_seconds(worker_pids: list[int]) -> float:
     return total
 
 
+def info_cost(iterations: int = 2000) -> dict:
+    """Per-step cost, in the main process, of an info dict crossing a pipe and being merged by
+    ``VectorEnv._add_info``, with and without the camera calibration: what sending it at reset
+    only saves (the env used to send it with every step)."""
+    import pickle
+
+    import gymnasium as gym
+
+    import scorbot_gym
+
+    vec = scorbot_gym.make_vec_env(
+        ENV_ID, 2, "sync", object_name="tomato_soup_can", **SETTINGS["camera_320x240"]
+    )
+    _, with_cal = vec.reset(seed=0)
+    sub = vec.envs[0]
+    step_info = sub.step(sub.action_space.sample())[4]
+    reset_info = sub.reset(seed=0)[1]
+    out = {}
+    for name, info in (("with_camera_params", reset_info), ("without", step_info)):
+        t0 = time.process_time()
+        for _ in range(iterations):
+            merged: dict = {}
+            for i in range(vec.num_envs):
+                merged = gym.vector.VectorEnv._add_info(
+                    vec, merged, pickle.loads(pickle.dumps(info)), i
+                )
+        out[name] = {"us_per_vector_step_2_envs": 1e6 * (time.process_time() - t0) / iterations}
+        out[name]["pickled_bytes"] = len(pickle.dumps(info))
+    vec.close()
+    assert "camera_params" in with_cal and "camera_params" not in step_info
+    return out
+
+
 def _step(env, action, n: int) -> None:
     _, _, terminated, truncated, _ = env.step(action)
     if n == 0 and (terminated or truncated):
@@ -211,6 +244,8 @@ def main(argv: list[str] | None = None) -> int:
     steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
     runs = {s: {c: [] for c in configs} for s in SETTINGS}
     load_before, t0 = os.getloadavg(), time.time()
+    info = info_cost()
+    print(f"info pickling + merging per vector step of 2 envs: {info}", flush=True)
     for rep in range(args.repeats):
         for setting in SETTINGS:
             for config in configs if rep % 2 == 0 else configs[::-1]:
@@ -226,6 +261,7 @@ def main(argv: list[str] | None = None) -> int:
         "steps_per_run": steps,
         "repeats": args.repeats,
         "results": summarize(runs),
+        "info_cost_main_process": info,
         "load": {
             "loadavg_before": load_before,
             "loadavg_after": os.getloadavg(),
