@@ -10,9 +10,8 @@ from scorbot_gym import _gl
 _gl.choose_backend()
 
 from scorbot_gym.envs import ENV_IDS, ScorbotGraspEnv, register_envs  # noqa: E402
-from scorbot_gym.envs.vector import make_vec_env  # noqa: E402
 
 register_envs()
 
 __version__ = "0.1.0"
-__all__ = ["ENV_IDS", "ScorbotGraspEnv", "make_vec_env", "register_envs"]
+__all__ = ["ENV_IDS", "ScorbotGraspEnv", "register_envs"]
