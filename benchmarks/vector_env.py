@@ -9,7 +9,8 @@ them alike; medians are reported. Nothing is pinned: the vector envs are meant t
 The figures are env steps per wall second over a rollout of random actions, resets included
 (the plain env resets itself when an episode ends, the vector envs autoreset), and the CPU time
 per env step of the process and its workers, all threads: on a machine shared with other work,
-wall-clock ratios depend on the load, the CPU cost of a step much less so.
+wall-clock ratios depend on the load, the CPU cost of a step much less so. Ratios to the plain
+env are taken per repetition, then the median.
 
 Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 ``gymnasium.make_vec(..., vectorization_mode="sync")``; ``async-N`` is
@@ -177,9 +178,16 @@ def summarize(runs: dict[str, dict[str, list[dict]]]) -> dict:
                 else {"error": rs[-1]["error"]}
             )
         plain = out["plain"].get("env_steps_per_second_median")
-        for r in out.values():
+        for config, r in out.items():
             if plain and "env_steps_per_second_median" in r:
-                r["ratio_to_plain"] = r["env_steps_per_second_median"] / plain
+                # per repetition (next to each other in time, so under about the same load)
+                paired = [
+                    a["env_steps_per_second"] / b["env_steps_per_second"]
+                    for a, b in zip(per_config[config], per_config["plain"], strict=True)
+                    if "env_steps_per_second" in a and "env_steps_per_second" in b
+                ]
+                r["ratio_to_plain"] = _median(paired)
+                r["ratio_to_plain_runs"] = paired
                 r["cpu_overhead_ms_per_env_step"] = (
                     r["cpu_ms_per_env_step_median"] - out["plain"]["cpu_ms_per_env_step_median"]
                 )
