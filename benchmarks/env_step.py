@@ -169,28 +169,31 @@ def _paired_ratios(ours: list[dict], theirs: list[dict], prefix: str) -> dict:
 
 
 def plot(report: dict, path: Path) -> None:
-    """Grouped bars per setting: steps/s (log scale) of every env timed."""
+    """Per setting, every env's steps per wall second and per CPU second (log scale)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
 
     from pose.fileio import atomic_write
 
     settings = list(report["results"])
-    fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 3.6))
+    fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 4.2))
     for ax, setting in zip(axes, settings, strict=True):
-        items = [
-            (env, r["steps_per_second_median"])
-            for env, r in report["results"][setting].items()
-            if "steps_per_second_median" in r
-        ]
-        colors = ["#3a78b5" if env == SCORBOT else "#999999" for env, _ in items]
-        ax.bar([e.replace("/", "/\n") for e, _ in items], [v for _, v in items], color=colors)
+        items = [(env, r) for env, r in report["results"][setting].items() if "error" not in r]
+        x = np.arange(len(items))
+        for dx, key, label, color in (
+            (-0.2, "steps_per_second_median", "per wall second", "#3a78b5"),
+            (0.2, "steps_per_cpu_second_median", "per CPU second", "#e08a2c"),
+        ):
+            ax.bar(x + dx, [r[key] for _, r in items], width=0.4, label=label, color=color)
+        ax.set_xticks(x, [env.replace("/", "/\n") for env, _ in items], rotation=30, ha="right")
         ax.set_yscale("log")
         ax.set_title(setting.replace("_", " "))
-        ax.set_ylabel("env steps / s (one core, median)")
+        ax.set_ylabel("env steps (one pinned core, median)")
         ax.tick_params(axis="x", labelsize=7)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, dpi=100, format="png"))
     plt.close(fig)
