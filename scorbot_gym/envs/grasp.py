@@ -260,8 +260,8 @@ class ScorbotGraspEnv(gym.Env):
             "held_time": st.held_time,
         }
         # Calibration travels with the images (as ManiSkill's sensor_param), at reset only: the
-        # cameras are fixed, and re-sending constant arrays every step is what made vector envs
-        # slow (pickled through a pipe and merged per step); camera_params() gives them anytime.
+        # cameras are fixed, and vector envs would pickle and merge the constant arrays every
+        # step for nothing; camera_params() gives them at any time.
         if calibration and self.cameras:
             info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
         return info
