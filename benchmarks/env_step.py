@@ -1,72 +1,199 @@
-"""Throughput of ``env.step`` on one core, without images and with one 320x240 image per step.
+"""Throughput of ``env.step`` on one pinned core, without images and with one 320x240 image per
+step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-place-v3 and
+robosuite Lift (Panda) in the same run.
 
-Run:  python benchmarks/env_step.py [--steps 2000] [--repeats 5] [--out PATH.json]
+Run:  python benchmarks/env_step.py [--peers] [--repeats 5] [--out PATH.json]
 
-The process pins itself to one CPU core and asks Mesa's llvmpipe for one rendering thread, so
-the figure is a one-core figure. Only ``env.step`` calls are timed (resets are not); each repeat
-is one timed block, and the median over repeats is reported.
+Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
+subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
+environment under ``~/.cache/scorbot-gym/peer-venvs/<name>`` (built on first use with
+``python3 -m venv`` + pip from PyPI, reused while its pinned requirements are unchanged). The
+peers need mujoco 3.x; scorbot-gym runs on mujoco 4, so they cannot share one environment.
 
-Reference: Gymnasium-Robotics' FetchPickAndPlace-v4 measured on this machine type on one core
-(issue #2): ~750 steps/s without images, ~58 steps/s with a 320x240 render per step. It cannot
-be re-measured in the same run: Gymnasium-Robotics 1.4.2 crashes on mujoco >= 3.17.
+Repetitions interleave the environments (A, B, C, D, then D, C, B, A, ...) so that a change in
+the machine's load hits all of them alike; every subprocess is pinned to the same core (the
+affinity is inherited) and Mesa's llvmpipe is asked for one rendering thread. Medians over
+repetitions are reported, with the load average before and after the run.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import shutil
+import subprocess
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-os.environ["LP_NUM_THREADS"] = "1"  # llvmpipe rasterizer threads: one core means one thread
-os.environ.setdefault("OMP_NUM_THREADS", "1")
+HERE = Path(__file__).resolve().parent
+TIMER = HERE / "peers" / "time_env.py"
+SCORBOT = "ScorbotGrasp-v0"
+# Its default renders without shadows; the peers render theirs (see render_settings in the JSON).
+SCORBOT_SHADOWS = "ScorbotGrasp-v0/shadows"
+VENV_ROOT = Path.home() / ".cache" / "scorbot-gym" / "peer-venvs"
+# Each peer's venv and the pins it is built from (versions that install and run here).
+PEERS: dict[str, dict] = {
+    "FetchPickAndPlace-v4": {
+        "venv": "gymnasium-robotics",
+        "requirements": ["gymnasium-robotics==1.4.2", "gymnasium==1.4.0", "mujoco==3.3.0"],
+    },
+    "Meta-World/pick-place-v3": {
+        "venv": "metaworld",
+        # gymnasium's MuJoCo renderer imports `packaging`, which metaworld does not declare
+        "requirements": ["metaworld==3.1.1", "gymnasium==1.4.0", "mujoco==3.3.0", "packaging"],
+    },
+    "robosuite/Lift-Panda": {
+        "venv": "robosuite",
+        "requirements": ["robosuite==1.5.2", "mujoco==3.3.0"],
+    },
+}
+SETTINGS = {"no_images": False, "camera_320x240": True}
+MARKER = "scorbot-peer-requirements.txt"
 
-FETCH_REFERENCE = {"no_images": 750.0, "camera_320x240": 58.0}
-TARGET_RATIO = 2.0
+
+def peer_python(name: str, rebuild: bool = False) -> Path:
+    """The interpreter of ``name``'s venv, built if missing or built from other pins.
+
+    The marker holding the pins is written last, so an interrupted build is never reused."""
+    spec = PEERS[name]
+    venv = VENV_ROOT / spec["venv"]
+    wanted = "\n".join(spec["requirements"]) + "\n"
+    marker = venv / MARKER
+    python = venv / "bin" / "python"
+    if not rebuild and marker.is_file() and marker.read_text() == wanted:
+        return python
+    print(f"building peer venv {venv} ({', '.join(spec['requirements'])}) ...", flush=True)
+    if venv.exists():
+        shutil.rmtree(venv)
+    subprocess.run(["python3", "-m", "venv", str(venv)], check=True)
+    pip = [str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check"]
+    subprocess.run([*pip, *spec["requirements"]], check=True)
+    marker.write_text(wanted)
+    return python
 
 
-def measure(env, steps: int, seed: int) -> float:
-    import numpy as np
+def time_once(python: Path, env: str, image: bool, steps: int, seed: int) -> dict:
+    """One repetition: a fresh process runs the timing loop and prints its JSON line."""
+    cmd = [str(python), str(TIMER), env, "--steps", str(steps), "--seed", str(seed)]
+    if image:
+        cmd.append("--image")
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=_child_env())
+    if proc.returncode != 0:
+        tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
+        return {"error": f"exit {proc.returncode}: {tail[0]}"}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
 
-    env.reset(seed=seed)
-    env.action_space.seed(seed)
-    actions = [env.action_space.sample() for _ in range(steps)]
-    elapsed = 0.0
-    for a in actions:
-        t0 = time.perf_counter()
-        _, _, terminated, truncated, _ = env.step(a)
-        elapsed += time.perf_counter() - t0
-        if terminated or truncated:
-            env.reset()
-    return steps / elapsed if elapsed > 0 else float(np.inf)
+
+def _child_env() -> dict[str, str]:
+    env = dict(os.environ)
+    env.setdefault("MUJOCO_GL", "egl")
+    env["LP_NUM_THREADS"] = "1"  # llvmpipe rasterizer threads: one core means one thread
+    env["OMP_NUM_THREADS"] = env["MKL_NUM_THREADS"] = env["OPENBLAS_NUM_THREADS"] = "1"
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(HERE.parent), env.get("PYTHONPATH")]))
+    return env
+
+
+def _median(xs: list[float]) -> float:
+    s = sorted(xs)
+    n = len(s)
+    return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
+
+
+def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
+    """Time every env in every setting, interleaved; return per-setting, per-env records."""
+    runs: dict[str, dict[str, list[dict]]] = {s: {e: [] for e in envs} for s in SETTINGS}
+    order = list(envs)
+    for rep in range(repeats):
+        for setting, image in SETTINGS.items():
+            for env in order if rep % 2 == 0 else order[::-1]:
+                if env == SCORBOT_SHADOWS and not image:
+                    continue  # identical to SCORBOT when nothing is rendered
+                r = time_once(envs[env], env, image, steps[setting], seed=rep)
+                runs[setting][env].append(r)
+                rate = r.get("steps_per_second")
+                shown = f"{rate:8.1f} steps/s" if rate else r.get("error")
+                print(f"rep {rep} {setting:>14} {env:>26}: {shown}", flush=True)
+    results: dict[str, dict] = {}
+    for setting, per_env in runs.items():
+        results[setting] = {}
+        for env, rs in per_env.items():
+            if not rs:
+                continue
+            ok = [r for r in rs if "steps_per_second" in r]
+            if not ok:
+                results[setting][env] = {"error": rs[-1]["error"]}
+                continue
+            med = _median([r["steps_per_second"] for r in ok])
+            results[setting][env] = {
+                "steps_per_second_median": med,
+                "steps_per_second_runs": [r["steps_per_second"] for r in ok],
+                "sim_seconds_per_step": ok[0]["sim_seconds_per_step"],
+                "sim_seconds_per_wall_second_median": med * ok[0]["sim_seconds_per_step"],
+                "steps_per_cpu_second_median": _median([r["steps_per_cpu_second"] for r in ok]),
+                "steps_per_run": steps[setting],
+                "failed_runs": len(rs) - len(ok),
+                "note": ok[0]["note"],
+                "render_settings": ok[0]["render_settings"],
+                "versions": ok[0]["versions"],
+            }
+        for ours_name, prefix in ((SCORBOT, "scorbot"), (SCORBOT_SHADOWS, "scorbot_shadows")):
+            for env, r in results[setting].items():
+                if not env.startswith(SCORBOT) and "steps_per_second_median" in r:
+                    r.update(_paired_ratios(per_env.get(ours_name, []), per_env[env], prefix))
+    return results
+
+
+def _paired_ratios(ours: list[dict], theirs: list[dict], prefix: str) -> dict:
+    """Ratios of runs taken in the same repetition (next to each other in time, so under about
+    the same load), then their median: steadier than a ratio of medians on a busy machine."""
+    pairs = [
+        (a, b)
+        for a, b in zip(ours, theirs, strict=False)
+        if "steps_per_second" in a and "steps_per_second" in b
+    ]
+    if not pairs:
+        return {}
+    ratios = [a["steps_per_second"] / b["steps_per_second"] for a, b in pairs]
+    cpu = [a["steps_per_cpu_second"] / b["steps_per_cpu_second"] for a, b in pairs]
+    dt = pairs[0][0]["sim_seconds_per_step"] / pairs[0][1]["sim_seconds_per_step"]
+    return {
+        f"{prefix}_ratio_steps_per_second": _median(ratios),
+        f"{prefix}_ratio_steps_per_second_runs": ratios,
+        f"{prefix}_ratio_sim_seconds_per_wall_second": _median(ratios) * dt,
+        f"{prefix}_ratio_steps_per_cpu_second": _median(cpu),
+        f"{prefix}_ratio_steps_per_cpu_second_runs": cpu,
+    }
 
 
 def plot(report: dict, path: Path) -> None:
-    """Bar chart: measured steps/s against the FetchPickAndPlace reference and the 2x target."""
+    """Per setting, every env's steps per wall second and per CPU second (log scale)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import numpy as np
 
     from pose.fileio import atomic_write
 
-    names = list(report["results"])
-    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.2))
-    for ax, name in zip(axes, names, strict=True):
-        r = report["results"][name]
-        ref = r["fetch_pick_and_place_reference"]
-        ax.bar(
-            ["FetchPickAndPlace\n(reference)", "ScorbotGrasp-v0"],
-            [ref, r["steps_per_second_median"]],
-            color=["#999999", "#3a78b5"],
-        )
-        ax.axhline(TARGET_RATIO * ref, color="#c44", ls="--", label=f"target {TARGET_RATIO:g}x")
-        ax.set_title(name.replace("_", " "))
-        ax.set_ylabel("env steps / s (one core, median)")
-        ax.legend(loc="upper left", fontsize=8)
+    settings = list(report["results"])
+    fig, axes = plt.subplots(1, len(settings), figsize=(5.5 * len(settings), 4.2))
+    for ax, setting in zip(axes, settings, strict=True):
+        items = [(env, r) for env, r in report["results"][setting].items() if "error" not in r]
+        x = np.arange(len(items))
+        for dx, key, label, color in (
+            (-0.2, "steps_per_second_median", "per wall second", "#3a78b5"),
+            (0.2, "steps_per_cpu_second_median", "per CPU second", "#e08a2c"),
+        ):
+            ax.bar(x + dx, [r[key] for _, r in items], width=0.4, label=label, color=color)
+        ax.set_xticks(x, [env.replace("/", "/\n") for env, _ in items], rotation=30, ha="right")
+        ax.set_yscale("log")
+        ax.set_title(setting.replace("_", " "))
+        ax.set_ylabel("env steps (one pinned core, median)")
+        ax.tick_params(axis="x", labelsize=7)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     atomic_write(path, lambda f: fig.savefig(f, dpi=100, format="png"))
     plt.close(fig)
@@ -74,61 +201,62 @@ def plot(report: dict, path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=2000)
+    parser.add_argument("--peers", action="store_true", help="also time the peer envs")
+    parser.add_argument("--rebuild-peers", action="store_true", help="rebuild the peer venvs")
+    parser.add_argument("--steps", type=int, default=2000, help="timed steps without images")
+    parser.add_argument("--image-steps", type=int, default=200, help="timed steps with images")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--cpu", type=int, default=0, help="core to pin to")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/env_step.json"))
     args = parser.parse_args(argv)
+    if args.steps < 1 or args.image_steps < 1 or args.repeats < 1:
+        parser.error("--steps, --image-steps and --repeats must be >= 1")
     if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {args.cpu})
-
-    import gymnasium as gym
-    import numpy as np
+        os.sched_setaffinity(0, {args.cpu})  # inherited by every timing subprocess
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
 
-    settings = {
-        "no_images": {},
-        "camera_320x240": {"cameras": ["top"], "image_width": 320, "image_height": 240},
-    }
-    results = {}
-    for name, kwargs in settings.items():
-        env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", **kwargs)
-        steps = args.steps if not kwargs else max(200, args.steps // 10)
-        measure(env, min(steps, 100), seed=999)  # warm-up: GL context, caches
-        runs = [measure(env, steps, seed=i) for i in range(args.repeats)]
-        env.close()
-        med = float(np.median(runs))
-        results[name] = {
-            "steps_per_second_median": med,
-            "steps_per_second_runs": runs,
-            "steps_per_run": steps,
-            "fetch_pick_and_place_reference": FETCH_REFERENCE[name],
-            "ratio_to_reference": med / FETCH_REFERENCE[name],
-            "meets_target": med / FETCH_REFERENCE[name] >= TARGET_RATIO,
-        }
-        print(
-            f"{name:>15}: {med:8.1f} steps/s (median of {args.repeats}), "
-            f"{med / FETCH_REFERENCE[name]:.2f}x FetchPickAndPlace reference"
-        )
+    envs = {SCORBOT: Path(sys.executable), SCORBOT_SHADOWS: Path(sys.executable)}
+    if args.peers:
+        envs.update({name: peer_python(name, args.rebuild_peers) for name in PEERS})
+    load_before = os.getloadavg()
+    t0 = time.time()
+    results = run(envs, args.repeats, {"no_images": args.steps, "camera_320x240": args.image_steps})
     report = {
         "benchmark": "env_step",
-        "env": "ScorbotGrasp-v0 (joint actions, tomato_soup_can, random actions)",
-        "control_dt_s": 0.04,
-        "physics_substeps_per_step": 20,
+        "envs": list(envs),
+        "loop": "benchmarks/peers/time_env.py: uniform random actions, step (+ one 320x240 RGB "
+        "image) timed, resets not timed; one fresh process per env, setting and repetition",
         "one_core": True,
-        "target_ratio": TARGET_RATIO,
+        "pinned_cpu": args.cpu,
+        "repeats": args.repeats,
+        "interleaved": "A,B,C,D then D,C,B,A ... per setting",
         "results": results,
+        "load": {
+            "loadavg_before": load_before,
+            "loadavg_after": os.getloadavg(),
+            "wall_seconds": time.time() - t0,
+            "note": "the machine is shared; loadavg counts other users' processes too",
+        },
+        "peer_requirements": {n: PEERS[n]["requirements"] for n in envs if n in PEERS},
         "machine": {
             "platform": platform.platform(),
             "python": sys.version.split()[0],
             "cpu_count": os.cpu_count(),
             "scorbot_gym": scorbot_gym.__version__,
+            "mujoco_gl": os.environ.get("MUJOCO_GL", "egl"),
         },
     }
     atomic_write_json(args.out, report)
     plot(report, args.out.with_suffix(".png"))
+    for setting, per_env in results.items():
+        for env, r in per_env.items():
+            ratio = r.get("scorbot_ratio_steps_per_second")
+            cpu = r.get("scorbot_ratio_steps_per_cpu_second")
+            extra = f"  (scorbot {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
+            shown = r.get("error") or f"{r['steps_per_second_median']:8.1f} steps/s"
+            print(f"{setting:>14} {env:>26}: {shown}{extra}")
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
 

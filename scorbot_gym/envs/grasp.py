@@ -62,7 +62,9 @@ class ScorbotGraspEnv(gym.Env):
 
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
-    object's true pose is always in ``info["object_pose"]``.
+    object's true pose is always in ``info["object_pose"]``; the cameras' calibration is in
+    ``info["camera_params"]`` after ``reset`` (the cameras are fixed) and from
+    :meth:`camera_params` at any time.
 
     ``capture_background=True`` adds ``info["camera_background"]`` at reset: per camera, the
     empty workspace (object not yet in the scene, arm where it is at reset) as ``{"rgb",
@@ -221,7 +223,7 @@ class ScorbotGraspEnv(gym.Env):
             self._disturbance.reset(self.np_random)
             self._disturbance_info = None
         self._needs_reset = False
-        info = self._info(None, None)
+        info = self._info(None, None, calibration=True)
         if self.capture_background and self.cameras:
             info["camera_background"] = self._background_frames()
         return self._observation(), info
@@ -346,7 +348,9 @@ class ScorbotGraspEnv(gym.Env):
             "name": camera,
         }
 
-    def _info(self, facts: dict | None, cause: str | None) -> dict[str, Any]:
+    def _info(
+        self, facts: dict | None, cause: str | None, calibration: bool = False
+    ) -> dict[str, Any]:
         pos, quat = self.sim.object_pose()
         st = self.task.state
         info = {
@@ -359,7 +363,10 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self._disturbance_info is not None:
             info["disturbance"] = self._disturbance_info
-        if self.cameras:  # calibration travels with the images (as ManiSkill's sensor_param)
+        # Calibration travels with the images (as ManiSkill's sensor_param), at reset only: the
+        # cameras are fixed, and vector envs would pickle and merge the constant arrays every
+        # step for nothing; camera_params() gives them at any time.
+        if calibration and self.cameras:
             info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
         return info
 

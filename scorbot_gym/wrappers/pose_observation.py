@@ -166,7 +166,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     # --- internals ---------------------------------------------------------------------------
     def _update_cameras(self, info: dict) -> None:
-        """Keep each camera's calibration (re-read each step: an eye-in-hand camera moves)."""
+        """Keep each camera's calibration: from the reset's info, replaced whenever a step's info
+        carries it again (an env with a moving camera sends it every step)."""
         for name, params in info.get("camera_params", {}).items():
             self._cameras[name] = CameraModel(**params)
 

@@ -1,0 +1,217 @@
+"""Time ``env.step`` of one environment; run inside whichever venv has that environment installed.
+
+Run:  python benchmarks/peers/time_env.py ENV --steps 1000 [--image] [--seed 0]
+
+Prints one JSON object on stdout: steps/s over the timed steps, the simulated seconds one step
+advances, and the package versions in use. ``benchmarks/env_step.py --peers`` runs this script
+once per repetition in each peer's own virtual environment (peers need mujoco 3.x; scorbot-gym
+runs on mujoco 4), so every environment is timed by the same loop.
+
+The loop: actions are drawn uniformly from the action space with ``--seed`` before timing;
+only ``step`` calls (plus, with ``--image``, the one 320x240 RGB image per step) are timed;
+episode resets are not. With ``--image`` each env renders with its own offscreen renderer
+(``MUJOCO_GL`` must be ``egl`` on a headless machine). This file needs only the standard
+library, numpy and the env's package: it must not import scorbot_gym for the peers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Callable
+from importlib import metadata
+
+WIDTH, HEIGHT = 320, 240
+
+
+class Timed:
+    """An env reduced to what the timing loop needs: ``sample``, ``step``, ``reset``."""
+
+    def __init__(self, step, reset, sample, dt: float, packages: tuple[str, ...], note: str):
+        self.step, self.reset, self.sample = step, reset, sample
+        self.dt, self.packages, self.note = dt, packages, note
+        self.render_settings: dict = {}
+
+
+def render_settings(model, shadows: bool | None = None) -> dict:
+    """What makes a frame expensive in a software rasterizer: shadow maps and reflections."""
+    casting = int(sum(model.light_castshadow))
+    return {
+        "shadow_casting_lights": casting,
+        "shadows_rendered": bool(casting) if shadows is None else bool(shadows and casting),
+        "shadow_map_size": int(model.vis.quality.shadowsize),
+        "max_material_reflectance": float(max(model.mat_reflectance, default=0.0)),
+    }
+
+
+def _gym_env(env, dt: float, image: bool, packages: tuple[str, ...], note: str) -> Timed:
+    """A Gymnasium env; with ``image`` and no camera in the observation, ``render()`` per step."""
+    render_each_step = image and env.render_mode == "rgb_array"
+
+    def step(a):
+        _, _, terminated, truncated, _ = env.step(a)
+        if render_each_step:
+            frame = env.render()
+            assert frame.shape[:2] == (HEIGHT, WIDTH), frame.shape
+        return terminated or truncated
+
+    def reset(seed):
+        env.reset(seed=seed)
+
+    return Timed(step, reset, env.action_space.sample, dt, packages, note)
+
+
+def scorbot(image: bool, shadows: bool = False) -> Timed:
+    import gymnasium as gym
+
+    import scorbot_gym  # noqa: F401  (registers the ids)
+
+    kw = {"cameras": ["top"], "image_width": WIDTH, "image_height": HEIGHT} if image else {}
+    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", shadows=shadows, **kw)
+    note = "image = the 'top' camera's RGB in the observation (rendered inside step)"
+    timed = _gym_env(env, env.unwrapped.dt, False, ("scorbot-gym", "mujoco", "gymnasium"), note)
+    timed.render_settings = render_settings(env.unwrapped.sim.model, shadows)
+    return timed
+
+
+def fetch(image: bool) -> Timed:
+    import gymnasium as gym
+    import gymnasium_robotics
+
+    gym.register_envs(gymnasium_robotics)
+    kw = {"render_mode": "rgb_array", "width": WIDTH, "height": HEIGHT} if image else {}
+    env = gym.make("FetchPickAndPlace-v4", **kw)
+    note = "image = env.render() after each step (its default external camera)"
+    pkgs = ("gymnasium-robotics", "mujoco", "gymnasium")
+    timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed.render_settings = render_settings(env.unwrapped.model)
+    return timed
+
+
+def metaworld(image: bool) -> Timed:
+    import gymnasium as gym
+    import metaworld  # noqa: F401  (registers Meta-World/MT1)
+
+    kw = {"render_mode": "rgb_array", "width": WIDTH, "height": HEIGHT} if image else {}
+    env = gym.make("Meta-World/MT1", env_name="pick-place-v3", camera_name="corner", **kw)
+    note = "image = env.render() after each step ('corner' camera)"
+    pkgs = ("metaworld", "mujoco", "gymnasium")
+    timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
+    timed.render_settings = render_settings(env.unwrapped.model)
+    return timed
+
+
+def robosuite_lift(image: bool) -> Timed:
+    import numpy as np
+    import robosuite
+
+    env = robosuite.make(
+        "Lift",
+        robots="Panda",
+        has_renderer=False,
+        has_offscreen_renderer=image,
+        use_camera_obs=image,
+        camera_names="agentview",
+        camera_widths=WIDTH,
+        camera_heights=HEIGHT,
+        ignore_done=False,
+        horizon=500,
+    )
+    low, high = env.action_spec
+    rng = np.random.default_rng(0)
+
+    def step(a):
+        obs, _, done, _ = env.step(a)
+        if image:
+            assert obs["agentview_image"].shape[:2] == (HEIGHT, WIDTH)
+        return done
+
+    def reset(seed):
+        rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
+        env.reset()
+
+    note = "image = 'agentview' RGB in the observation (use_camera_obs); default OSC controller"
+    timed = Timed(
+        step,
+        reset,
+        lambda: rng.uniform(low, high),
+        1.0 / env.control_freq,
+        ("robosuite", "mujoco"),
+        note,
+    )
+    timed.render_settings = render_settings(env.sim.model._model)
+    return timed
+
+
+ENVS: dict[str, Callable[[bool], Timed]] = {
+    "ScorbotGrasp-v0": scorbot,
+    "ScorbotGrasp-v0/shadows": lambda image: scorbot(image, shadows=True),
+    "FetchPickAndPlace-v4": fetch,
+    "Meta-World/pick-place-v3": metaworld,
+    "robosuite/Lift-Panda": robosuite_lift,
+}
+
+
+def time_steps(env: Timed, steps: int, seed: int, warmup: int) -> tuple[float, float]:
+    """Steps per wall second and per CPU second (this process, all threads: the rendering
+    threads too) over ``steps`` timed steps after ``warmup`` untimed ones. On a machine shared
+    with other work the wall figure depends on the load; the CPU figure much less."""
+    env.reset(seed)
+    actions = [env.sample() for _ in range(steps + warmup)]
+    for a in actions[:warmup]:
+        if env.step(a):
+            env.reset(None)
+    elapsed = cpu = 0.0
+    for a in actions[warmup:]:
+        c0, t0 = time.process_time(), time.perf_counter()
+        done = env.step(a)
+        elapsed += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+        if done:
+            env.reset(None)
+    return steps / elapsed, steps / cpu
+
+
+def _version(pkg: str) -> str | None:
+    try:
+        return metadata.version(pkg)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("env", choices=sorted(ENVS))
+    parser.add_argument("--steps", type=int, default=1000)
+    parser.add_argument("--warmup", type=int, default=50)
+    parser.add_argument("--image", action="store_true", help="one 320x240 RGB image per step")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.steps < 1 or args.warmup < 0:
+        raise SystemExit(f"--steps must be >= 1 and --warmup >= 0, got {args.steps}, {args.warmup}")
+
+    env = ENVS[args.env](args.image)
+    rate, cpu_rate = time_steps(env, args.steps, args.seed, args.warmup)
+    out = {
+        "env": args.env,
+        "image": f"{WIDTH}x{HEIGHT}" if args.image else None,
+        "steps": args.steps,
+        "steps_per_second": rate,
+        "steps_per_cpu_second": cpu_rate,
+        "sim_seconds_per_step": env.dt,
+        "sim_seconds_per_wall_second": rate * env.dt,
+        "note": env.note,
+        "render_settings": env.render_settings,
+        "versions": {p: _version(p) for p in env.packages},
+        "python": sys.version.split()[0],
+        "cpu_affinity": sorted(os.sched_getaffinity(0)),
+    }
+    print(json.dumps(out))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,66 @@
+"""Vector envs through Gymnasium's own ``make_vec``: async with images in shared memory, and
+the camera calibration sent at reset only (the per-step info stays small)."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+
+import scorbot_gym  # noqa: F401  (registers the ids)
+
+IMAGE = {"cameras": ["top"], "image_width": 64, "image_height": 48}
+ASYNC = {"vectorization_mode": "async", "vector_kwargs": {"shared_memory": True}}
+
+
+def _roll(vec: gym.vector.VectorEnv, steps: int = 3) -> tuple[dict, dict, list[dict]]:
+    obs, reset_info = vec.reset(seed=3)
+    assert vec.observation_space.contains(obs)
+    vec.action_space.seed(3)
+    infos = []
+    for _ in range(steps):
+        obs, reward, terminated, truncated, info = vec.step(vec.action_space.sample())
+        assert vec.observation_space.contains(obs)
+        assert reward.shape == terminated.shape == truncated.shape == (vec.num_envs,)
+        infos.append(info)
+    return obs, reset_info, infos
+
+
+def test_async_make_vec_with_image_steps_inside_its_space():
+    vec = gym.make_vec("ScorbotGrasp-v0", 2, **ASYNC, object_name="tomato_soup_can", **IMAGE)
+    try:
+        assert isinstance(vec, gym.vector.AsyncVectorEnv)
+        obs, reset_info, infos = _roll(vec)
+        assert obs["top_rgb"].shape == (2, 48, 64, 3) and obs["top_rgb"].dtype == np.uint8
+        assert obs["top_rgb"].any()  # rendered, not an empty shared buffer
+        # calibration comes with the reset (fixed cameras), not with every step
+        assert reset_info["camera_params"]["top"]["K"].shape == (2, 3, 3)
+        assert all("camera_params" not in info for info in infos)
+    finally:
+        vec.close()
+
+
+def test_sync_and_async_give_the_same_observations():
+    kw = {"object_name": "tomato_soup_can"}
+    sync = gym.make_vec("ScorbotGrasp-v0", 2, vectorization_mode="sync", **kw)
+    asyn = gym.make_vec("ScorbotGrasp-v0", 2, **ASYNC, **kw)
+    try:
+        a, _, _ = _roll(sync)
+        b, _, _ = _roll(asyn)
+        for key in a:
+            np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+    finally:
+        sync.close()
+        asyn.close()
+
+
+def test_calibration_at_reset_matches_camera_params():
+    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", **IMAGE)
+    try:
+        _, info = env.reset(seed=0)
+        params = env.unwrapped.camera_params("top")
+        np.testing.assert_array_equal(info["camera_params"]["top"]["K"], params["K"])
+        _, _, _, _, info = env.step(env.action_space.sample())
+        assert "camera_params" not in info
+        assert env.unwrapped.camera_model("top").width == 64  # still there, on request
+    finally:
+        env.close()
