@@ -6,7 +6,9 @@ import argparse
 from pathlib import Path
 
 from pose.fileio import atomic_write_json
+from scorbot_gym.cli._args import add_name_list
 from scorbot_gym.evaluation.compare import compare, plot_comparison, policy_label
+from scorbot_gym.objects import CATALOGUE
 
 
 def _floats(text: str) -> list[float]:
@@ -50,7 +52,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pose-model", type=Path, default=None, help="for --pose manifold")
     p.add_argument("--episodes", type=int, default=50)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--objects", nargs="+", default=None, help="default: the whole catalogue")
+    add_name_list(p, "--objects", CATALOGUE, "objects (default: the whole catalogue)")
     p.add_argument(
         "--action-type",
         choices=("cartesian", "joint"),

@@ -17,8 +17,11 @@ import os
 
 from pose.fileio import atomic_write_json
 from pose.model_set import PoseModelSet
+from scorbot_gym.cli._args import add_name_list
 from scorbot_gym.evaluation.pose import evaluate, format_tables
+from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception.training import train_models
+from scorbot_gym.sim.scene import DEFAULT_CAMERAS
 
 DEFAULT_MODEL = "pose_models.npz"
 
@@ -139,14 +142,19 @@ def add_parser(subparsers) -> None:
     sub.required = True
 
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--objects", nargs="*", help="object names (default: the catalogue)")
+    add_name_list(common, "--objects", CATALOGUE, "object names (default: the catalogue)")
     common.add_argument("--cache-dir", default=None, help="view cache (default ~/.cache/...)")
     common.add_argument("--quiet", action="store_true", help="no progress bars")
 
     t = sub.add_parser("train", parents=[common], help="fit one estimator per object")
     t.add_argument("--views", type=int, default=None, help="training views per object")
     t.add_argument("--out", default=DEFAULT_MODEL, help=f"model file (default {DEFAULT_MODEL})")
-    t.add_argument("--camera", default="top")
+    t.add_argument(
+        "--camera",
+        choices=[c.name for c in DEFAULT_CAMERAS],
+        default="top",
+        help="fixed camera the models are trained for",
+    )
     t.add_argument("--width", type=int, default=640)
     t.add_argument("--height", type=int, default=480)
     t.add_argument("--seed", type=int, default=0)

@@ -12,6 +12,9 @@ import time
 
 import numpy as np
 
+from scorbot_gym.cli._args import add_name_list
+from scorbot_gym.objects import CATALOGUE
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     parser = subparsers.add_parser(
@@ -31,9 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "--per-object", type=int, default=200, metavar="N",
         help="rendered silhouettes per catalogue object (default 200)",
     )  # fmt: skip
-    ev.add_argument(
-        "--objects", metavar="A,B,...", help="rendered data: these catalogue objects only"
-    )
+    add_name_list(ev, "--objects", CATALOGUE, "rendered data: these catalogue objects only")
     ev.add_argument("--test-size", type=float, default=0.5, help="held-out fraction (0.5)")
     ev.add_argument(
         "--with-size", action="store_true",
@@ -63,7 +64,7 @@ def load_silhouettes(args: argparse.Namespace):
 
     if args.per_object < 4:
         raise ValueError(f"--per-object must be >= 4, got {args.per_object}")
-    objects = [o.strip() for o in args.objects.split(",") if o.strip()] if args.objects else None
+    objects = args.objects or None
     if objects is not None and len(objects) < 2:
         raise ValueError(f"--objects needs at least 2 objects to compare, got {args.objects!r}")
     data = render_catalogue_silhouettes(objects, n_per_object=args.per_object, seed=args.seed)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from scorbot_gym.cli._args import add_name_list
+from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.rl.training import ALGOS, POSES, TrainConfig, resume, train
 
 
@@ -19,7 +21,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pose", choices=POSES, default="oracle", help="pose source in training")
     p.add_argument("--pose-model", type=Path, default=None, help="with --pose manifold")
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
-    p.add_argument("--objects", nargs="+", default=None, help="training objects (default: all)")
+    add_name_list(p, "--objects", CATALOGUE, "training objects (default: all)")
     p.add_argument(
         "--timesteps",
         type=int,
