@@ -97,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a few episodes, to check it runs")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
     parser.add_argument("--progress", action="store_true")
+    parser.add_argument(
+        "--arms", default=None, help="comma-separated arm labels to run (default: all + curves)"
+    )
     args = parser.parse_args(argv)
     if args.quick:
         args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
@@ -131,7 +134,16 @@ def main(argv: list[str] | None = None) -> int:
         "manifold, push, estimate once": RolloutConfig(
             **manifold, disturbance="push", estimate_every=0, episodes=m_push, seed=seed
         ),
+        "manifold, appearance recognition": RolloutConfig(
+            **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
+        ),
     }
+    only = None if args.arms is None else [a.strip() for a in args.arms.split(",")]
+    if only is not None:
+        unknown = [a for a in only if a not in arms]
+        if unknown:
+            parser.error(f"unknown arms {unknown}; valid: {list(arms)}")
+        arms = {k: v for k, v in arms.items() if k in only}
     report: dict = {
         "benchmark": "closed_loop",
         "episodes_per_arm": n,
@@ -143,17 +155,18 @@ def main(argv: list[str] | None = None) -> int:
     }
     for label, config in arms.items():
         report["arms"][label] = _arm(label, config, args.progress)
-    timing = _loop_timing(arms["manifold"], max(2, n // 20))
-    report["loop_timing_320x240_one_thread"] = timing
-    print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
+    if only is None:
+        timing = _loop_timing(arms["manifold"], max(2, n // 20))
+        report["loop_timing_320x240_one_thread"] = timing
+        print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
     m = args.curve_episodes
-    for yaw in YAW_SIGMAS:
+    for yaw in YAW_SIGMAS if only is None else ():
         cfg = RolloutConfig(
             pose="noisy", noise={"yaw_sigma_deg": yaw, "pos_sigma_m": 0.0}, episodes=m, seed=seed
         )
         s = _arm(f"noisy yaw sigma {yaw:g} deg", cfg, args.progress)
         report["robustness"]["yaw"].append({"sigma": yaw, **_curve_point(s)})
-    for pos_cm in POS_SIGMAS_CM:
+    for pos_cm in POS_SIGMAS_CM if only is None else ():
         cfg = RolloutConfig(
             pose="noisy",
             noise={"yaw_sigma_deg": 0.0, "pos_sigma_m": pos_cm / 100},
@@ -169,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         "scorbot_gym": scorbot_gym.__version__,
     }
     atomic_write_json(args.out, report)
-    _plot(report, args.out.with_suffix(".png"))
+    if only is None:
+        _plot(report, args.out.with_suffix(".png"))
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
 

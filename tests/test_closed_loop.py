@@ -72,7 +72,7 @@ def test_disturbed_episode_only_the_servoing_controller_grasps():
     estimate-once controller grasps where the object was."""
     from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 
-    base = dict(pose="oracle", disturbance="push", objects=("box",), episodes=1, seed=3)
+    base = dict(pose="oracle", disturbance="push", objects=("box",), episodes=1, seed=5)
     servo, _ = run_rollout(RolloutConfig(estimate_every=1, **base))
     once, results = run_rollout(RolloutConfig(estimate_every=0, **base))
     assert servo["success_rate"] == 1.0

@@ -31,8 +31,9 @@ def test_train_then_eval(tmp_path, capsys):
 def test_bad_arguments_are_reported(tmp_path, capsys):
     assert main(["pose", "eval", "--model", str(tmp_path / "none.npz")]) == 2
     assert "no model file" in capsys.readouterr().err
-    assert main(["pose", "train", "--objects", "teapot", "--out", str(tmp_path / "x.npz")]) == 2
-    assert "valid objects" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # names are checked while parsing
+        main(["pose", "train", "--objects", "teapot", "--out", str(tmp_path / "x.npz")])
+    assert exc.value.code == 2 and "unknown 'teapot'; valid:" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["pose", "eval", "--model", "m.npz", "--occlusion", "0,abc"])
     with pytest.raises(SystemExit):

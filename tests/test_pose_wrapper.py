@@ -144,6 +144,7 @@ def test_async_vector_env_with_the_wrapper():
         "ScorbotGrasp-v0",
         num_envs=2,
         vectorization_mode="async",
+        vector_kwargs={"context": "spawn"},  # see test_vector_env: forking a rendering parent
         wrappers=[lambda e: PoseEstimateObservation(e, "noisy_oracle", estimate_every=2)],
     )
     obs, info = envs.reset(seed=[0, 1])

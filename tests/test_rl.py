@@ -175,7 +175,9 @@ def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
     (bad / "policy.json").unlink()
     with pytest.raises(FileNotFoundError, match="missing policy.json"):
         SB3Policy.load(bad)
-    assert main(["rollout", "--policy", "rl", "--episodes", "0"]) == 2
+    with pytest.raises(SystemExit) as exc:  # checked while parsing
+        main(["rollout", "--policy", "rl", "--episodes", "0"])
+    assert exc.value.code == 2
     assert main(["train"]) == 2  # neither --out nor --resume
     assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2  # no checkpoint
 

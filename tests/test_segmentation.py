@@ -97,9 +97,10 @@ def grasp_frames():
         policy = ScriptedGraspPolicy.for_env(env)
         policy.reset(obs, info)
         background = info["camera_background"]
+        params = info["camera_params"]  # fixed cameras: calibration comes with the reset
         for t in range(40):
             if t % 8 == 0:
-                frames.append((obs, info["camera_params"], background))
+                frames.append((obs, params, background))
             obs, _, term, trunc, info = env.step(policy.act(obs))
             if term or trunc:
                 break

@@ -9,7 +9,12 @@ import numpy as np
 import scorbot_gym  # noqa: F401  (registers the ids)
 
 IMAGE = {"cameras": ["top"], "image_width": 64, "image_height": 48}
-ASYNC = {"vectorization_mode": "async", "vector_kwargs": {"shared_memory": True}}
+# spawn: a forked child inherits the parent's GL and thread state (earlier tests render), which
+# can deadlock EGL in the child; see the README's note on vector envs.
+ASYNC = {
+    "vectorization_mode": "async",
+    "vector_kwargs": {"shared_memory": True, "context": "spawn"},
+}
 
 
 def _roll(vec: gym.vector.VectorEnv, steps: int = 3) -> tuple[dict, dict, list[dict]]:
