@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
     parser.add_argument("--progress", action="store_true")
     parser.add_argument(
-        "--arms", default=None, help="comma-separated arm labels to run (default: all + curves)"
+        "--arms", default=None, help="semicolon-separated arm labels to run (default: all + curves)"
     )
     args = parser.parse_args(argv)
     if args.quick:
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
         ),
     }
-    only = None if args.arms is None else [a.strip() for a in args.arms.split(",")]
+    only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]
     if only is not None:
         unknown = [a for a in only if a not in arms]
         if unknown:
