@@ -155,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     for label, config in arms.items():
         report["arms"][label] = _arm(label, config, args.progress)
+        atomic_write_json(args.out, report)  # partial results survive an interrupted run
     if only is None:
         timing = _loop_timing(arms["manifold"], max(2, n // 20))
         report["loop_timing_320x240_one_thread"] = timing

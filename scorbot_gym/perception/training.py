@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import time
 import warnings
@@ -91,7 +92,10 @@ def train_models(
     args = [(n, n_views, camera, width, height, seed, cache_dir, False, params) for n in names]
     t0 = time.perf_counter()
     if min(jobs, len(names)) > 1:
-        with ProcessPoolExecutor(max_workers=min(jobs, len(names))) as pool:
+        # Spawned, not forked: a forked child of a process that has rendered (EGL context, Mesa
+        # threads) can deadlock on its first render.
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(jobs, len(names)), mp_context=ctx) as pool:
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:
