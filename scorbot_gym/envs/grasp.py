@@ -249,7 +249,7 @@ class ScorbotGraspEnv(gym.Env):
         facts = self.task.update(self.dt) if not unstable else {"fell": False, "grasped": False}
         self._elapsed += 1
         if self._disturbance is not None and not unstable:
-            touched = any(self.robot.contacts_with(self.sim.object_geoms)) or facts["lift"] > 0.005
+            touched = facts["touched"] or facts["lift"] > 0.005  # contacts found by the task
             self._disturbance_info = self._disturbance.apply(
                 self.sim, self._elapsed, self.dt, touched
             )

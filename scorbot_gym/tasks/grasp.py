@@ -81,7 +81,13 @@ class GraspTask:
         st.success |= st.held_time >= self.hold_time - 1e-9
         fell = pos[2] < self.sim.table_height - 0.05
         reach = float(np.linalg.norm(self.robot.tcp_pos - self.grasp_point_world()))
-        return {"grasped": grasped, "lift": lift, "reach": reach, "fell": fell}
+        return {
+            "grasped": grasped,
+            "touched": bool(left or right or link_obj),
+            "lift": lift,
+            "reach": reach,
+            "fell": fell,
+        }
 
     def self_collision(self) -> bool:
         """Whether two parts of the arm touch now (e.g. the hand folded onto the column)."""
