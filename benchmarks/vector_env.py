@@ -17,8 +17,8 @@ Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 ``gymnasium.make_vec(..., vectorization_mode="async", vector_kwargs={"shared_memory": True})``
 (observations, images included, come back through shared memory; the env sends its constant
 camera calibration at reset only, so the per-step info stays small); with ``--ablations``,
-``async_cap-N`` also sets ``max_concurrency`` to the usable cores. Rendering uses Mesa's default
-threads everywhere.
+``async_cap-N`` also sets ``max_concurrency`` to the usable cores. The plain env renders with
+Mesa's default threads, vector-env workers with one each (``scorbot_gym._gl``).
 """
 
 from __future__ import annotations

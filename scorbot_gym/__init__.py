@@ -8,6 +8,7 @@ imports it for you.
 from scorbot_gym import _gl
 
 _gl.choose_backend()
+_gl.import_mjcf()
 
 from scorbot_gym.envs import ENV_IDS, ScorbotGraspEnv, register_envs  # noqa: E402
 

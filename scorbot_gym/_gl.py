@@ -3,10 +3,25 @@
 MuJoCo reads ``MUJOCO_GL`` when its rendering context is first created. With no display and no
 choice made by the user, GLFW cannot open a window, so we default to EGL, which works both on
 NVIDIA drivers and on Mesa's software rasterizer (llvmpipe) on CPU-only Linux machines.
+
+Two process-level choices follow from software rendering:
+
+* dm_control (used only to build MJCF scenes) opens an EGL display when it is imported. That
+  starts the rasterizer's threads in every process that merely imports scorbot-gym, and a
+  ``fork`` of such a process inherits a display whose threads did not survive the fork.
+  :func:`import_mjcf` imports it with its rendering disabled, so the display is opened by
+  MuJoCo's own context on the first rendered frame, in the process that renders.
+* llvmpipe rasterizes with one thread per core. A single env gains from that, but in a worker
+  process of a vector env the processes already use every core and the rasterizer threads only
+  contend with them (``benchmarks/vector_env.py`` measures both). :func:`prepare_first_context`
+  therefore asks llvmpipe for one thread in a child process (``multiprocessing.parent_process()``
+  is set) unless ``LP_NUM_THREADS`` is set; a main process keeps Mesa's default.
 """
 
 from __future__ import annotations
 
+import importlib
+import multiprocessing
 import os
 import sys
 
@@ -41,3 +56,26 @@ def choose_backend() -> str:
 
 def backend_in_use() -> str:
     return os.environ.get("MUJOCO_GL", "glfw" if sys.platform == "darwin" else "egl")
+
+
+def import_mjcf():
+    """Import ``dm_control.mjcf`` without letting dm_control open a rendering display."""
+    if "dm_control.mjcf" in sys.modules:
+        return sys.modules["dm_control.mjcf"]
+    import mujoco  # noqa: F401  (MuJoCo's own renderer reads MUJOCO_GL here: keep the backend)
+
+    saved = os.environ.get("MUJOCO_GL")
+    os.environ["MUJOCO_GL"] = "disable"  # dm_control's renderer; scorbot-gym never uses it
+    try:
+        return importlib.import_module("dm_control.mjcf")
+    finally:
+        if saved is None:
+            os.environ.pop("MUJOCO_GL", None)
+        else:
+            os.environ["MUJOCO_GL"] = saved
+
+
+def prepare_first_context() -> None:
+    """Settings read when the process opens its display (before the first GL context)."""
+    if multiprocessing.parent_process() is not None:
+        os.environ.setdefault("LP_NUM_THREADS", "1")

@@ -12,7 +12,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation import run_episode
 from scorbot_gym.evaluation.compare import newcombe_paired_diff
 from scorbot_gym.policies import ScriptedGraspPolicy
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY, ObservationNormalizer, SB3Policy
 from scorbot_gym.rl import ResidualActionWrapper, TrainConfig, resume, train
 from scorbot_gym.rl.training import build_model, make_vec_env
 from scorbot_gym.tasks import FAILURE_CAUSES
@@ -141,6 +141,27 @@ def test_shipped_policy_loads_and_acts_inside_the_action_space():
     joint = make_env("ScorbotGrasp-v0", objects=["banana"])
     with pytest.raises(ValueError, match="cartesian actions"):
         policy.bind(joint)
+
+
+def test_components_constant_in_training_are_pinned_at_inference():
+    """pose_valid was always 1 under the oracle: an estimator's 0 must not reach the network as
+    the clip value (VecNormalize's (0 - 1) / sqrt(1e-8)), but as the training value."""
+    norm = ObservationNormalizer(
+        {"pose_valid": np.array([1.0]), "object_pos": np.array([0.3, 0.0, 0.8])},
+        {"pose_valid": np.array([1e-8]), "object_pos": np.array([1e-3, 4e-3, 1e-3])},
+        clip=10.0,
+        eps=1e-8,
+    )
+    out = norm({"pose_valid": np.array([0.0]), "object_pos": np.array([0.3, 0.0, 0.85])})
+    assert out["pose_valid"].tolist() == [0.0]
+    assert out["object_pos"][2] == pytest.approx(0.05 / np.sqrt(1e-3 + 1e-8), rel=1e-5)
+    assert norm.constant["pose_valid"].all() and not norm.constant["object_pos"].any()
+    shipped = ObservationNormalizer.load(SHIPPED_POLICY / "normalize.npz").constant
+    assert {k for k, c in shipped.items() if c.any()} == {
+        "pose_valid",
+        "pose_age",
+        "pose_confidence",
+    }
 
 
 def test_shipped_policy_on_a_user_added_object(user_object):

@@ -1,5 +1,10 @@
 """Cameras: intrinsics and extrinsics match what MuJoCo renders; headless GL selection."""
 
+import os
+import subprocess
+import sys
+import tempfile
+
 import numpy as np
 import pytest
 
@@ -108,3 +113,48 @@ def test_no_working_backend_gives_one_error_saying_what_to_install():
     )
     assert "ERROR:" in out.stdout, out.stderr[-2000:]
     assert "apt-get install libegl1" in out.stdout and "MUJOCO_GL=egl" in out.stdout
+
+
+def test_import_opens_no_display_and_a_worker_renders_on_one_thread():
+    """Importing opens no EGL display (a fork after import inherits no rasterizer); a child
+    process's first frame sets one llvmpipe thread unless the user chose; the parent keeps
+    Mesa's default. (A fork *after* rendering is still unsafe with software GL: use spawn.)"""
+    code = (
+        "import multiprocessing as mp, os, sys\n"
+        "import scorbot_gym\n"
+        "from scorbot_gym.sim import Simulation\n"
+        "def child(q):\n"
+        "    Simulation('box', render_width=64, render_height=48).render('top')\n"
+        "    q.put(os.environ.get('LP_NUM_THREADS'))\n"
+        "if __name__ == '__main__':\n"
+        "    assert 'dm_control._render.pyopengl.egl_renderer' not in sys.modules\n"
+        "    ctx = mp.get_context('fork'); q = ctx.Queue()\n"
+        "    p = ctx.Process(target=child, args=(q,))\n"
+        "    p.start()\n"
+        "    child_threads = q.get()\n"
+        "    p.join()\n"
+        "    Simulation('box', render_width=64, render_height=48).render('top')\n"
+        "    print(os.environ.get('LP_NUM_THREADS'), child_threads)\n"
+    )
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "probe.py")
+        with open(path, "w") as f:
+            f.write(code)
+        env = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"}
+        out = subprocess.run(
+            [sys.executable, path],
+            env={**env, "MUJOCO_GL": "egl"},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split() == ["None", "1"]
+        out = subprocess.run(
+            [sys.executable, path],
+            env={**env, "MUJOCO_GL": "egl", "LP_NUM_THREADS": "2"},
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert out.stdout.split() == ["2", "2"], out.stderr

@@ -39,17 +39,35 @@ def _algorithms() -> dict[str, Any]:
 
 class ObservationNormalizer:
     """``clip((x - mean) / sqrt(var + eps), -clip, clip)`` per observation entry (as
-    ``VecNormalize``), from arrays; entries without statistics pass unchanged."""
+    ``VecNormalize``), from arrays; entries without statistics pass unchanged.
+
+    Components that never varied in training (variance below ``CONSTANT_VAR``, e.g.
+    ``pose_valid``, ``pose_confidence`` and ``pose_age`` under the oracle pose) are pinned to
+    their training value, 0 after normalisation: the network never saw them change, so it
+    cannot have learned what a change means, and ``VecNormalize`` would turn any deviation
+    into the clip value (a 0 instead of 1 becomes -10). A policy trained with the oracle then
+    reads an estimator's held, low-confidence estimate the way the scripted controller does:
+    as the object's pose.
+    """
+
+    #: variance under which a component counts as constant in training (std 1e-3)
+    CONSTANT_VAR = 1e-6
 
     def __init__(
         self, mean: dict[str, np.ndarray], var: dict[str, np.ndarray], clip: float, eps: float
     ) -> None:
         self.mean, self.var, self.clip, self.eps = mean, var, float(clip), float(eps)
 
+    @property
+    def constant(self) -> dict[str, np.ndarray]:
+        """Per entry, which components were constant in training (pinned at inference)."""
+        return {k: np.asarray(v) < self.CONSTANT_VAR for k, v in self.var.items()}
+
     def __call__(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         out = dict(obs)
         for k, m in self.mean.items():
             x = (np.asarray(obs[k], np.float64) - m) / np.sqrt(self.var[k] + self.eps)
+            x = np.where(np.asarray(self.var[k]) < self.CONSTANT_VAR, 0.0, x)
             out[k] = np.clip(x, -self.clip, self.clip).astype(np.float32)
         return out
 

@@ -101,6 +101,7 @@ class SceneRenderer:
         return self._model
 
     def _build(self, model: mujoco.MjModel) -> None:
+        _gl.prepare_first_context()
         from mujoco.rendering.classic import gl_context
 
         self._gl = gl_context.GLContext(self.width, self.height)
