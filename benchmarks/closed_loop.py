@@ -118,7 +118,10 @@ def main(argv: list[str] | None = None) -> int:
 
     n, seed = args.episodes, args.seed
     m_push = args.push_episodes
-    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    # the arms of closed_loop.json recognise with FLR alone; the default is "flr+appearance"
+    manifold = dict(
+        pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize, recognizer="flr"
+    )
     arms = {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
@@ -136,6 +139,9 @@ def main(argv: list[str] | None = None) -> int:
         ),
         "manifold, appearance recognition": RolloutConfig(
             **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
+        ),
+        "manifold, FLR shortlist + appearance recognition": RolloutConfig(
+            **{**manifold, "recognizer": "flr+appearance"}, episodes=n, seed=seed
         ),
     }
     only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]

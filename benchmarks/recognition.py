@@ -1,4 +1,4 @@
-"""Object recognition vs occlusion: silhouette FLR (top, top + side) and appearance.
+"""Object recognition vs occlusion: silhouette FLR (top, top + side), appearance, and both.
 
 Target (issue 8): recognition at 50 % occlusion >= 95 %.
 
@@ -15,7 +15,9 @@ part of the mask (what a perfect segmenter would give):
   ``top_side`` fuses both cameras' class costs;
 - ``appearance_top``: :class:`pose.recognition.AppearanceRecognizer`: the object whose pose
   model (trained on the whole catalogue, top camera, 320 x 240) explains the most RANSAC
-  inliers of the top view.
+  inliers of the top view;
+- ``flr_shortlist_appearance``: :class:`pose.recognition.ShortlistRecognizer`: the three best
+  classes of ``flr_top_side``, decided among by appearance (``recognizer="flr+appearance"``).
 
 Chance level is ``1 / n_objects``. Writes ``benchmarks/results/recognition.json`` and
 ``recognition.png``. Run: ``MUJOCO_GL=egl python benchmarks/recognition.py``.
@@ -34,11 +36,12 @@ import cv2
 import numpy as np
 
 from pose.fileio import atomic_write_json
+from pose.recognition import ShortlistRecognizer
 from pose.view import View
 from scorbot_gym.data.shapes import scene_cameras
 from scorbot_gym.data.views import occlude
 from scorbot_gym.objects import CATALOGUE
-from scorbot_gym.perception.recognizers import make_recognizer
+from scorbot_gym.perception.recognizers import SHORTLIST_LENGTH, make_recognizer
 from scorbot_gym.perception.training import train_models
 from scorbot_gym.sim import Simulation
 from scorbot_gym.sim.scene import WORKSPACE_X, WORKSPACE_Y
@@ -87,10 +90,11 @@ def main(argv: list[str] | None = None) -> int:
     models, _ = train_models(args.objects, width=w, height=h, jobs=2, progress=False)
     flr = make_recognizer("flr", models, ("top", "side"), w, h)
     appearance = make_recognizer("appearance", models, ("top",), w, h)
+    shortlist = ShortlistRecognizer(flr, appearance, SHORTLIST_LENGTH)
     setup_s = time.perf_counter() - t0
 
     rng = np.random.default_rng(args.seed)
-    methods = ("flr_top", "flr_top_side", "appearance_top")
+    methods = ("flr_top", "flr_top_side", "appearance_top", "flr_shortlist_appearance")
     hits = {m: {lv: [] for lv in LEVELS} for m in methods}
     achieved = {lv: [] for lv in LEVELS}
     confusion = {m: {} for m in methods}
@@ -112,7 +116,12 @@ def main(argv: list[str] | None = None) -> int:
                 img, visible, cm = seen["top"]
                 answers["appearance_top"] = appearance.recognize(View(img, cm, visible)).label
                 t3 = time.perf_counter()
-                for m, dt in zip(methods, (t1 - t, t2 - t1, t3 - t2), strict=True):
+                masks = {c: v[1] for c, v in seen.items()}
+                answers["flr_shortlist_appearance"] = shortlist.recognize(
+                    masks, View(img, cm, visible)
+                ).label
+                t4 = time.perf_counter()
+                for m, dt in zip(methods, (t1 - t, t2 - t1, t3 - t2, t4 - t3), strict=True):
                     ms[m].append(1e3 * dt)
                 for m in methods:
                     hits[m][level].append(answers[m] == name)

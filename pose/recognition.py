@@ -11,6 +11,8 @@ Two recognisers with one answer type, :class:`Recognition`:
   so a half-hidden object is still recognised from what is left of it; when too few
   keypoints are left for any pose, :class:`DescriptorVoteRecognizer` (nearest training
   descriptor across all objects, ratio-tested) answers instead.
+- :class:`ShortlistRecognizer`: the silhouette classifier's few best classes, decided among
+  by appearance.
 
 :class:`RecognitionMemory` is the policy for using either in a control loop: the arm itself
 hides the object during a grasp, so recognise while the view is clear (silhouette away from
@@ -234,9 +236,12 @@ class AppearanceRecognizer:
             fallback = DescriptorVoteRecognizer(self.estimators) if has_db else None
         self.fallback = fallback
 
-    def recognize(self, view: Any) -> Recognition:
+    def recognize(self, view: Any, classes: Sequence[str] | None = None) -> Recognition:
+        """The best class among ``classes`` (default: all), by RANSAC inliers."""
         costs, estimates = {}, {}
-        for name, est in self.estimators.items():
+        names = list(self.estimators) if classes is None else list(classes)
+        for name in names:
+            est = self.estimators[name]
             v = view
             if dataclasses.is_dataclass(view) and hasattr(view, "object_name"):
                 v = dataclasses.replace(view, object_name=name)
@@ -244,10 +249,41 @@ class AppearanceRecognizer:
             estimates[name] = out
             costs[name] = -float(out.n_inliers) if out.valid else np.inf
         result = Recognition.from_costs(costs, estimates=estimates)
-        if result.label is None and self.fallback is not None:
+        if result.label is None and self.fallback is not None and classes is None:
             voted = self.fallback.recognize(view)
             return dataclasses.replace(voted, estimates=estimates)
         return result
+
+
+class ShortlistRecognizer:
+    """Silhouettes shortlist, appearance decides: FLR's ``k`` best classes are checked by their
+    pose models, and the one explaining the most RANSAC inliers wins.
+
+    The silhouette classifier is cheap and usually right (its misses are classes of similar
+    outline: a disc from above is a can, a ball or a cylinder), while appearance tells such
+    classes apart by their texture but costs one pose estimate per class. Asking appearance
+    only about the shortlist keeps the shape classifier in charge of what is plausible and
+    costs ``k`` estimates instead of one per catalogue object. When no shortlisted class gives
+    a valid estimate (too few keypoints), the silhouette answer stands.
+
+    ``recognize(masks, view)`` takes both inputs (``reads == "silhouettes+view"``).
+    """
+
+    reads = "silhouettes+view"
+
+    def __init__(self, silhouettes: Any, appearance: AppearanceRecognizer, k: int = 3) -> None:
+        if int(k) < 1:
+            raise ValueError(f"k (shortlist length) must be >= 1, got {k!r}")
+        self.silhouettes, self.appearance, self.k = silhouettes, appearance, int(k)
+
+    def recognize(self, masks: Mapping[str, np.ndarray | None], view: Any) -> Recognition:
+        shape = self.silhouettes.recognize(masks)
+        if shape.label is None:
+            return self.appearance.recognize(view)
+        finite = {c: v for c, v in shape.costs.items() if np.isfinite(v)}
+        shortlist = sorted(finite, key=finite.get)[: self.k]
+        checked = self.appearance.recognize(view, classes=shortlist)
+        return checked if checked.label is not None else shape
 
 
 def view_is_clear(

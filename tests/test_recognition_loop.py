@@ -10,6 +10,7 @@ from pose.recognition import (
     DescriptorVoteRecognizer,
     Recognition,
     RecognitionMemory,
+    ShortlistRecognizer,
     SilhouetteRecognizer,
     view_is_clear,
 )
@@ -70,6 +71,47 @@ def test_silhouette_recognizer_fuses_cameras():
         SilhouetteRecognizer().fit({"a": train.masks}, {"a": train.labels[:3]})
 
 
+class _Shape:
+    """A silhouette recogniser with fixed class costs."""
+
+    reads = "silhouettes"
+
+    def __init__(self, costs):
+        self.costs = costs
+
+    def recognize(self, masks):
+        return Recognition.from_costs(self.costs)
+
+
+class _Estimator:
+    def __init__(self, inliers, asked):
+        self.inliers, self.asked = inliers, asked
+
+    def predict(self, view):
+        self.asked.append(self)
+        return type("Est", (), {"valid": self.inliers > 0, "n_inliers": self.inliers})()
+
+
+def test_shortlist_lets_appearance_decide_among_the_shape_classifiers_best():
+    asked = []
+    inliers = {"can": 5, "ball": 40, "cylinder": 0, "banana": 99}
+    appearance = AppearanceRecognizer(
+        {k: _Estimator(v, asked) for k, v in inliers.items()}, fallback=None
+    )
+    shape = _Shape({"can": 0.0, "ball": 0.2, "cylinder": 0.3, "banana": 5.0})
+    rec = ShortlistRecognizer(shape, appearance, k=3)
+    result = rec.recognize({"top": None}, view=object())
+    assert result.label == "ball"  # the most inliers among the 3 best outlines
+    assert len(asked) == 3  # the banana's model was never run
+    none_valid = ShortlistRecognizer(shape, appearance, k=1)
+    none_valid.silhouettes = _Shape({"cylinder": 0.0, "can": 1.0})
+    assert none_valid.recognize({}, view=object()).label == "cylinder"  # the outline stands
+    blind = ShortlistRecognizer(_Shape({"can": np.inf}), appearance)
+    assert blind.recognize({}, view=object()).label == "banana"  # no outline: all by appearance
+    with pytest.raises(ValueError, match="shortlist"):
+        ShortlistRecognizer(shape, appearance, k=0)
+
+
 @pytest.fixture(scope="module")
 def models():
     return train_models(OBJECTS, n_views=72, progress=False)[0]
@@ -105,9 +147,14 @@ def _records(env, seed, steps=12):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("recognizer", ["appearance", "flr"])
+@pytest.mark.parametrize("recognizer", ["appearance", "flr", "flr+appearance"])
 def test_recognize_in_the_loop(models, flr, recognizer):
-    env = _env(models, flr if recognizer == "flr" else "appearance", cameras=["top", "side"])
+    chosen = {
+        "appearance": "appearance",
+        "flr": flr,
+        "flr+appearance": ShortlistRecognizer(flr, AppearanceRecognizer(models.estimators), k=1),
+    }[recognizer]
+    env = _env(models, chosen, cameras=["top", "side"])
     assert {"top_rgb", "side_rgb"} <= set(env.unwrapped.observation_space.spaces)
     for seed in (0, 1):
         obs, recs = _records(env, seed)

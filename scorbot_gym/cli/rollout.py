@@ -74,8 +74,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--recognizer",
         choices=RECOGNIZERS,
-        default="flr",
-        help="with --recognize: flr (silhouettes) or appearance (the model with most inliers)",
+        default="flr+appearance",
+        help="with --recognize: flr (silhouettes), appearance (the model with most inliers) or "
+        "flr+appearance (default: FLR's three best classes, decided by appearance)",
     )
     p.add_argument(
         "--recognize",

@@ -26,7 +26,8 @@ class RolloutConfig:
     ``pose_cameras[0]`` are trained on first use and cached. The manifold source estimates from
     the first pose camera and recognises on all of them (default: ``top``, plus ``side`` when
     ``recognize``: the top view alone confuses discs and squares). ``segmenter`` and
-    ``recognizer`` name the source's components (defaults: background subtraction, FLR).
+    ``recognizer`` name the source's components (defaults: background subtraction, FLR
+    shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
     ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy) or
     the directory of a policy exported by ``scorbot-gym train``; ``action_type=None`` takes
@@ -39,7 +40,7 @@ class RolloutConfig:
     pose_cameras: tuple[str, ...] | None = None
     pose_size: tuple[int, int] = (320, 240)
     segmenter: str = "background"
-    recognizer: str = "flr"
+    recognizer: str = "flr+appearance"
     recognize: bool = False
     estimate_every: int = 1
     disturbance: str | None = None

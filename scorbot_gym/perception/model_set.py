@@ -6,7 +6,8 @@ converts the camera-frame answer to the world frame with the camera's public cal
 
 Recognition (when the wrapper withholds the identity, ``identity="recognize"``) uses a
 recogniser by name (:mod:`scorbot_gym.perception.recognizers`: ``"flr"`` on the silhouettes of
-all ``cameras``, fused; ``"appearance"``: the model explaining the most inliers) under a
+all ``cameras``, fused; ``"appearance"``: the model explaining the most inliers;
+``"flr+appearance"``: appearance deciding among FLR's three best) under a
 :class:`pose.recognition.RecognitionMemory`: the first confident answer from a clear view is
 kept for the episode, since the arm hides the object later in a grasp.
 """
@@ -46,10 +47,11 @@ class ModelSetPoseSource:
         Cameras to use; the pose comes from the model set's camera (added first if missing),
         the others serve recognition (e.g. ``("top", "side")``).
     recognizer
-        Used only when the identity is withheld: ``"flr"`` (default), ``"appearance"`` or an
-        object with ``recognize`` (taking ``{camera: mask}`` if its ``reads`` is
-        ``"silhouettes"``, else a :class:`pose.view.View`); built on the first reset that
-        needs it.
+        Used only when the identity is withheld: ``"flr+appearance"`` (default: FLR's three
+        best classes, decided by appearance), ``"flr"``, ``"appearance"`` or an object with
+        ``recognize`` (taking ``{camera: mask}`` if its ``reads`` is ``"silhouettes"``, both
+        if ``"silhouettes+view"``, else a :class:`pose.view.View`); built on the first reset
+        that needs it.
     memory
         When to keep a recognition (default :class:`RecognitionMemory`: first clear view).
     clear_min_area
@@ -61,7 +63,7 @@ class ModelSetPoseSource:
         models: PoseModelSet | str | os.PathLike,
         segmenter: Segmenter | str = "background",
         cameras: Sequence[str] | None = None,
-        recognizer: str | Any = "flr",
+        recognizer: str | Any = "flr+appearance",
         memory: RecognitionMemory | None = None,
         clear_min_area: int = 200,
     ) -> None:
@@ -120,11 +122,12 @@ class ModelSetPoseSource:
         if self.memory.kept is not None:
             return None
         rec = self._recognizer
-        if getattr(rec, "reads", "view") == "silhouettes":  # masks of all cameras
+        reads = getattr(rec, "reads", "view")
+        if reads in ("silhouettes", "silhouettes+view"):  # masks of all cameras
             masks = {self.camera: view.mask}
             for cam in self.cameras[1:]:
                 masks[cam] = self.segmenter.segment(frame, cam)
-            result = rec.recognize(masks)
+            result = rec.recognize(masks) if reads == "silhouettes" else rec.recognize(masks, view)
             clear = all(self._clear(masks[c], c) for c in masks)
         else:
             result = rec.recognize(view)

@@ -1,4 +1,5 @@
-"""Recognisers for the pose sources, by name: ``"flr"`` (silhouettes) and ``"appearance"``.
+"""Recognisers for the pose sources, by name: ``"flr"`` (silhouettes), ``"appearance"`` and
+``"flr+appearance"`` (FLR shortlists three classes, appearance decides among them).
 
 ``"flr"`` trains one FLR classifier per camera on silhouettes the simulator renders from the
 scene's own ``top`` / ``side`` cameras at the env's image size (objects anywhere in the
@@ -16,11 +17,13 @@ from typing import Any
 import numpy as np
 
 from pose.model_set import PoseModelSet
-from pose.recognition import AppearanceRecognizer, SilhouetteRecognizer
+from pose.recognition import AppearanceRecognizer, ShortlistRecognizer, SilhouetteRecognizer
 from pose.shape.descriptors import block_weights
 from pose.shape.flr import FLRClassifier
 
-RECOGNIZERS = ("flr", "appearance")
+RECOGNIZERS = ("flr", "appearance", "flr+appearance")
+#: classes FLR shortlists for appearance to decide among (``"flr+appearance"``)
+SHORTLIST_LENGTH = 3
 #: FLR settings tuned by the shape-recognition benchmark (ART block weighted 3x)
 FLR_PARAMS = {"vigilance": 0.97, "feature_weights": block_weights(art=3.0)}
 
@@ -74,4 +77,7 @@ def make_recognizer(
         return train_silhouette_recognizer(models.object_names, cameras, width, height, seed=seed)
     if recognizer == "appearance":
         return AppearanceRecognizer(models.estimators)
+    if recognizer == "flr+appearance":
+        flr = train_silhouette_recognizer(models.object_names, cameras, width, height, seed=seed)
+        return ShortlistRecognizer(flr, AppearanceRecognizer(models.estimators), SHORTLIST_LENGTH)
     raise ValueError(f"unknown recognizer {recognizer!r}; valid: {', '.join(RECOGNIZERS)}")
