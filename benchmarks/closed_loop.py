@@ -122,6 +122,8 @@ def main(argv: list[str] | None = None) -> int:
     manifold = dict(
         pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize, recognizer="flr"
     )
+    # the side camera estimates where the top camera's view is hidden; default recogniser
+    fallback = {**manifold, "recognizer": "flr+appearance", "fallback_cameras": ("side",)}
     arms = {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
@@ -140,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
         "manifold, appearance recognition": RolloutConfig(
             **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
         ),
+        "manifold, push, servoing, side fallback": RolloutConfig(
+            **fallback, disturbance="push", episodes=m_push, seed=seed
+        ),
+        "manifold, side fallback": RolloutConfig(**fallback, episodes=n, seed=seed),
         "manifold, FLR shortlist + appearance recognition": RolloutConfig(
             **{**manifold, "recognizer": "flr+appearance"}, episodes=n, seed=seed
         ),

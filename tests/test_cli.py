@@ -61,6 +61,10 @@ def test_rollout_rejects_bad_input_before_running(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
     assert main(["rollout", "--yaw-sigma-deg", "5", "--no-progress"]) == 2
     assert "only apply to pose 'noisy_oracle'" in capsys.readouterr().err
+    assert main(["rollout", "--fallback-camera", "side", "--no-progress"]) == 2
+    assert "only apply to pose 'manifold'" in capsys.readouterr().err
+    assert main(["rollout", "--pose", "manifold", "--fallback-camera", "top"]) == 2
+    assert "must differ from the pose camera" in capsys.readouterr().err
 
 
 def test_rollout_help_lists_objects_and_cameras(capsys):

@@ -251,3 +251,23 @@ def test_descriptor_votes_recognise_a_half_hidden_object(models):
     with pytest.raises(ValueError, match="ratio"):
         DescriptorVoteRecognizer(models.estimators, ratio=0.0)
     env.close()
+
+
+@pytest.mark.slow
+def test_fallback_camera_estimates_where_the_top_view_is_hidden(models):
+    """With the top camera blind, the side camera's models give the pose (same object)."""
+    side = train_models(OBJECTS, n_views=72, camera="side", progress=False)[0]
+    source = ModelSetPoseSource(models, segmenter="background", fallback_models=[side])
+    assert source.cameras == ("top", "side")
+    base = gym.make("ScorbotGrasp-v0", objects=OBJECTS, **source.env_requirements)
+    env = PoseEstimateObservation(_Blind(base, "blank"), source, identity="given")
+    obs, info = env.reset(seed=0)
+    rec = info["perception"]
+    assert obs["pose_valid"][0] == 1.0 and rec["camera"] == "side"
+    assert rec["pos_err_cm"] < 3.0 and "estimate_side" in rec["timings_ms"]
+    alone = ModelSetPoseSource(models, segmenter="background")
+    blind = PoseEstimateObservation(_Blind(base, "blank"), alone, identity="given")
+    assert blind.reset(seed=0)[0]["pose_valid"][0] == 0.0
+    with pytest.raises(ValueError, match="other cameras"):
+        ModelSetPoseSource(models, fallback_models=[models])
+    env.close()

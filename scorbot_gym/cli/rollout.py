@@ -65,6 +65,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "uses all (default: top, plus side with --recognize)",
     )
     p.add_argument(
+        "--fallback-camera",
+        dest="fallback_cameras",
+        action="append",
+        choices=CAMERAS,
+        default=None,
+        help="for --pose manifold, repeatable: a camera with default pose models of its own that "
+        "estimates where the pose camera's estimate is invalid (e.g. side: the arm hides the "
+        "object from the top camera during the grasp)",
+    )
+    p.add_argument(
         "--segmenter",
         choices=segmenter_names(),
         default="background",
@@ -145,6 +155,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         pose=args.pose,
         pose_model=str(args.pose_model) if args.pose_model else None,
         pose_cameras=tuple(args.pose_cameras) if args.pose_cameras else None,
+        fallback_cameras=tuple(args.fallback_cameras or ()),
         segmenter=args.segmenter,
         recognizer=args.recognizer,
         recognize=args.recognize,

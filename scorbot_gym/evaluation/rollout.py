@@ -25,9 +25,10 @@ class RolloutConfig:
     ``pose_model`` is a model file for ``pose="manifold"``; without it the default models for
     ``pose_cameras[0]`` are trained on first use and cached. The manifold source estimates from
     the first pose camera and recognises on all of them (default: ``top``, plus ``side`` when
-    ``recognize``: the top view alone confuses discs and squares). ``segmenter`` and
-    ``recognizer`` name the source's components (defaults: background subtraction, FLR
-    shortlisting three classes that appearance decides among).
+    ``recognize``: the top view alone confuses discs and squares); ``fallback_cameras`` get
+    default pose models of their own and estimate where the pose camera's estimate is invalid.
+    ``segmenter`` and ``recognizer`` name the source's components (defaults: background
+    subtraction; FLR shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
     ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy) or
     the directory of a policy exported by ``scorbot-gym train``; ``action_type=None`` takes
@@ -38,6 +39,7 @@ class RolloutConfig:
     pose: str = "oracle"
     pose_model: str | None = None
     pose_cameras: tuple[str, ...] | None = None
+    fallback_cameras: tuple[str, ...] = ()
     pose_size: tuple[int, int] = (320, 240)
     segmenter: str = "background"
     recognizer: str = "flr+appearance"
@@ -75,6 +77,13 @@ class RolloutConfig:
         self.pose_cameras = tuple(self.pose_cameras)
         if not self.pose_cameras:
             raise ValueError("pose_cameras must name at least one camera")
+        self.fallback_cameras = tuple(self.fallback_cameras)
+        if self.fallback_cameras and self.pose != "manifold":
+            raise ValueError(f"fallback_cameras only apply to pose 'manifold', not {self.pose!r}")
+        if self.pose_cameras[0] in self.fallback_cameras:
+            raise ValueError(
+                f"fallback_cameras must differ from the pose camera {self.pose_cameras[0]!r}"
+            )
 
     @property
     def env_id(self) -> str:
@@ -85,19 +94,24 @@ class RolloutConfig:
             return dict(self.noise)
         if self.pose != "manifold":
             return {}
+        from scorbot_gym.perception.training import default_pose_models
+
+        w, h = self.pose_size
         if self.pose_model is not None:
             models: Any = self.pose_model
         else:
-            from scorbot_gym.perception.training import default_pose_models
-
-            w, h = self.pose_size
             models = default_pose_models(self.pose_cameras[0], w, h, progress=progress)
-        return {
+        kwargs = {
             "models": models,
             "segmenter": self.segmenter,
             "recognizer": self.recognizer,
             "cameras": list(self.pose_cameras),
         }
+        if self.fallback_cameras:
+            kwargs["fallback_models"] = [
+                default_pose_models(c, w, h, progress=progress) for c in self.fallback_cameras
+            ]
+        return kwargs
 
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""

@@ -56,6 +56,10 @@ class ModelSetPoseSource:
         When to keep a recognition (default :class:`RecognitionMemory`: first clear view).
     clear_min_area
         Pixels a silhouette needs (in every camera used) for its view to count as clear.
+    fallback_models
+        Model sets (or files) of other cameras at the same image size, tried in order where
+        the primary camera's estimate is invalid: during a grasp the arm hides the object from
+        above, while a side camera still sees it.
     """
 
     def __init__(
@@ -66,15 +70,26 @@ class ModelSetPoseSource:
         recognizer: str | Any = "flr+appearance",
         memory: RecognitionMemory | None = None,
         clear_min_area: int = 200,
+        fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
     ) -> None:
-        self.models = models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
+        self.models = _load(models)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
         self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
+        self.fallback_models = tuple(_load(m) for m in fallback_models)
+        for fb in self.fallback_models:
+            size = (int(fb.meta.get("width", 640)), int(fb.meta.get("height", 480)))
+            if size != (self.width, self.height) or fb.meta.get("camera") in (None, self.camera):
+                raise ValueError(
+                    "fallback_models must be model sets of other cameras at the primary's image "
+                    f"size {self.width}x{self.height}, got camera {fb.meta.get('camera')!r} at "
+                    f"{size[0]}x{size[1]}"
+                )
         self.segmenter = make_segmenter(segmenter)
         if isinstance(cameras, str):
             raise ValueError(f"cameras must be a list of camera names, got the string {cameras!r}")
         extra = [c for c in (cameras or ()) if c != self.camera]
+        extra += [str(fb.meta["camera"]) for fb in self.fallback_models]
         self.cameras = (self.camera, *dict.fromkeys(extra))
         self.recognizer = recognizer
         self.memory = memory if memory is not None else RecognitionMemory()
@@ -136,6 +151,33 @@ class ModelSetPoseSource:
         return result
 
     def estimate(self, frame: PerceptionFrame) -> WorldPose:
+        """The primary camera's estimate; where it is invalid (e.g. the arm hides the object
+        from above), the first valid one of the fallback cameras, for the same object."""
+        pose = self._estimate_primary(frame)
+        if pose.valid or pose.object_name is None:
+            return pose
+        for models in self.fallback_models:
+            alt = self._estimate_with(models, frame, pose.object_name, dict(pose.timings_ms))
+            if alt.valid:
+                return alt
+        return pose
+
+    def _estimate_with(
+        self, models: PoseModelSet, frame: PerceptionFrame, name: str, timings: dict
+    ) -> WorldPose:
+        cam_name = str(models.meta["camera"])
+        t0 = time.perf_counter()
+        mask = self.segmenter.segment(frame, cam_name)
+        timings[f"segment_{cam_name}"] = (time.perf_counter() - t0) * 1e3
+        if mask is None:
+            return WorldPose.invalid("no object in view", object_name=name, timings_ms=timings)
+        cam = frame.cameras[cam_name]
+        view = View(np.asarray(frame.observation[f"{cam_name}_rgb"]), cam, mask, name)
+        est = models.predict(view)
+        timings[f"estimate_{cam_name}"] = est.timings_ms.get("total", 0.0)
+        return _world_pose(est, cam, name, timings, cam_name)
+
+    def _estimate_primary(self, frame: PerceptionFrame) -> WorldPose:
         cam_name = self.camera
         t0 = time.perf_counter()
         mask = self.segmenter.segment(frame, cam_name)
@@ -176,16 +218,25 @@ class ModelSetPoseSource:
             est = self.models.predict(view)
             timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
             timings["estimate"] = est.timings_ms.get("total", 0.0)
-        common = dict(
-            object_name=name,
-            n_keypoints=est.n_keypoints,
-            n_inliers=est.n_inliers,
-            timings_ms=timings,
-            camera=cam_name,
-        )
-        if not est.valid:
-            return WorldPose.invalid(est.reason, **common)
-        T = cam.world_from_camera
-        R_world = T[:3, :3] @ est.rotation
-        t_world = T[:3, :3] @ est.translation + T[:3, 3]
-        return WorldPose(t_world, mat_to_quat(R_world), True, est.confidence, **common)
+        return _world_pose(est, cam, name, timings, cam_name)
+
+
+def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:
+    return models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
+
+
+def _world_pose(est: Any, cam: Any, name: str, timings: dict, cam_name: str) -> WorldPose:
+    """A camera-frame estimate in the world frame, through the camera's public extrinsics."""
+    common = dict(
+        object_name=name,
+        n_keypoints=est.n_keypoints,
+        n_inliers=est.n_inliers,
+        timings_ms=timings,
+        camera=cam_name,
+    )
+    if not est.valid:
+        return WorldPose.invalid(est.reason, **common)
+    T = cam.world_from_camera
+    R_world = T[:3, :3] @ est.rotation
+    t_world = T[:3, :3] @ est.translation + T[:3, 3]
+    return WorldPose(t_world, mat_to_quat(R_world), True, est.confidence, **common)

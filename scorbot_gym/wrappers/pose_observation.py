@@ -214,6 +214,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             "total_ms": None,
             "timings_ms": {},
             "reason": "",
+            "camera": None,
         }
         if est is None:
             return rec
@@ -224,6 +225,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             timings_ms=dict(est.timings_ms),
             total_ms=float(sum(est.timings_ms.get(k, 0.0) for k in _TOP_LEVEL_STAGES)),
             reason=est.reason,
+            camera=est.camera,
         )
         if rec["valid"]:
             spec = get_object(true_name)
