@@ -14,6 +14,7 @@ kept for the episode, since the arm hides the object later in a grasp.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from collections.abc import Sequence
@@ -156,11 +157,12 @@ class ModelSetPoseSource:
         pose = self._estimate_primary(frame)
         if pose.valid or pose.object_name is None:
             return pose
+        timings = dict(pose.timings_ms)  # shared: the fallbacks' times add up under "fallback"
         for models in self.fallback_models:
-            alt = self._estimate_with(models, frame, pose.object_name, dict(pose.timings_ms))
+            alt = self._estimate_with(models, frame, pose.object_name, timings)
             if alt.valid:
                 return alt
-        return pose
+        return dataclasses.replace(pose, timings_ms=timings) if self.fallback_models else pose
 
     def _estimate_with(
         self, models: PoseModelSet, frame: PerceptionFrame, name: str, timings: dict
@@ -168,13 +170,17 @@ class ModelSetPoseSource:
         cam_name = str(models.meta["camera"])
         t0 = time.perf_counter()
         mask = self.segmenter.segment(frame, cam_name)
-        timings[f"segment_{cam_name}"] = (time.perf_counter() - t0) * 1e3
-        if mask is None:
+        t1 = time.perf_counter()
+        timings[f"segment_{cam_name}"] = (t1 - t0) * 1e3
+        est = None
+        if mask is not None:
+            cam = frame.cameras[cam_name]
+            view = View(np.asarray(frame.observation[f"{cam_name}_rgb"]), cam, mask, name)
+            est = models.predict(view)
+            timings[f"estimate_{cam_name}"] = (time.perf_counter() - t1) * 1e3
+        timings["fallback"] = timings.get("fallback", 0.0) + (time.perf_counter() - t0) * 1e3
+        if est is None:
             return WorldPose.invalid("no object in view", object_name=name, timings_ms=timings)
-        cam = frame.cameras[cam_name]
-        view = View(np.asarray(frame.observation[f"{cam_name}_rgb"]), cam, mask, name)
-        est = models.predict(view)
-        timings[f"estimate_{cam_name}"] = est.timings_ms.get("total", 0.0)
         return _world_pose(est, cam, name, timings, cam_name)
 
     def _estimate_primary(self, frame: PerceptionFrame) -> WorldPose:
