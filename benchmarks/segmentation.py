@@ -138,7 +138,6 @@ def stage_timings(models, objects, steps: int, w: int, h: int) -> dict:
     seg = BackgroundSegmenter()
     flr = make_recognizer("flr", models, CAMERAS, w, h)
     appearance = make_recognizer("appearance", models, CAMERAS, w, h)
-    sim = env.unwrapped.sim  # only to time the renders the env does each step
     times: dict[str, list[tuple[float, float]]] = {}
 
     def timed(stage, fn, *args):
@@ -146,8 +145,9 @@ def stage_timings(models, objects, steps: int, w: int, h: int) -> dict:
         times.setdefault(stage, []).append((wall, cpu))
         return out
 
-    def render_all():
-        return [sim.render(c, "rgb") for c in CAMERAS]
+    def render_all():  # the renders the env does each step, at the observation size
+        sim = env.unwrapped.sim  # this episode's scene (another object's would re-upload it)
+        return [sim.render(c, "rgb", w, h) for c in CAMERAS]
 
     def fused(frame, mask):
         return flr.recognize({"top": mask, "side": seg.segment(frame, "side")})
