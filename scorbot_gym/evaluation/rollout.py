@@ -128,12 +128,15 @@ class RolloutConfig:
         )
 
     def _learned(self):
-        """The SB3 policy this configuration runs, if any (loaded with clear errors)."""
+        """The SB3 policy this configuration runs, if any (loaded once, with clear errors)."""
         if self.policy in ("scripted", "random"):
             return None
-        from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+        if "_loaded_policy" not in self.__dict__:  # not a field: stays out of to_dict()
+            from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
 
-        return SB3Policy.load(SHIPPED_POLICY if self.policy == "rl" else self.policy)
+            path = SHIPPED_POLICY if self.policy == "rl" else self.policy
+            self.__dict__["_loaded_policy"] = SB3Policy.load(path)
+        return self.__dict__["_loaded_policy"]
 
     def make_policy(self, env):
         if self.policy == "random":
