@@ -70,13 +70,15 @@ class Robot:
     def contacts_with(self, geoms: np.ndarray) -> tuple[bool, bool, bool]:
         """Whether the left finger, right finger and arm links touch any of ``geoms``."""
         d = self.sim.data
-        pairs = d.contact.geom[: d.ncon]
-        left = right = link = False
-        for g1, g2 in pairs:
-            other = g2 if g1 in geoms else (g1 if g2 in geoms else -1)
-            if other < 0:
-                continue
-            left |= other in self.finger_geoms[0]
-            right |= other in self.finger_geoms[1]
-            link |= other in self.link_geoms
-        return left, right, link
+        pairs = d.contact.geom[: d.ncon]  # (ncon, 2): one array test instead of a Python loop
+        if not len(pairs):
+            return False, False, False
+        g1, g2 = pairs[:, 0], pairs[:, 1]
+        in1, in2 = np.isin(g1, geoms), np.isin(g2, geoms)
+        other = np.where(in1, g2, np.where(in2, g1, -1))  # the geom touching one of ``geoms``
+        other = other[other >= 0]
+        return (
+            bool(np.isin(other, self.finger_geoms[0]).any()),
+            bool(np.isin(other, self.finger_geoms[1]).any()),
+            bool(np.isin(other, self.link_geoms).any()),
+        )
