@@ -214,11 +214,11 @@ def _loop_timing(config, episodes: int) -> dict:
     stages: dict[str, list[float]] = {}
     valid: dict[str, list[float]] = {}
     render_ms: list[float] = []
-    sim = env.unwrapped.sim  # timing only: the benchmark may look inside, policies may not
     camera = config.pose_cameras[0]
     w, h = config.pose_size
 
     def on_step(obs: dict, info: dict) -> None:
+        sim = env.unwrapped.sim  # timing only; this episode's scene (not a stale one)
         t0 = time.perf_counter()
         sim.render(camera, "rgb", w, h)
         render_ms.append((time.perf_counter() - t0) * 1e3)
