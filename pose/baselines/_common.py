@@ -275,6 +275,20 @@ def invalid(reason: str, timer: Timer, n_keypoints: int = 0) -> PoseEstimate:
     return PoseEstimate.invalid(reason, timer.done(), n_keypoints)
 
 
+def appearance_input(view: View) -> tuple[Timer, np.ndarray | None, PoseEstimate | None]:
+    """The start of an appearance baseline's ``predict``: a started timer, the object region,
+    and the invalid answer to return instead when there is nothing to describe (no usable
+    mask, or a flat image under it)."""
+    check_view(view)
+    timer = Timer()
+    region = object_region(view)
+    if region is None:
+        return timer, None, invalid("no object mask", timer)
+    if featureless(view, region):
+        return timer, None, invalid("the object region is featureless", timer)
+    return timer, region, None
+
+
 def appearance_patch(image: np.ndarray, region: np.ndarray, side: int) -> np.ndarray:
     """Grey image of the object, cropped to the square around its mask's bounding box, resized
     to ``side x side``, zero mean and unit norm over the object, 0 outside the mask.

@@ -21,12 +21,9 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import (
     BaselineEstimator,
-    Timer,
+    appearance_input,
     appearance_patch,
     check_training_set,
-    check_view,
-    featureless,
-    invalid,
     nearest_rotation,
     object_region,
     require_masks,
@@ -75,13 +72,9 @@ class LeastSquaresEstimator(BaselineEstimator):
 
     def predict(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "weights_")
-        check_view(view)
-        timer = Timer()
-        region = object_region(view)
-        if region is None:
-            return invalid("no object mask", timer)
-        if featureless(view, region):
-            return invalid("the object region is featureless", timer)
+        timer, region, failed = appearance_input(view)
+        if failed is not None:
+            return failed
         y = self._design(appearance_patch(view.image, region, self.patch_size)) @ self.weights_
         R = from_6d(y[0])
         timer.lap("regress")

@@ -25,10 +25,8 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import (
     BaselineEstimator,
-    Timer,
+    appearance_input,
     check_training_set,
-    check_view,
-    featureless,
     invalid,
     object_region,
     require_masks,
@@ -102,13 +100,9 @@ class PartBasedEstimator(BaselineEstimator):
 
     def predict(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "parts_")
-        check_view(view)
-        timer = Timer()
-        region = object_region(view)
-        if region is None:
-            return invalid("no object mask", timer)
-        if featureless(view, region):
-            return invalid("the object region is featureless", timer)
+        timer, region, failed = appearance_input(view)
+        if failed is not None:
+            return failed
         H, vis = self._describe(view.image, region)
         timer.lap("parts")
         both = (self.visible_ >= self.min_visible) & (vis >= self.min_visible)  # (N, parts)

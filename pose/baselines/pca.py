@@ -27,12 +27,9 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import (
     BaselineEstimator,
-    Timer,
+    appearance_input,
     appearance_patch,
     check_training_set,
-    check_view,
-    featureless,
-    invalid,
     nearest_rotation,
     object_region,
     require_masks,
@@ -118,13 +115,9 @@ class PCAEstimator(BaselineEstimator):
 
     def predict(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "coords_")
-        check_view(view)
-        timer = Timer()
-        region = object_region(view)
-        if region is None:
-            return invalid("no object mask", timer)
-        if featureless(view, region):
-            return invalid("the object region is featureless", timer)
+        timer, region, failed = appearance_input(view)
+        if failed is not None:
+            return failed
         z = self._project(appearance_patch(view.image, region, self.patch_size))
         timer.lap("project")
         d = np.linalg.norm(self.coords_ - z, axis=1)
