@@ -5,16 +5,18 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 
 - ``oracle``: ground-truth pose, re-read every step (the ceiling);
 - ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
-  masks and identity the ``--segmenter`` / ``--recognize`` options give (the default is the
-  no-privileged-input setting: background subtraction and silhouette recognition);
+  rollout defaults for masks and identity (background subtraction; FLR shortlist + appearance
+  recognition): no privileged input. Variants swap one component: FLR alone or appearance alone
+  as the recogniser, the ``side`` camera's own pose models where the top view is hidden;
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
 - a robustness curve: success vs ``noisy_oracle`` heading noise (0-30 deg) and position noise
   (0-3 cm), re-estimated every step.
 
+``--jobs N`` runs the arms in N processes; the in-loop timing runs afterwards, alone.
 Writes ``benchmarks/results/closed_loop.json`` and ``closed_loop.png``.
 
-    python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--quick]
+    python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 2] [--quick]
 """
 
 from __future__ import annotations
@@ -33,7 +35,11 @@ POS_SIGMAS_CM = (0.0, 0.5, 1.0, 2.0, 3.0)
 
 
 def _arm(label: str, config, progress: bool) -> dict:
+    import cv2
+
     from scorbot_gym.evaluation.rollout import run_rollout
+
+    cv2.setNumThreads(1)  # also in the spawned workers of --jobs: one core per arm
 
     t0 = time.perf_counter()
     summary, results = run_rollout(config, progress=progress)
@@ -49,6 +55,19 @@ def _arm(label: str, config, progress: bool) -> dict:
         flush=True,
     )
     return summary
+
+
+def _run_arms(runs: list, jobs: int, progress: bool) -> dict[str, dict]:
+    """Run ``(label, config)`` pairs, in ``jobs`` spawned processes when ``jobs > 1`` (spawned,
+    not forked: a fork of a process that has rendered inherits a GL context it cannot use)."""
+    if jobs <= 1:
+        return {label: _arm(label, config, progress) for label, config in runs}
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as pool:
+        futures = {label: pool.submit(_arm, label, config, False) for label, config in runs}
+        return {label: future.result() for label, future in futures.items()}
 
 
 def _plot(report: dict, path: Path) -> None:
@@ -97,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="a few episodes, to check it runs")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
     parser.add_argument("--progress", action="store_true")
+    parser.add_argument("--jobs", type=int, default=1, help="arms run in this many processes")
     parser.add_argument(
         "--arms", default=None, help="semicolon-separated arm labels to run (default: all + curves)"
     )
@@ -114,19 +134,23 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(1)  # the estimator's figures are for one core
     t0 = time.perf_counter()
     default_pose_models("top", 320, 240, progress=args.progress)
+    default_pose_models("side", 320, 240, progress=args.progress)  # for the side fallback
     train_s = time.perf_counter() - t0
 
     n, seed = args.episodes, args.seed
     m_push = args.push_episodes
-    # the arms of closed_loop.json recognise with FLR alone; the default is "flr+appearance"
-    manifold = dict(
-        pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize, recognizer="flr"
-    )
-    # the side camera estimates where the top camera's view is hidden; default recogniser
-    fallback = {**manifold, "recognizer": "flr+appearance", "fallback_cameras": ("side",)}
+    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    fallback = {**manifold, "fallback_cameras": ("side",)}
     arms = {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
+        "manifold, FLR recognition": RolloutConfig(
+            **manifold, recognizer="flr", episodes=n, seed=seed
+        ),
+        "manifold, appearance recognition": RolloutConfig(
+            **manifold, recognizer="appearance", episodes=n, seed=seed
+        ),
+        "manifold, side fallback": RolloutConfig(**fallback, episodes=n, seed=seed),
         "oracle, push, servoing": RolloutConfig(
             pose="oracle", disturbance="push", episodes=m_push, seed=seed
         ),
@@ -139,15 +163,8 @@ def main(argv: list[str] | None = None) -> int:
         "manifold, push, estimate once": RolloutConfig(
             **manifold, disturbance="push", estimate_every=0, episodes=m_push, seed=seed
         ),
-        "manifold, appearance recognition": RolloutConfig(
-            **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
-        ),
         "manifold, push, servoing, side fallback": RolloutConfig(
             **fallback, disturbance="push", episodes=m_push, seed=seed
-        ),
-        "manifold, side fallback": RolloutConfig(**fallback, episodes=n, seed=seed),
-        "manifold, FLR shortlist + appearance recognition": RolloutConfig(
-            **{**manifold, "recognizer": "flr+appearance"}, episodes=n, seed=seed
         ),
     }
     only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]
@@ -165,29 +182,28 @@ def main(argv: list[str] | None = None) -> int:
         "arms": {},
         "robustness": {"yaw": [], "pos": []},
     }
-    for label, config in arms.items():
-        report["arms"][label] = _arm(label, config, args.progress)
-        atomic_write_json(args.out, report)  # partial results survive an interrupted run
-    if only is None:
+    m = args.curve_episodes
+    curves = []
+    for yaw in YAW_SIGMAS if only is None else ():
+        noise = {"yaw_sigma_deg": yaw, "pos_sigma_m": 0.0}
+        curves.append(("yaw", yaw, f"noisy yaw sigma {yaw:g} deg", noise))
+    for pos_cm in POS_SIGMAS_CM if only is None else ():
+        noise = {"yaw_sigma_deg": 0.0, "pos_sigma_m": pos_cm / 100}
+        curves.append(("pos", pos_cm, f"noisy pos sigma {pos_cm:g} cm", noise))
+    runs = list(arms.items()) + [
+        (label, RolloutConfig(pose="noisy", noise=noise, episodes=m, seed=seed))
+        for _, _, label, noise in curves
+    ]
+    done = _run_arms(runs, args.jobs, args.progress)
+    for label in arms:
+        report["arms"][label] = done[label]
+    for key, sigma, label, _ in curves:
+        report["robustness"][key].append({"sigma": sigma, **_curve_point(done[label])})
+    atomic_write_json(args.out, report)
+    if only is None:  # alone, after the arms: a timing shares the machine with nothing
         timing = _loop_timing(arms["manifold"], max(2, n // 20))
         report["loop_timing_320x240_one_thread"] = timing
         print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
-    m = args.curve_episodes
-    for yaw in YAW_SIGMAS if only is None else ():
-        cfg = RolloutConfig(
-            pose="noisy", noise={"yaw_sigma_deg": yaw, "pos_sigma_m": 0.0}, episodes=m, seed=seed
-        )
-        s = _arm(f"noisy yaw sigma {yaw:g} deg", cfg, args.progress)
-        report["robustness"]["yaw"].append({"sigma": yaw, **_curve_point(s)})
-    for pos_cm in POS_SIGMAS_CM if only is None else ():
-        cfg = RolloutConfig(
-            pose="noisy",
-            noise={"yaw_sigma_deg": 0.0, "pos_sigma_m": pos_cm / 100},
-            episodes=m,
-            seed=seed,
-        )
-        s = _arm(f"noisy pos sigma {pos_cm:g} cm", cfg, args.progress)
-        report["robustness"]["pos"].append({"sigma": pos_cm, **_curve_point(s)})
     report["machine"] = {
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),

@@ -144,13 +144,20 @@ def _canonicalize(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, float]:
-    """Closing point and direction: the most interior footprint point, narrowest direction."""
+    """Closing point and direction: the well-inside footprint point nearest the centre of mass,
+    closing along the narrowest direction there.
+
+    Closing over the centre of mass leaves the least torque for the fingers' friction to hold on
+    the lift. For a curved object (the banana) the footprint's most interior point lies off to
+    one side of it, and the fruit twisted out of the fingers there.
+    """
     res = 0.0005
     img, lo = _footprint(vertices, faces, res)
     dist = cv2.distanceTransform(img, cv2.DIST_L2, 5)
-    # Among well-inside points, the one nearest the footprint's centroid: less torque in the grip.
-    ys, xs = np.nonzero(dist >= 0.8 * dist.max())
-    cy, cx = np.argwhere(img > 0).mean(0) if img.any() else (0.0, 0.0)
+    solid = trimesh.Trimesh(vertices, faces, process=False)
+    com = solid.center_mass if solid.is_volume else solid.centroid
+    ys, xs = np.nonzero(dist >= 0.5 * dist.max())
+    cx, cy = (com[:2] - lo) / res - 0.5
     k = int(np.argmin((ys - cy) ** 2 + (xs - cx) ** 2))
     iy, ix = ys[k], xs[k]
     yaws = np.deg2rad(np.arange(0.0, 180.0, 1.0))

@@ -60,6 +60,30 @@ def test_unknown_object_error_lists_names():
         get_object("teapot")
 
 
+def test_grasp_closes_over_the_centre_of_mass():
+    """A tall block beside a low slab: the footprint's middle is on the slab, the mass is in the
+    block. The fingers close over the block, where lifting leaves the least torque."""
+    from scorbot_gym.objects import _canonicalize, _grasp
+
+    block = trimesh.creation.box(extents=[0.03, 0.03, 0.06])
+    block.apply_translation([-0.015, 0.0, 0.03])
+    slab = trimesh.creation.box(extents=[0.06, 0.03, 0.005])
+    slab.apply_translation([0.03, 0.0, 0.0025])
+    vertices, faces = _canonicalize(trimesh.util.concatenate([block, slab]))
+    com = trimesh.Trimesh(vertices, faces).center_mass[:2]
+    point, _, width = _grasp(vertices, faces)
+    footprint_middle = np.zeros(2)  # the bounding box is centred by _canonicalize
+    assert np.linalg.norm(com - footprint_middle) > 0.02  # the two candidates differ
+    assert np.linalg.norm(point - com) < 0.002
+    assert abs(width - 0.03) < 0.002
+
+
+def test_banana_grasp_is_near_its_centre_of_mass():
+    model = get_object("banana").model
+    com = trimesh.Trimesh(model.vertices, model.faces).center_mass
+    assert np.linalg.norm(model.grasp_point - com[:2]) < 0.003  # the most interior point: 6 mm
+
+
 def test_register_object_from_mesh_and_texture(user_object):
     assert get_object("user_block") is user_object
     np.testing.assert_allclose(user_object.model.half_extents * 2, [0.05, 0.035, 0.06], atol=1e-6)
