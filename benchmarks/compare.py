@@ -11,7 +11,7 @@ success vs noise).
 
     python benchmarks/compare.py [--episodes 200] [--noise 0.005,0.01,0.02] \
         [--extra runs/bc_sac_oracle/policy runs/scratch_sac_oracle/policy --extra-episodes 50] \
-        [--pose-model pose_models.npz --manifold-episodes 40]
+        [--pose-model pose_models.npz --manifold-episodes 40] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -36,36 +36,39 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--pose-model", type=Path, default=None)
     parser.add_argument("--manifold-episodes", type=int, default=40)
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
+    parser.add_argument("--jobs", type=int, default=1, help="run the parts in this many processes")
     args = parser.parse_args(argv)
-
-    import torch
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
     from scorbot_gym.cli.compare import format_report
-    from scorbot_gym.evaluation.compare import compare, plot_comparison
+    from scorbot_gym.evaluation.compare import plot_comparison
 
-    torch.set_num_threads(1)  # one-sample predictions: threads only add contention
-    policies = ["scripted", "rl"]
     noise = [float(v) for v in args.noise.split(",") if v]
-    t0 = time.perf_counter()
-    report = compare(policies, ["oracle"], args.episodes, args.seed, noise=noise, progress=False)
-    report["wall_s"] = {"oracle_and_noise": time.perf_counter() - t0}
+    parts = {"oracle_and_noise": (["scripted", "rl"], ["oracle"], args.episodes, noise, None)}
     if args.extra:
-        t0 = time.perf_counter()
-        extra = compare(
-            ["scripted", *args.extra], ["oracle"], args.extra_episodes, args.seed, progress=False
-        )
-        report["wall_s"]["extra"] = time.perf_counter() - t0
+        parts["extra"] = (["scripted", *args.extra], ["oracle"], args.extra_episodes, [], None)
+    if args.pose_model is not None:
+        parts["manifold"] = (
+            ["scripted", "rl"], ["manifold"], args.manifold_episodes, [], args.pose_model
+        )  # fmt: skip
+    if args.jobs > 1:  # spawned: a forked child of a process that has rendered cannot render
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs, mp_context=mp.get_context("spawn")) as pool:
+            futures = {k: pool.submit(_part, *v, args.seed) for k, v in parts.items()}
+            done = {k: f.result() for k, f in futures.items()}
+    else:
+        done = {k: _part(*v, args.seed) for k, v in parts.items()}
+    report, wall = done["oracle_and_noise"]
+    report["wall_s"] = {"oracle_and_noise": wall}
+    if "extra" in done:
+        extra, report["wall_s"]["extra"] = done["extra"]
         report["extra"] = {"episodes": args.extra_episodes, "results": extra["results"]}
         report["differences"] += extra["differences"]
-    if args.pose_model is not None:
-        t0 = time.perf_counter()
-        mani = compare(
-            policies, ["manifold"], args.manifold_episodes, args.seed,
-            pose_model=args.pose_model, progress=False,
-        )  # fmt: skip
-        report["wall_s"]["manifold"] = time.perf_counter() - t0
+    if "manifold" in done:
+        mani, report["wall_s"]["manifold"] = done["manifold"]
         report["manifold"] = {
             "episodes": args.manifold_episodes,
             "pose_model": str(args.pose_model),
@@ -82,6 +85,20 @@ def main(argv: list[str] | None = None) -> int:
     print(format_report(report))
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
+
+
+def _part(policies, poses, episodes, noise, pose_model, seed) -> tuple[dict, float]:
+    """One :func:`compare` call and its wall time (a separate process under ``--jobs``)."""
+    import torch
+
+    from scorbot_gym.evaluation.compare import compare
+
+    torch.set_num_threads(1)  # one-sample predictions: threads only add contention
+    t0 = time.perf_counter()
+    report = compare(
+        policies, poses, episodes, seed, noise=noise, pose_model=pose_model, progress=False
+    )
+    return report, time.perf_counter() - t0
 
 
 if __name__ == "__main__":

@@ -113,3 +113,14 @@ def test_depth_views_lift_mask_pixels_onto_the_object(tmp_path):
     # the same call is served from the cache, depth included
     again = render_views("box", samples, "top", 160, 120, 0.3, 0, tmp_path, False, depth=True)
     np.testing.assert_array_equal(again[0].view.depth, views[0].view.depth)
+
+
+def test_training_where_the_object_is_too_small_says_so(tmp_path):
+    """From the hand camera's home pose, 0.44 m above the table, a golf ball in a 160x120 image
+    has too few keypoints for the estimator's vocabulary: the error names object, camera, size."""
+    from scorbot_gym.perception.training import train_object
+
+    with pytest.raises(ValueError, match="pose model of 'golf_ball' from camera 'eye_in_hand'"):
+        train_object(
+            "golf_ball", 2, "eye_in_hand", 160, 120, cache_dir=str(tmp_path), progress=False
+        )

@@ -69,3 +69,24 @@ def test_calibration_at_reset_matches_camera_params():
         assert env.unwrapped.camera_model("top").width == 64  # still there, on request
     finally:
         env.close()
+
+
+def test_camera_on_the_arm_sends_its_calibration_every_step():
+    """The eye-in-hand camera moves with the arm: a wrapper needs its extrinsics at every step,
+    the fixed cameras' only at reset."""
+    cameras = {**IMAGE, "cameras": ("top", "eye_in_hand")}
+    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", **cameras)
+    try:
+        _, info = env.reset(seed=0)
+        assert set(info["camera_params"]) == {"top", "eye_in_hand"}
+        before = info["camera_params"]["eye_in_hand"]["world_from_camera"]
+        for _ in range(5):
+            _, _, _, _, info = env.step(np.ones(env.action_space.shape))
+        assert set(info["camera_params"]) == {"eye_in_hand"}
+        after = info["camera_params"]["eye_in_hand"]["world_from_camera"]
+        np.testing.assert_array_equal(
+            after, env.unwrapped.camera_params("eye_in_hand")["world_from_camera"]
+        )
+        assert np.linalg.norm(after[:3, 3] - before[:3, 3]) > 1e-3  # the arm moved it
+    finally:
+        env.close()

@@ -19,7 +19,7 @@ from scorbot_gym.objects import get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
-from scorbot_gym.sim.simulation import Simulation, check_render_size
+from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 
@@ -63,8 +63,8 @@ class ScorbotGraspEnv(gym.Env):
     Observations are proprioception only, unless ``observe_object_pose=True`` (oracle) or
     ``cameras`` are given (then ``<camera>_rgb`` / ``<camera>_depth`` images are added). The
     object's true pose is always in ``info["object_pose"]``; the cameras' calibration is in
-    ``info["camera_params"]`` after ``reset`` (the cameras are fixed) and from
-    :meth:`camera_params` at any time.
+    ``info["camera_params"]`` after ``reset``, after every step for a camera the arm carries
+    (``eye_in_hand``), and from :meth:`camera_params` at any time.
 
     ``capture_background=True`` adds ``info["camera_background"]`` at reset: per camera, the
     empty workspace (object not yet in the scene, arm where it is at reset) as ``{"rgb",
@@ -363,11 +363,13 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self._disturbance_info is not None:
             info["disturbance"] = self._disturbance_info
-        # Calibration travels with the images (as ManiSkill's sensor_param), at reset only: the
-        # cameras are fixed, and vector envs would pickle and merge the constant arrays every
-        # step for nothing; camera_params() gives them at any time.
-        if calibration and self.cameras:
-            info["camera_params"] = {cam: self.camera_params(cam) for cam in self.cameras}
+        # Calibration travels with the images (as ManiSkill's sensor_param): at reset for every
+        # camera, then at every step for the cameras the arm carries only (vector envs would
+        # pickle and merge the fixed cameras' constant arrays every step for nothing;
+        # camera_params() gives them at any time).
+        cams = [c for c in self.cameras if calibration or c in MOVING_CAMERAS]
+        if cams:
+            info["camera_params"] = {cam: self.camera_params(cam) for cam in cams}
         return info
 
     def render(self):

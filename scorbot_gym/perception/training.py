@@ -69,7 +69,14 @@ def train_object(
     views = render_views(name, samples, camera, width, height, 0.0, seed, cache_dir, progress)
     t1 = time.perf_counter()
     est = PoseManifoldEstimator(random_state=seed).set_params(**(params or {}))
-    est.fit([v.view for v in views], np.array([v.camera_from_object for v in views]))
+    try:
+        est.fit([v.view for v in views], np.array([v.camera_from_object for v in views]))
+    except ValueError as err:  # e.g. too few keypoints for the vocabulary: say where
+        raise ValueError(
+            f"cannot train a pose model of {name!r} from camera {camera!r} at {width}x{height}: "
+            f"{err} (the object looks too small or too plain there: use a larger image or a "
+            "camera nearer the workspace)"
+        ) from err
     t2 = time.perf_counter()
     info = {"views": len(views), "render_s": t1 - t0, "fit_s": t2 - t1}
     return est.to_arrays(), info

@@ -28,6 +28,10 @@ RenderKind = Literal["rgb", "depth", "segmentation"]
 ARM_PREFIX = "scorbot/"
 
 
+#: cameras carried by the arm: their extrinsics change with every step (the others are fixed)
+MOVING_CAMERAS = ("eye_in_hand",)
+
+
 def check_render_size(width: int, height: int, what: str = "render size") -> None:
     """ValueError unless ``width`` x ``height`` is a positive size that fits the framebuffer."""
     for name, v, top in (("width", width, MAX_RENDER_WIDTH), ("height", height, MAX_RENDER_HEIGHT)):
@@ -123,7 +127,7 @@ class Simulation:
     # --- state -----------------------------------------------------------------------------
     @property
     def camera_names(self) -> tuple[str, ...]:
-        return tuple(self.camera_specs) + ("eye_in_hand",)
+        return tuple(self.camera_specs) + MOVING_CAMERAS
 
     @property
     def table_height(self) -> float:
@@ -178,7 +182,7 @@ class Simulation:
 
     # --- cameras and rendering -------------------------------------------------------------
     def camera_id(self, camera: str) -> int:
-        full = ARM_PREFIX + camera if camera == "eye_in_hand" else camera
+        full = ARM_PREFIX + camera if camera in MOVING_CAMERAS else camera
         cam_id = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_CAMERA, full)
         if cam_id < 0:
             raise ValueError(
