@@ -272,3 +272,36 @@ def test_fallback_camera_estimates_where_the_top_view_is_hidden(models):
     with pytest.raises(ValueError, match="other cameras"):
         ModelSetPoseSource(models, fallback_models=[models])
     env.close()
+
+
+@pytest.mark.slow
+def test_motion_places_the_object_where_no_camera_can_estimate_it(models):
+    """The object is pushed 3 cm while the top camera is blind: with ``motion="silhouette"``
+    the side camera's silhouette moves the last estimate there; without it, no answer."""
+    from pose.camera import CameraModel
+    from scorbot_gym.perception.base import PerceptionFrame
+
+    answers = {}
+    for motion in (None, "silhouette"):
+        source = ModelSetPoseSource(models, cameras=("top", "side"), motion=motion)
+        base = gym.make("ScorbotGrasp-v0", objects=["box"], **source.env_requirements)
+        obs, info = base.reset(seed=0)
+        cameras = {c: CameraModel(**p) for c, p in info["camera_params"].items()}
+
+        def frame(o, cameras=cameras, backgrounds=info["camera_background"]):
+            return PerceptionFrame(o, cameras, "box", backgrounds=backgrounds)
+
+        source.reset(frame(obs), np.random.default_rng(0))
+        assert source.estimate(frame(obs)).valid
+        sim = base.unwrapped.sim  # the test pushes the object; the source sees images only
+        pos, quat = sim.object_pose()
+        sim.set_object_pose(pos + np.array([0.0, 0.03, 0.0]), quat)
+        obs, *_ = base.step(np.zeros(base.action_space.shape))
+        obs = {**obs, "top_rgb": info["camera_background"]["top"]["rgb"]}  # top: blind
+        answers[motion] = (source.estimate(frame(obs)), sim.object_pose()[0])
+        base.close()
+    assert not answers[None][0].valid
+    moved, truth = answers["silhouette"]
+    assert moved.valid and moved.camera == "side" and moved.reason.startswith("moved")
+    assert np.linalg.norm(moved.position - truth) < 0.005
+    assert moved.timings_ms["motion"] > 0

@@ -18,6 +18,7 @@ from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES, RolloutConfig
 from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episode
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception import pose_source_names
+from scorbot_gym.perception.motion import motion_names
 from scorbot_gym.perception.recognizers import RECOGNIZERS
 from scorbot_gym.perception.segmenters import segmenter_names
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
@@ -73,6 +74,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="for --pose manifold, repeatable: a camera with default pose models of its own that "
         "estimates where the pose camera's estimate is invalid (e.g. side: the arm hides the "
         "object from the top camera during the grasp)",
+    )
+    p.add_argument(
+        "--motion",
+        choices=motion_names(),
+        default=None,
+        help="for --pose manifold: where no camera can estimate the pose, 'silhouette' places an "
+        "object that moved from its silhouette in any camera (rotation held; default: none)",
     )
     p.add_argument(
         "--segmenter",
@@ -156,6 +164,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         pose_model=str(args.pose_model) if args.pose_model else None,
         pose_cameras=tuple(args.pose_cameras) if args.pose_cameras else None,
         fallback_cameras=tuple(args.fallback_cameras or ()),
+        motion=args.motion,
         segmenter=args.segmenter,
         recognizer=args.recognizer,
         recognize=args.recognize,

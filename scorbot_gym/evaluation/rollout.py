@@ -26,7 +26,8 @@ class RolloutConfig:
     ``pose_cameras[0]`` are trained on first use and cached. The manifold source estimates from
     the first pose camera and recognises on all of them (default: ``top``, plus ``side`` when
     ``recognize``: the top view alone confuses discs and squares); ``fallback_cameras`` get
-    default pose models of their own and estimate where the pose camera's estimate is invalid.
+    default pose models of their own and estimate where the pose camera's estimate is invalid;
+    ``motion="silhouette"`` then places a moved object from its silhouette where none can.
     ``segmenter`` and ``recognizer`` name the source's components (defaults: background
     subtraction; FLR shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
@@ -40,6 +41,7 @@ class RolloutConfig:
     pose_model: str | None = None
     pose_cameras: tuple[str, ...] | None = None
     fallback_cameras: tuple[str, ...] = ()
+    motion: str | None = None
     pose_size: tuple[int, int] = (320, 240)
     segmenter: str = "background"
     recognizer: str = "flr+appearance"
@@ -80,6 +82,12 @@ class RolloutConfig:
         self.fallback_cameras = tuple(self.fallback_cameras)
         if self.fallback_cameras and self.pose != "manifold":
             raise ValueError(f"fallback_cameras only apply to pose 'manifold', not {self.pose!r}")
+        if self.motion is not None and self.pose != "manifold":
+            raise ValueError(f"motion only applies to pose 'manifold', not {self.pose!r}")
+        if self.motion is not None:
+            from scorbot_gym.perception.motion import make_motion
+
+            make_motion(self.motion)  # unknown names fail here, before any episode
         if self.pose_cameras[0] in self.fallback_cameras:
             raise ValueError(
                 f"fallback_cameras must differ from the pose camera {self.pose_cameras[0]!r}"
@@ -106,6 +114,7 @@ class RolloutConfig:
             "segmenter": self.segmenter,
             "recognizer": self.recognizer,
             "cameras": list(self.pose_cameras),
+            "motion": self.motion,
         }
         if self.fallback_cameras:
             kwargs["fallback_models"] = [

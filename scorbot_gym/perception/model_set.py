@@ -15,6 +15,7 @@ kept for the episode, since the arm hides the object later in a grasp.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import time
 from collections.abc import Sequence
@@ -26,6 +27,7 @@ from pose.model_set import PoseModelSet
 from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
+from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.sim.simulation import mat_to_quat
@@ -61,6 +63,12 @@ class ModelSetPoseSource:
         Model sets (or files) of other cameras at the same image size, tried in order where
         the primary camera's estimate is invalid: during a grasp the arm hides the object from
         above, while a side camera still sees it.
+    motion
+        Where no camera gives a valid estimate: ``"silhouette"`` (a
+        :class:`~scorbot_gym.perception.motion.SilhouetteMotion`) answers the object's new
+        position if a clear silhouette in one of the cameras shows that it moved since the last
+        valid estimate, with that estimate's rotation (``reason`` says so); ``None`` (default)
+        answers invalid.
     """
 
     def __init__(
@@ -72,6 +80,7 @@ class ModelSetPoseSource:
         memory: RecognitionMemory | None = None,
         clear_min_area: int = 200,
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
+        motion: str | SilhouetteMotion | None = None,
     ) -> None:
         self.models = _load(models)
         meta = self.models.meta
@@ -96,6 +105,9 @@ class ModelSetPoseSource:
         self.memory = memory if memory is not None else RecognitionMemory()
         self.clear_min_area = int(clear_min_area)
         self._recognizer: Any = None
+        self.motion = make_motion(motion)
+        self._last: WorldPose | None = None  # the last valid answer, for ``motion``
+        self._masks: dict[str, np.ndarray | None] = {}  # this step's masks, by camera
 
     @property
     def privileged(self) -> bool:
@@ -120,6 +132,7 @@ class ModelSetPoseSource:
         }
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
+        self._last = None
         for cam in self.cameras:
             self.segmenter.reset(frame, cam)
         self.memory.reset()
@@ -154,15 +167,52 @@ class ModelSetPoseSource:
     def estimate(self, frame: PerceptionFrame) -> WorldPose:
         """The primary camera's estimate; where it is invalid (e.g. the arm hides the object
         from above), the first valid one of the fallback cameras, for the same object."""
+        self._masks = {}
         pose = self._estimate_primary(frame)
-        if pose.valid or pose.object_name is None:
-            return pose
-        timings = dict(pose.timings_ms)  # shared: the fallbacks' times add up under "fallback"
-        for models in self.fallback_models:
-            alt = self._estimate_with(models, frame, pose.object_name, timings)
-            if alt.valid:
-                return alt
-        return dataclasses.replace(pose, timings_ms=timings) if self.fallback_models else pose
+        if not (pose.valid or pose.object_name is None):
+            timings = dict(pose.timings_ms)  # shared: fallbacks' times add up under "fallback"
+            for models in self.fallback_models:
+                alt = self._estimate_with(models, frame, pose.object_name, timings)
+                if alt.valid:
+                    pose = alt
+                    break
+            else:
+                pose = dataclasses.replace(pose, timings_ms=timings)
+                if self.motion is not None:
+                    t0 = time.perf_counter()
+                    moved = self._moved(frame, pose)
+                    timings["motion"] = (time.perf_counter() - t0) * 1e3
+                    pose = moved or pose
+        if pose.valid:
+            self._last = pose
+        return pose
+
+    def _moved(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
+        """The last valid pose, moved to where a clear silhouette now places the object."""
+        last = self._last
+        if last is None or last.object_name != invalid.object_name:
+            return None
+        excluded = getattr(self.segmenter, "excluded", lambda c: None)
+        points = _hull_points(last.object_name)
+        for cam in self.cameras:
+            if cam not in self._masks:  # not segmented on the way here (a recognition camera)
+                self._masks[cam] = self.segmenter.segment(frame, cam)
+            mask = self._masks[cam]
+            pos = self.motion.moved_position(
+                mask, excluded(cam), frame.cameras[cam], last.position, last.rotation, points
+            )
+            if pos is not None:
+                return dataclasses.replace(
+                    last,
+                    position=pos,
+                    confidence=0.5 * last.confidence,
+                    n_keypoints=0,
+                    n_inliers=0,
+                    timings_ms=invalid.timings_ms,
+                    reason="moved: position from the silhouette, rotation held",
+                    camera=cam,
+                )
+        return None
 
     def _estimate_with(
         self, models: PoseModelSet, frame: PerceptionFrame, name: str, timings: dict
@@ -170,6 +220,7 @@ class ModelSetPoseSource:
         cam_name = str(models.meta["camera"])
         t0 = time.perf_counter()
         mask = self.segmenter.segment(frame, cam_name)
+        self._masks[cam_name] = mask
         t1 = time.perf_counter()
         timings[f"segment_{cam_name}"] = (t1 - t0) * 1e3
         est = None
@@ -187,6 +238,7 @@ class ModelSetPoseSource:
         cam_name = self.camera
         t0 = time.perf_counter()
         mask = self.segmenter.segment(frame, cam_name)
+        self._masks[cam_name] = mask
         timings = {"segment": (time.perf_counter() - t0) * 1e3}
         timings.update(
             {f"segment_{k}": v for k, v in getattr(self.segmenter, "timings_ms", {}).items()}
@@ -225,6 +277,16 @@ class ModelSetPoseSource:
             timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
             timings["estimate"] = est.timings_ms.get("total", 0.0)
         return _world_pose(est, cam, name, timings, cam_name)
+
+
+@functools.lru_cache(maxsize=64)
+def _hull_points(name: str) -> np.ndarray:
+    """The vertices of the object's convex hull (object frame): its silhouette's outline."""
+    import trimesh
+
+    from scorbot_gym.objects import get_object
+
+    return np.asarray(trimesh.convex.convex_hull(get_object(name).mesh_vertices()).vertices)
 
 
 def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:

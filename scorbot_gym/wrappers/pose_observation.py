@@ -274,7 +274,7 @@ def _is_plain(value: Any) -> bool:
 
 
 # Stages a pose source reports at top level; their sum is the estimator's time for one step.
-_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback")
+_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback", "motion")
 
 _POINTS: dict[str, np.ndarray] = {}
 
