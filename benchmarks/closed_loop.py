@@ -10,6 +10,7 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
   as the recogniser, the ``side`` camera's own pose models where the top view is hidden;
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
+  ``silhouette motion`` arms add ``motion="silhouette"`` to the side-fallback source;
 - a robustness curve: success vs ``noisy_oracle`` heading noise (0-30 deg) and position noise
   (0-3 cm), re-estimated every step.
 
@@ -165,6 +166,12 @@ def main(argv: list[str] | None = None) -> int:
         ),
         "manifold, push, servoing, side fallback": RolloutConfig(
             **fallback, disturbance="push", episodes=m_push, seed=seed
+        ),
+        "manifold, push, servoing, side fallback, silhouette motion": RolloutConfig(
+            **fallback, motion="silhouette", disturbance="push", episodes=m_push, seed=seed
+        ),
+        "manifold, side fallback, silhouette motion": RolloutConfig(
+            **fallback, motion="silhouette", episodes=n, seed=seed
         ),
     }
     only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]
