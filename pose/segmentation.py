@@ -172,3 +172,92 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
         raise ValueError(f"masks differ in shape: {a.shape} vs {b.shape}")
     union = np.logical_or(a, b).sum()
     return 1.0 if union == 0 else float(np.logical_and(a, b).sum() / union)
+
+
+class HeightAboveTableSegmenter(BaseEstimator):
+    """Object mask from a depth image: the pixels that stand above the table plane.
+
+    Background subtraction needs a reference frame from the same viewpoint, so it cannot serve
+    a camera that moves (on the arm). A depth image and the camera's calibration place every
+    pixel in the world; the table is the most common height among them (a 2 mm histogram
+    bin: the table fills most of a view of the workspace), and the object is what rises more
+    than ``min_height`` above it. Excluded pixels (the arm, rendered from its model) go before
+    the largest component is chosen, as in :class:`BackgroundSubtractionSegmenter`.
+
+    Parameters
+    ----------
+    min_height : float
+        Metres above the table plane for a pixel to count as object (depth noise, the table's
+        own relief).
+    min_area : int
+        Components smaller than this many pixels are not an object (the result is empty).
+    fill_holes : bool
+        Fill holes enclosed by the object's component.
+    """
+
+    def __init__(self, min_height: float = 0.004, min_area: int = 30, fill_holes: bool = True):
+        self.min_height = min_height
+        self.min_area = min_area
+        self.fill_holes = fill_holes
+
+    def _check_params(self) -> None:
+        if not (np.isfinite(self.min_height) and self.min_height > 0):
+            raise ValueError(
+                f"min_height must be a positive number of metres, got {self.min_height!r}"
+            )
+        a = self.min_area
+        if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or a < 1:
+            raise ValueError(f"min_area must be an int >= 1, got {a!r}")
+
+    def heights(self, depth: np.ndarray, camera) -> np.ndarray:
+        """World height (z, metres) of every pixel, ``(H, W)``; NaN where there is no depth."""
+        z = np.asarray(depth, dtype=np.float64)
+        if z.ndim == 3 and z.shape[2] == 1:
+            z = z[..., 0]
+        if z.shape != (camera.height, camera.width):
+            raise ValueError(
+                f"depth is {z.shape[1]}x{z.shape[0]} but the camera is "
+                f"{camera.width}x{camera.height}"
+            )
+        K = np.asarray(camera.K, float)
+        v, u = np.mgrid[0 : z.shape[0], 0 : z.shape[1]]
+        x = (u - K[0, 2]) / K[0, 0] * z
+        y = (v - K[1, 2]) / K[1, 1] * z
+        T = np.asarray(camera.world_from_camera, float)
+        h = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+        h[~(np.isfinite(z) & (z > 0))] = np.nan
+        return h
+
+    @staticmethod
+    def table_height(heights: np.ndarray, bin_m: float = 0.002) -> float:
+        """The most common height: the table plane under a view of the workspace."""
+        h = heights[np.isfinite(heights)]
+        if h.size == 0:
+            raise ValueError("the depth image has no valid pixel")
+        lo = float(h.min())
+        counts = np.bincount(((h - lo) / bin_m).astype(np.int64))
+        return lo + (int(np.argmax(counts)) + 0.5) * bin_m
+
+    def segment(self, depth: np.ndarray, camera, exclude_mask: np.ndarray | None = None):
+        """The object's mask, ``(H, W)`` bool; all ``False`` when nothing rises high enough."""
+        self._check_params()
+        h = self.heights(depth, camera)
+        above = np.nan_to_num(h, nan=-np.inf) > self.table_height(h) + self.min_height
+        if exclude_mask is not None:
+            ex = np.asarray(exclude_mask, dtype=bool)
+            if ex.shape != above.shape:
+                raise ValueError(f"exclude_mask must have shape {above.shape}, got {ex.shape}")
+            above &= ~ex
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(above.astype(np.uint8), 8)
+        if n <= 1:
+            return np.zeros(above.shape, bool)
+        areas = stats[1:, cv2.CC_STAT_AREA]
+        best = int(np.argmax(areas)) + 1
+        if areas[best - 1] < self.min_area:
+            return np.zeros(above.shape, bool)
+        mask = labels == best
+        if self.fill_holes:
+            mask = fill_holes(mask)
+        if exclude_mask is not None:
+            mask &= ~np.asarray(exclude_mask, dtype=bool)
+        return mask

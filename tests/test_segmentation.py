@@ -169,3 +169,70 @@ def test_background_segmenter_needs_a_reference_frame(grasp_frames):
     )
     with pytest.raises(ValueError, match="capture_background=True"):
         BackgroundSegmenter().reset(frame, "top")
+
+
+@pytest.fixture(scope="module")
+def hand_camera_frames():
+    """Frames of the hand camera (it moves: calibration from every step's info) and the top
+    camera along a scripted grasp, with depth."""
+    env = make_env(
+        pose="oracle",
+        cameras=["top", "eye_in_hand"],
+        image_width=320,
+        image_height=240,
+        image_types=["rgb", "depth", "privileged_segmentation"],
+        objects=["box", "tomato_soup_can"],
+    )
+    frames = []
+    for seed in (0, 1):
+        obs, info = env.reset(seed=seed)
+        policy = ScriptedGraspPolicy.for_env(env)
+        policy.reset(obs, info)
+        params = dict(info["camera_params"])
+        for t in range(40):
+            if t % 8 == 0:
+                frames.append((obs, {c: CameraModel(**p) for c, p in params.items()}))
+            obs, _, term, trunc, info = env.step(policy.act(obs))
+            params.update(info.get("camera_params", {}))
+            if term or trunc:
+                break
+    env.close()
+    return frames
+
+
+@pytest.mark.slow
+def test_depth_segmenter_serves_a_moving_camera(hand_camera_frames):
+    """Above-the-table pixels minus the arm: IoU with the true mask on the hand camera (its
+    fingers in view) and on the top camera (the arm in view), with no reference frame."""
+    seg = make_segmenter("depth")
+    assert seg.image_types == ("depth",) and not seg.privileged
+    ious = {"top": [], "eye_in_hand": []}
+    for obs, cameras in hand_camera_frames:
+        frame = PerceptionFrame(observation=obs, cameras=cameras)
+        for cam in ious:
+            seg.reset(frame, cam)
+            mask = seg.segment(frame, cam)
+            truth = obs[f"{cam}_privileged_segmentation"][..., 0] > 0
+            ious[cam].append(mask_iou(mask if mask is not None else np.zeros_like(truth), truth))
+            assert seg.excluded(cam).any()  # the arm (or its fingers) is in both views
+    assert np.median(ious["eye_in_hand"]) > 0.9 and np.median(ious["top"]) > 0.9, ious
+
+
+def test_height_segmenter_checks_its_input():
+    from pose.segmentation import HeightAboveTableSegmenter
+
+    down = np.diag([1.0, -1.0, -1.0, 1.0])  # optical axis along -z
+    down[2, 3] = 1.0  # 1 m above the table (z = 0)
+    K = np.array([[100.0, 0, 16], [0, 100.0, 12], [0, 0, 1]])
+    cam = CameraModel(K=K, world_from_camera=down, width=32, height=24)
+    depth = np.full((24, 32), 1.0)
+    depth[8:16, 10:20] = 0.95  # a 5 cm block
+    mask = HeightAboveTableSegmenter(min_area=4).segment(depth, cam)
+    assert mask[8:16, 10:20].all() and mask.sum() == 80
+    assert not HeightAboveTableSegmenter().segment(np.full((24, 32), 1.0), cam).any()
+    with pytest.raises(ValueError, match="depth is 10x10 but the camera is 32x24"):
+        HeightAboveTableSegmenter().segment(np.ones((10, 10)), cam)
+    with pytest.raises(ValueError, match="min_height must be a positive"):
+        HeightAboveTableSegmenter(min_height=-1).segment(depth, cam)
+    with pytest.raises(ValueError, match="no valid pixel"):
+        HeightAboveTableSegmenter().segment(np.zeros((24, 32)), cam)

@@ -6,8 +6,10 @@ the simulator's ground-truth segmentation image: for oracle experiments and abla
 which is why it marks itself ``privileged``. ``BackgroundSegmenter`` needs no simulator: it
 compares the camera image with a reference frame of the empty workspace captured at reset
 (the env's ``capture_background=True``) and removes the robot's own pixels, rendered from the
-robot's kinematic model at the observed joint angles. Choose one by name with
-:func:`make_segmenter` (``"privileged"``, ``"background"``) or pass an object.
+robot's kinematic model at the observed joint angles. ``DepthSegmenter`` takes what rises
+above the table plane in a depth image, for a camera that moves (no reference frame there).
+Choose one by name with :func:`make_segmenter` (``"privileged"``, ``"background"``,
+``"depth"``) or pass an object.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any, Protocol
 import numpy as np
 from sklearn.base import clone
 
-from pose.segmentation import BackgroundSubtractionSegmenter
+from pose.segmentation import BackgroundSubtractionSegmenter, HeightAboveTableSegmenter
 from scorbot_gym.perception.arm_mask import ArmMaskRenderer
 from scorbot_gym.perception.base import PerceptionFrame
 
@@ -128,7 +130,64 @@ class BackgroundSegmenter:
         return self._excluded.get(camera)
 
 
-_SEGMENTERS = {"privileged": PrivilegedSegmenter, "background": BackgroundSegmenter}
+class DepthSegmenter:
+    """The pixels above the table plane in the camera's depth image, minus the robot's pixels.
+
+    It needs no reference frame, so it also serves a camera that moves with the arm
+    (``eye_in_hand``), where background subtraction has no empty workspace to compare with:
+    the depth image (env image type ``"depth"``, as from an RGB-D camera) and the camera's
+    calibration at this step (:class:`pose.segmentation.HeightAboveTableSegmenter`), with the
+    arm's mask rendered from its kinematic model at the observed joint angles.
+    """
+
+    privileged = False
+    image_types: tuple[str, ...] = ("depth",)
+    env_kwargs: dict[str, Any] = {}
+
+    def __init__(
+        self,
+        heights: HeightAboveTableSegmenter | None = None,
+        arm: ArmMaskRenderer | None = None,
+    ) -> None:
+        self.heights = heights if heights is not None else HeightAboveTableSegmenter()
+        self._arm = arm
+        self._excluded: dict[str, np.ndarray] = {}
+        self.timings_ms: dict[str, float] = {}
+
+    @property
+    def arm(self) -> ArmMaskRenderer:
+        if self._arm is None:  # built on first use: it compiles a model and a GL context
+            self._arm = ArmMaskRenderer()
+        return self._arm
+
+    def required_keys(self, camera: str) -> tuple[str, ...]:
+        return (f"{camera}_depth",)
+
+    def reset(self, frame: PerceptionFrame, camera: str) -> None:
+        self._excluded.pop(camera, None)
+
+    def segment(self, frame: PerceptionFrame, camera: str) -> np.ndarray | None:
+        obs = frame.observation
+        t0 = time.perf_counter()
+        arm = self.arm.render(
+            frame.cameras[camera], obs["joint_pos"], float(np.ravel(obs["gripper_opening"])[0])
+        )
+        t1 = time.perf_counter()
+        mask = self.heights.segment(obs[f"{camera}_depth"], frame.cameras[camera], arm)
+        t2 = time.perf_counter()
+        self._excluded[camera] = arm
+        self.timings_ms = {"arm_mask": 1e3 * (t1 - t0), "height": 1e3 * (t2 - t1)}
+        return mask if mask.any() else None
+
+    def excluded(self, camera: str) -> np.ndarray | None:
+        return self._excluded.get(camera)
+
+
+_SEGMENTERS = {
+    "privileged": PrivilegedSegmenter,
+    "background": BackgroundSegmenter,
+    "depth": DepthSegmenter,
+}
 
 
 def segmenter_names() -> tuple[str, ...]:
@@ -136,7 +195,8 @@ def segmenter_names() -> tuple[str, ...]:
 
 
 def make_segmenter(segmenter: str | Segmenter | None = None, **kwargs: Any) -> Segmenter:
-    """A segmenter by name (``"privileged"``, ``"background"``; ``None``: privileged) or as is."""
+    """A segmenter by name (``"privileged"``, ``"background"``, ``"depth"``; ``None``:
+    privileged) or as is."""
     if segmenter is None:
         segmenter = "privileged"
     if not isinstance(segmenter, str):
