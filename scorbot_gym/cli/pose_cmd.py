@@ -22,6 +22,7 @@ from scorbot_gym.evaluation.pose import evaluate, format_tables
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception.training import train_models
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
+from scorbot_gym.sim.simulation import MOVING_CAMERAS
 
 DEFAULT_MODEL = "pose_models.npz"
 
@@ -151,9 +152,9 @@ def add_parser(subparsers) -> None:
     t.add_argument("--out", default=DEFAULT_MODEL, help=f"model file (default {DEFAULT_MODEL})")
     t.add_argument(
         "--camera",
-        choices=[c.name for c in DEFAULT_CAMERAS],
+        choices=[*(c.name for c in DEFAULT_CAMERAS), *MOVING_CAMERAS],
         default="top",
-        help="fixed camera the models are trained for",
+        help="camera the models are trained for (eye_in_hand: from the arm's home pose)",
     )
     t.add_argument("--width", type=int, default=640)
     t.add_argument("--height", type=int, default=480)
