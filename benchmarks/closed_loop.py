@@ -239,7 +239,9 @@ def main(argv: list[str] | None = None) -> int:
     atomic_write_json(args.out, report)
     if only is None:
         _plot(report, args.out.with_suffix(".png"))
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    else:
+        print(f"written {args.out}")
     return 0
 
 
