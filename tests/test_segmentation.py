@@ -75,7 +75,7 @@ def test_bad_input_is_a_clear_error():
         seg.segment(bg[:60])
     with pytest.raises(ValueError, match="exclude_mask"):
         seg.segment(bg, exclude_mask=np.zeros((3, 3), bool))
-    with pytest.raises(ValueError, match="valid: background, privileged"):
+    with pytest.raises(ValueError, match="valid: background, depth, privileged"):
         make_segmenter("magic")
 
 
