@@ -139,20 +139,32 @@ class BackgroundSubtractionSegmenter(BaseEstimator):
 
         All ``False`` when no component reaches ``min_area`` (empty scene, object fully hidden).
         """
-        fg = self.foreground(rgb, exclude_mask).astype(np.uint8)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
-        if n <= 1:
-            return np.zeros(fg.shape, bool)
-        areas = stats[1:, cv2.CC_STAT_AREA]
-        best = int(np.argmax(areas)) + 1
-        if areas[best - 1] < self.min_area:
-            return np.zeros(fg.shape, bool)
-        mask = labels == best
-        if self.fill_holes:
-            mask = fill_holes(mask)
-        if exclude_mask is not None:  # filling must not put excluded pixels back
-            mask &= ~np.asarray(exclude_mask, dtype=bool)
-        return mask
+        fg = self.foreground(rgb, exclude_mask)
+        return largest_component(fg, self.min_area, self.fill_holes, exclude_mask)
+
+
+def largest_component(
+    candidates: np.ndarray,
+    min_area: int,
+    fill: bool = True,
+    exclude_mask: np.ndarray | None = None,
+) -> np.ndarray:
+    """The largest 8-connected component of ``candidates`` (bool), holes filled if ``fill``;
+    all ``False`` when none reaches ``min_area``. Filling never puts ``exclude_mask`` back."""
+    fg = np.asarray(candidates, dtype=np.uint8)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    if n <= 1:
+        return np.zeros(fg.shape, bool)
+    areas = stats[1:, cv2.CC_STAT_AREA]
+    best = int(np.argmax(areas)) + 1
+    if areas[best - 1] < min_area:
+        return np.zeros(fg.shape, bool)
+    mask = labels == best
+    if fill:
+        mask = fill_holes(mask)
+    if exclude_mask is not None:
+        mask &= ~np.asarray(exclude_mask, dtype=bool)
+    return mask
 
 
 def fill_holes(mask: np.ndarray) -> np.ndarray:
@@ -248,16 +260,4 @@ class HeightAboveTableSegmenter(BaseEstimator):
             if ex.shape != above.shape:
                 raise ValueError(f"exclude_mask must have shape {above.shape}, got {ex.shape}")
             above &= ~ex
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(above.astype(np.uint8), 8)
-        if n <= 1:
-            return np.zeros(above.shape, bool)
-        areas = stats[1:, cv2.CC_STAT_AREA]
-        best = int(np.argmax(areas)) + 1
-        if areas[best - 1] < self.min_area:
-            return np.zeros(above.shape, bool)
-        mask = labels == best
-        if self.fill_holes:
-            mask = fill_holes(mask)
-        if exclude_mask is not None:
-            mask &= ~np.asarray(exclude_mask, dtype=bool)
-        return mask
+        return largest_component(above, self.min_area, self.fill_holes, exclude_mask)

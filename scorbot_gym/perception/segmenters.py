@@ -57,7 +57,35 @@ class PrivilegedSegmenter:
         return mask if mask.any() else None
 
 
-class BackgroundSegmenter:
+class _ArmAwareSegmenter:
+    """What the non-privileged segmenters share: the arm's mask, rendered from the robot's model
+    at the observed joint angles with the camera's public calibration, and the last excluded
+    mask per camera (``excluded``), so that a recogniser can tell whether the arm touches the
+    silhouette."""
+
+    privileged = False
+
+    def __init__(self, arm: ArmMaskRenderer | None = None) -> None:
+        self._arm = arm
+        self._excluded: dict[str, np.ndarray] = {}
+        self.timings_ms: dict[str, float] = {}
+
+    @property
+    def arm(self) -> ArmMaskRenderer:
+        if self._arm is None:  # built on first use: it compiles a model and a GL context
+            self._arm = ArmMaskRenderer()
+        return self._arm
+
+    def _arm_now(self, frame: PerceptionFrame, camera: str) -> np.ndarray:
+        obs = frame.observation
+        opening = float(np.ravel(obs["gripper_opening"])[0])
+        return self.arm.render(frame.cameras[camera], obs["joint_pos"], opening)
+
+    def excluded(self, camera: str) -> np.ndarray | None:
+        return self._excluded.get(camera)
+
+
+class BackgroundSegmenter(_ArmAwareSegmenter):
     """Background subtraction against the reset-time reference frame, minus the robot's pixels.
 
     At :meth:`reset` each camera's reference frame (``frame.backgrounds[camera]``) fits a
@@ -72,7 +100,6 @@ class BackgroundSegmenter:
     ``subtract`` times.
     """
 
-    privileged = False
     image_types: tuple[str, ...] = ()
     env_kwargs: dict[str, Any] = {"capture_background": True}
 
@@ -81,18 +108,10 @@ class BackgroundSegmenter:
         subtractor: BackgroundSubtractionSegmenter | None = None,
         arm: ArmMaskRenderer | None = None,
     ) -> None:
+        super().__init__(arm)
         self.subtractor = subtractor if subtractor is not None else BackgroundSubtractionSegmenter()
-        self._arm = arm
         self._fitted: dict[str, BackgroundSubtractionSegmenter] = {}
         self._reference_arm: dict[str, np.ndarray] = {}
-        self._excluded: dict[str, np.ndarray] = {}
-        self.timings_ms: dict[str, float] = {}
-
-    @property
-    def arm(self) -> ArmMaskRenderer:
-        if self._arm is None:  # built on first use: it compiles a model and a GL context
-            self._arm = ArmMaskRenderer()
-        return self._arm
 
     def required_keys(self, camera: str) -> tuple[str, ...]:
         return ()  # the camera's rgb (read by every source) and proprioception only
@@ -115,9 +134,7 @@ class BackgroundSegmenter:
             raise RuntimeError(f"BackgroundSegmenter.segment before reset for camera {camera!r}")
         obs = frame.observation
         t0 = time.perf_counter()
-        arm = self.arm.render(
-            frame.cameras[camera], obs["joint_pos"], float(np.ravel(obs["gripper_opening"])[0])
-        )
+        arm = self._arm_now(frame, camera)
         excluded = arm | self._reference_arm[camera]
         t1 = time.perf_counter()
         mask = self._fitted[camera].segment(np.asarray(obs[f"{camera}_rgb"]), excluded)
@@ -126,11 +143,8 @@ class BackgroundSegmenter:
         self.timings_ms = {"arm_mask": 1e3 * (t1 - t0), "subtract": 1e3 * (t2 - t1)}
         return mask if mask.any() else None
 
-    def excluded(self, camera: str) -> np.ndarray | None:
-        return self._excluded.get(camera)
 
-
-class DepthSegmenter:
+class DepthSegmenter(_ArmAwareSegmenter):
     """The pixels above the table plane in the camera's depth image, minus the robot's pixels.
 
     It needs no reference frame, so it also serves a camera that moves with the arm
@@ -140,7 +154,6 @@ class DepthSegmenter:
     arm's mask rendered from its kinematic model at the observed joint angles.
     """
 
-    privileged = False
     image_types: tuple[str, ...] = ("depth",)
     env_kwargs: dict[str, Any] = {}
 
@@ -149,16 +162,8 @@ class DepthSegmenter:
         heights: HeightAboveTableSegmenter | None = None,
         arm: ArmMaskRenderer | None = None,
     ) -> None:
+        super().__init__(arm)
         self.heights = heights if heights is not None else HeightAboveTableSegmenter()
-        self._arm = arm
-        self._excluded: dict[str, np.ndarray] = {}
-        self.timings_ms: dict[str, float] = {}
-
-    @property
-    def arm(self) -> ArmMaskRenderer:
-        if self._arm is None:  # built on first use: it compiles a model and a GL context
-            self._arm = ArmMaskRenderer()
-        return self._arm
 
     def required_keys(self, camera: str) -> tuple[str, ...]:
         return (f"{camera}_depth",)
@@ -169,18 +174,13 @@ class DepthSegmenter:
     def segment(self, frame: PerceptionFrame, camera: str) -> np.ndarray | None:
         obs = frame.observation
         t0 = time.perf_counter()
-        arm = self.arm.render(
-            frame.cameras[camera], obs["joint_pos"], float(np.ravel(obs["gripper_opening"])[0])
-        )
+        arm = self._arm_now(frame, camera)
         t1 = time.perf_counter()
         mask = self.heights.segment(obs[f"{camera}_depth"], frame.cameras[camera], arm)
         t2 = time.perf_counter()
         self._excluded[camera] = arm
         self.timings_ms = {"arm_mask": 1e3 * (t1 - t0), "height": 1e3 * (t2 - t1)}
         return mask if mask.any() else None
-
-    def excluded(self, camera: str) -> np.ndarray | None:
-        return self._excluded.get(camera)
 
 
 _SEGMENTERS = {
