@@ -53,3 +53,13 @@ def test_motion_by_name_and_bad_parameters():
         SilhouetteMotion(min_shift_m=float("nan"))
     with pytest.raises(ValueError, match="min_area must be >= 1"):
         SilhouetteMotion(min_area=0)
+
+
+def test_rollout_configuration_checks_the_motion_detector():
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    with pytest.raises(ValueError, match="unknown motion detector 'optical'"):
+        RolloutConfig(pose="manifold", motion="optical")
+    with pytest.raises(ValueError, match="motion only applies to pose 'manifold', not 'oracle'"):
+        RolloutConfig(pose="oracle", motion="silhouette")
+    assert RolloutConfig(pose="manifold", motion="silhouette").to_dict()["motion"] == "silhouette"
