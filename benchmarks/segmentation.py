@@ -10,7 +10,9 @@ estimate <= 40 ms median per step at 320 x 240 on one core.
    compared with the simulator's own object mask. Frames where the object is mostly hidden
    (fewer than ``--min-visible`` true pixels: under the gripper, lifted out of view) are
    counted apart. IoU is reported over all visible frames and over the frames where the arm
-   touches the object's silhouette (dilated by 5 px), the hard case.
+   touches the object's silhouette (dilated by 5 px), the hard case. ``--segmenter depth
+   --cameras top eye_in_hand --no-timing`` measures the depth segmenter the same way, on the
+   hand camera too (its calibration taken from every step's info).
 2. *Timing.* Models trained on the whole catalogue (top camera, 320 x 240). On the frames of
    one scripted episode per object each stage is timed on its own, wall and process-CPU time
    (the machine is shared; CPU time is what the stage costs one core): ``render`` (the env's
@@ -47,7 +49,11 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception.base import PerceptionFrame
 from scorbot_gym.perception.recognizers import make_recognizer
-from scorbot_gym.perception.segmenters import BackgroundSegmenter
+from scorbot_gym.perception.segmenters import (
+    BackgroundSegmenter,
+    make_segmenter,
+    segmenter_names,
+)
 from scorbot_gym.perception.training import train_models
 from scorbot_gym.policies import ScriptedGraspPolicy
 
@@ -63,30 +69,34 @@ def _quartiles(values) -> dict:
     return {"n": int(v.size), "median": float(med), "q1": float(q1), "q3": float(q3)}
 
 
-def mask_quality(objects, episodes: int, every: int, steps: int, w: int, h: int) -> list[dict]:
+def mask_quality(
+    objects, episodes: int, every: int, steps: int, w: int, h: int, segmenter, cameras
+) -> list[dict]:
+    seg, rows = make_segmenter(segmenter), []
     env = make_env(
         pose="oracle",
-        cameras=list(CAMERAS),
+        cameras=list(cameras),
         image_width=w,
         image_height=h,
-        image_types=["rgb", "privileged_segmentation"],
-        capture_background=True,
+        image_types=["rgb", "privileged_segmentation", *seg.image_types],
         objects=objects,
+        **seg.env_kwargs,
     )
-    seg, rows = BackgroundSegmenter(), []
     for name in objects:
         for ep in range(episodes):
             obs, info = env.reset(seed=ep, options={"object_name": name})
             policy = ScriptedGraspPolicy.for_env(env)
             policy.reset(obs, info)
             cams = {c: CameraModel(**p) for c, p in info["camera_params"].items()}
-            frame = PerceptionFrame(obs, cams, backgrounds=info["camera_background"])
-            for cam in CAMERAS:
+            frame = PerceptionFrame(obs, cams, backgrounds=info.get("camera_background", {}))
+            for cam in cameras:
                 seg.reset(frame, cam)
             for t in range(steps + 1):
                 if t % every == 0:
-                    frame = PerceptionFrame(obs, cams, backgrounds=info.get("camera_background"))
-                    for cam in CAMERAS:
+                    frame = PerceptionFrame(
+                        obs, cams, backgrounds=info.get("camera_background", {})
+                    )
+                    for cam in cameras:
                         truth = obs[f"{cam}_privileged_segmentation"][..., 0] > 0
                         mask = seg.segment(frame, cam)
                         mask = np.zeros_like(truth) if mask is None else mask
@@ -102,12 +112,13 @@ def mask_quality(objects, episodes: int, every: int, steps: int, w: int, h: int)
                                 "arm_touches_object": bool((seg.excluded(cam) & (near > 0)).any()),
                                 "iou": mask_iou(mask, truth),
                                 "arm_mask_ms": seg.timings_ms["arm_mask"],
-                                "subtract_ms": seg.timings_ms["subtract"],
+                                "segment_ms": sum(seg.timings_ms.values()),
                             }
                         )
                 if t == steps:
                     break
                 obs, _, term, trunc, info = env.step(policy.act(obs))
+                cams.update({c: CameraModel(**p) for c, p in info.get("camera_params", {}).items()})
                 if term or trunc:
                     break
     env.close()
@@ -192,26 +203,29 @@ def stage_timings(models, objects, steps: int, w: int, h: int) -> dict:
     return out
 
 
-def plot(rows: list[dict], timings: dict, path: Path) -> None:
+def plot(rows: list[dict], timings: dict | None, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    for cam in CAMERAS:
+    fig, axes = plt.subplots(1, 2 if timings else 1, figsize=(11 if timings else 6, 4))
+    a = axes[0] if timings else axes
+    for cam in sorted({r["camera"] for r in rows}):
         iou = sorted(r["iou"] for r in rows if r["camera"] == cam and r["visible"])
         a.plot(iou, np.linspace(0, 1, len(iou)), label=f"{cam} ({len(iou)} frames)")
     a.axvline(0.9, color="grey", ls="--", lw=1)
     a.set(xlabel="mask IoU vs ground truth", ylabel="fraction of frames", title="arm in view")
     a.legend()
-    names = ["render", "segment", "recognise_flr", "recognise_appearance", "estimate"]
-    for clock in ("wall_ms", "cpu_ms"):
-        b.plot(names, [timings[k][clock]["median"] for k in names], "o-", label=clock[:-3])
-    b.axhline(40.0, color="grey", ls="--", lw=1)
-    b.set(ylabel="median ms per step", title="stages at 320 x 240 (one OpenCV thread)")
-    b.tick_params(axis="x", labelrotation=20)
-    b.legend()
+    if timings:
+        b = axes[1]
+        names = ["render", "segment", "recognise_flr", "recognise_appearance", "estimate"]
+        for clock in ("wall_ms", "cpu_ms"):
+            b.plot(names, [timings[k][clock]["median"] for k in names], "o-", label=clock[:-3])
+        b.axhline(40.0, color="grey", ls="--", lw=1)
+        b.set(ylabel="median ms per step", title="stages at 320 x 240 (one OpenCV thread)")
+        b.tick_params(axis="x", labelrotation=20)
+        b.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -225,17 +239,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=60, help="steps per episode")
     parser.add_argument("--timing-steps", type=int, default=30)
     parser.add_argument("--min-visible", type=int, default=200, help="true pixels")
+    parser.add_argument("--segmenter", choices=segmenter_names(), default="background")
+    parser.add_argument("--cameras", nargs="+", default=list(CAMERAS), help="mask quality")
+    parser.add_argument(
+        "--no-timing", action="store_true", help="mask quality only (no stage timings)"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS / "segmentation.json")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     w, h = 320, 240
 
     t0 = time.perf_counter()
-    rows = mask_quality(args.objects, args.episodes, args.every, args.steps, w, h)
+    rows = mask_quality(
+        args.objects, args.episodes, args.every, args.steps, w, h, args.segmenter, args.cameras
+    )
     for r in rows:
         r["visible"] = r["true_pixels"] >= args.min_visible
     quality = {"seconds": round(time.perf_counter() - t0, 1), "frames": len(rows)}
-    for cam in (*CAMERAS, "all"):
+    for cam in (*args.cameras, "all"):
         sel = [r for r in rows if cam in ("all", r["camera"])]
         vis = [r for r in sel if r["visible"]]
         quality[cam] = {
@@ -246,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
             "iou_visible_arm_touching": _quartiles(
                 r["iou"] for r in vis if r["arm_touches_object"]
             ),
-            "segment_ms": _quartiles(r["arm_mask_ms"] + r["subtract_ms"] for r in sel),
+            "segment_ms": _quartiles(r["segment_ms"] for r in sel),
         }
     quality["per_object_median_iou"] = {
         o: float(np.median([r["iou"] for r in rows if r["object"] == o and r["visible"]]))
@@ -255,17 +276,20 @@ def main(argv: list[str] | None = None) -> int:
     quality["target_met"] = bool(quality["all"]["iou_visible"]["median"] >= 0.9)
     print(f"mask IoU (visible, arm in view): {quality['all']['iou_visible']}")
 
-    t0 = time.perf_counter()
-    models, _ = train_models(args.objects, width=w, height=h, jobs=2, progress=False)
-    train_s = time.perf_counter() - t0
-    timings = stage_timings(models, args.objects, args.timing_steps, w, h)
-    for k in ("loop_wall_ms", "loop_cpu_ms"):
-        print(k, {n: round(v, 1) for n, v in timings[k].items()})
+    timings, train_s = None, None
+    if not args.no_timing:
+        t0 = time.perf_counter()
+        models, _ = train_models(args.objects, width=w, height=h, jobs=2, progress=False)
+        train_s = round(time.perf_counter() - t0, 1)
+        timings = stage_timings(models, args.objects, args.timing_steps, w, h)
+        for k in ("loop_wall_ms", "loop_cpu_ms"):
+            print(k, {n: round(v, 1) for n, v in timings[k].items()})
     report = {
         "date_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
         "conditions": {
             "image": f"{w}x{h}",
-            "cameras": list(CAMERAS),
+            "cameras": list(args.cameras),
+            "segmenter": args.segmenter,
             "objects": args.objects,
             "episodes_per_object": args.episodes,
             "segment_every_steps": args.every,
@@ -276,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
             "load_average_at_end": list(os.getloadavg()),
             "policy": "scripted grasp, oracle pose (mask quality); estimated pose (timing)",
             "models": "train_models(all objects, 320x240 top camera, default views)",
-            "model_training_s": round(train_s, 1),
+            "model_training_s": train_s,
         },
         "target": "median mask IoU >= 0.9 with the arm in view; render+segment+recognise+"
         "estimate <= 40 ms median at 320x240 on one core",

@@ -22,6 +22,8 @@ import numpy as np
 from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted
 
+from pose.camera import CameraModel
+
 
 def _as_rgb(image: np.ndarray, name: str) -> np.ndarray:
     img = np.asarray(image)
@@ -221,7 +223,7 @@ class HeightAboveTableSegmenter(BaseEstimator):
         if isinstance(a, bool) or not isinstance(a, (int, np.integer)) or a < 1:
             raise ValueError(f"min_area must be an int >= 1, got {a!r}")
 
-    def heights(self, depth: np.ndarray, camera) -> np.ndarray:
+    def heights(self, depth: np.ndarray, camera: CameraModel) -> np.ndarray:
         """World height (z, metres) of every pixel, ``(H, W)``; NaN where there is no depth."""
         z = np.asarray(depth, dtype=np.float64)
         if z.ndim == 3 and z.shape[2] == 1:
@@ -250,7 +252,9 @@ class HeightAboveTableSegmenter(BaseEstimator):
         counts = np.bincount(((h - lo) / bin_m).astype(np.int64))
         return lo + (int(np.argmax(counts)) + 0.5) * bin_m
 
-    def segment(self, depth: np.ndarray, camera, exclude_mask: np.ndarray | None = None):
+    def segment(
+        self, depth: np.ndarray, camera: CameraModel, exclude_mask: np.ndarray | None = None
+    ) -> np.ndarray:
         """The object's mask, ``(H, W)`` bool; all ``False`` when nothing rises high enough."""
         self._check_params()
         h = self.heights(depth, camera)

@@ -79,33 +79,42 @@ def test_bad_input_is_a_clear_error():
         make_segmenter("magic")
 
 
-@pytest.fixture(scope="module")
-def grasp_frames():
-    """Frames along two scripted grasps (oracle pose), with the arm moving through the view."""
+def _scripted_frames(cameras, image_types, **env_kwargs):
+    """Frames along two scripted grasps (oracle pose), with the arm moving through the view:
+    ``(obs, calibration by camera, background)`` every 8 steps; a camera on the arm sends its
+    calibration with every step."""
     env = make_env(
         pose="oracle",
-        cameras=["top", "side"],
+        cameras=cameras,
         image_width=320,
         image_height=240,
-        image_types=["rgb", "privileged_segmentation"],
-        capture_background=True,
+        image_types=image_types,
         objects=["box", "tomato_soup_can"],
+        **env_kwargs,
     )
     frames = []
     for seed in (0, 1):
         obs, info = env.reset(seed=seed)
         policy = ScriptedGraspPolicy.for_env(env)
         policy.reset(obs, info)
-        background = info["camera_background"]
-        params = info["camera_params"]  # fixed cameras: calibration comes with the reset
+        background = info.get("camera_background")
+        params = dict(info["camera_params"])
         for t in range(40):
             if t % 8 == 0:
-                frames.append((obs, params, background))
+                frames.append((obs, dict(params), background))
             obs, _, term, trunc, info = env.step(policy.act(obs))
+            params.update(info.get("camera_params", {}))
             if term or trunc:
                 break
     env.close()
     return frames
+
+
+@pytest.fixture(scope="module")
+def grasp_frames():
+    return _scripted_frames(
+        ["top", "side"], ["rgb", "privileged_segmentation"], capture_background=True
+    )
 
 
 @pytest.mark.slow
@@ -173,31 +182,9 @@ def test_background_segmenter_needs_a_reference_frame(grasp_frames):
 
 @pytest.fixture(scope="module")
 def hand_camera_frames():
-    """Frames of the hand camera (it moves: calibration from every step's info) and the top
-    camera along a scripted grasp, with depth."""
-    env = make_env(
-        pose="oracle",
-        cameras=["top", "eye_in_hand"],
-        image_width=320,
-        image_height=240,
-        image_types=["rgb", "depth", "privileged_segmentation"],
-        objects=["box", "tomato_soup_can"],
-    )
-    frames = []
-    for seed in (0, 1):
-        obs, info = env.reset(seed=seed)
-        policy = ScriptedGraspPolicy.for_env(env)
-        policy.reset(obs, info)
-        params = dict(info["camera_params"])
-        for t in range(40):
-            if t % 8 == 0:
-                frames.append((obs, {c: CameraModel(**p) for c, p in params.items()}))
-            obs, _, term, trunc, info = env.step(policy.act(obs))
-            params.update(info.get("camera_params", {}))
-            if term or trunc:
-                break
-    env.close()
-    return frames
+    """The hand camera (it moves) and the top camera along a scripted grasp, with depth."""
+    frames = _scripted_frames(["top", "eye_in_hand"], ["rgb", "depth", "privileged_segmentation"])
+    return [(obs, {c: CameraModel(**p) for c, p in params.items()}) for obs, params, _ in frames]
 
 
 @pytest.mark.slow
