@@ -77,6 +77,48 @@ def test_filter_wraps_the_closing_yaw_at_a_half_turn():
     assert abs(abs(f.yaw) - np.pi / 2) < 0.02
 
 
+def test_wrist_takes_the_nearest_roll_for_a_closing_line():
+    from scorbot_gym.robot.kinematics import JOINT_HIGH, JOINT_LOW, ArmKinematics
+
+    kin = ArmKinematics()
+    q, _ = kin.ik(np.array([0.28, -0.05, 0.9]), -np.pi / 2, np.zeros(5))
+    for yaw in np.linspace(-np.pi, np.pi, 13):
+        for near in (-3.0, -1.4, 0.0, 1.5, 3.0):
+            q[4] = kin.roll_for_closing_yaw(q, yaw, near=near)
+            assert JOINT_LOW[4] <= q[4] <= JOINT_HIGH[4]
+            diff = (kin.closing_yaw(q) - yaw + np.pi / 2) % np.pi - np.pi / 2
+            assert abs(diff) < 1e-6  # the same closing line
+            for other in (q[4] - np.pi, q[4] + np.pi):  # the other roll: further, or out of range
+                assert (
+                    abs(other - near) >= abs(q[4] - near)
+                    or not JOINT_LOW[4] <= other <= JOINT_HIGH[4]
+                )
+
+
+def test_a_push_across_the_half_turn_does_not_swing_the_wrist_over_the_object():
+    """Seed 1002: the can's closing direction is 179 deg, the push turns it by -21 deg. Wrapped
+    into [-90, 90) the new wrist roll lay a half turn away, and the fingers, still turning,
+    landed on the can (dropped); the nearest roll turns the wrist 21 deg and grasps."""
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    config = RolloutConfig(pose="oracle", disturbance="push", objects=("potted_meat_can",))
+    env = config.make_env()
+    policy = config.make_policy(env)
+    obs, info = env.reset(seed=1002)
+    policy.reset(obs, info)
+    rolls = []
+    for _ in range(150):
+        obs, _, terminated, truncated, info = env.step(policy.act(obs))
+        rolls.append(float(obs["joint_pos"][4]))
+        if terminated or truncated:
+            break
+    env.close()
+    assert info["disturbance"]["applied"] and abs(info["disturbance"]["turn_deg"]) > 15
+    assert info["is_success"], info["failure_cause"]
+    after_push = np.array(rolls[info["disturbance"]["step"] - 1 :])
+    assert np.abs(after_push - after_push[0]).max() < np.deg2rad(40)  # was a ~160 deg swing
+
+
 def test_noisy_estimates_every_step_still_grasp_with_the_filter():
     from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 

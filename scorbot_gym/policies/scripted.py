@@ -71,6 +71,7 @@ class ScriptedGraspPolicy:
         lift_height: float = 0.12,
         close_time: float = 0.5,
         replan_tolerance: float = 0.015,
+        roll_tolerance: float = 0.1,
         table_height: float = TABLE_HEIGHT,
         kinematics: ArmKinematics | None = None,
         pose_filter: GraspPoseFilter | str | None = "gated",
@@ -87,6 +88,7 @@ class ScriptedGraspPolicy:
         self.speed, self.descend_speed = speed, descend_speed
         self.approach_height, self.lift_height = approach_height, lift_height
         self.close_time, self.replan_tolerance = close_time, replan_tolerance
+        self.roll_tolerance = roll_tolerance
         self.table_height = table_height
         self.kinematics = kinematics or ArmKinematics()
         if isinstance(pose_filter, str) and pose_filter != "gated":
@@ -201,10 +203,10 @@ class ScriptedGraspPolicy:
             return g, self.descend_speed
         return g + [0.0, 0.0, self.lift_height], self.descend_speed
 
-    def _advance_phase(self, tcp: np.ndarray, goal: np.ndarray) -> None:
+    def _advance_phase(self, tcp: np.ndarray, goal: np.ndarray, roll_error: float) -> None:
         self._phase_time += self.dt
         at_goal = np.allclose(self._waypoint, goal) and np.linalg.norm(tcp - goal) < 0.008
-        if self.phase == "approach" and at_goal:
+        if self.phase == "approach" and at_goal and roll_error < self.roll_tolerance:
             self.phase, self._phase_time = "descend", 0.0
         elif self.phase == "descend" and (at_goal or self._phase_time > 2.0):
             self.phase, self._phase_time = "close", 0.0
@@ -227,11 +229,12 @@ class ScriptedGraspPolicy:
         dist = np.linalg.norm(delta)
         step = speed * self.dt
         self._waypoint = goal.copy() if dist <= step else self._waypoint + delta * (step / dist)
-        self._advance_phase(tcp, goal)
 
         kin = self.kinematics
         q_goal, _ = kin.ik(self._waypoint, TOOL_DOWN, q)
-        q_goal[4] = kin.roll_for_closing_yaw(q_goal, self.closing_yaw)
+        # the closing line's roll nearest the current one; descend only once the wrist is turned
+        q_goal[4] = kin.roll_for_closing_yaw(q_goal, self.closing_yaw, near=q[4])
+        self._advance_phase(tcp, goal, abs(q_goal[4] - q[4]))
         gripper = 1.0 if self.phase in ("approach", "descend") else -1.0
         if self.action_type == "joint":
             arm = (q_goal - q) / self.max_joint_step

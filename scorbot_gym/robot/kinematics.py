@@ -99,11 +99,24 @@ class ArmKinematics:
             q[:4] = np.clip(q[:4] + scale * dq, JOINT_LOW[:4], JOINT_HIGH[:4])
         return q, err
 
-    def roll_for_closing_yaw(self, q: np.ndarray, yaw: float) -> float:
-        """Wrist roll that turns the closing direction to world heading ``yaw`` (tool down)."""
+    def roll_for_closing_yaw(self, q: np.ndarray, yaw: float, near: float | None = None) -> float:
+        """Wrist roll that turns the closing direction to world heading ``yaw`` (tool down).
+
+        A parallel gripper closes along the same line after a half turn, so every yaw has two
+        rolls inside the joint's range. Without ``near`` the one in [-pi/2, pi/2) is returned;
+        with it, the one nearest ``near`` (the current roll): a closing direction that crosses
+        the half-turn boundary while the arm servos must not swing the wrist round by 180
+        degrees over the object.
+        """
         q0 = np.array(q, dtype=float)
         q0[4] = 0.0
         y0 = self.closing_yaw(q0)
         q0[4] = 0.5
         sign = np.sign(wrap_half_turn(self.closing_yaw(q0) - y0)) or 1.0
-        return wrap_half_turn(sign * (yaw - y0))
+        roll = wrap_half_turn(sign * (yaw - y0))
+        if near is None:
+            return roll
+        rolls = [
+            r for r in (roll - np.pi, roll, roll + np.pi) if JOINT_LOW[4] <= r <= JOINT_HIGH[4]
+        ]
+        return float(min(rolls, key=lambda r: abs(r - near)))
