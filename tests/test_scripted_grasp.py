@@ -67,3 +67,5 @@ def test_summary_counts_and_interval(envs):
     assert 0.4 < lo < 1.0 and hi == 1.0
     assert s["perception"]["valid_rate"] == 1.0 and s["perception"]["privileged"]
     assert np.isclose(wilson_interval(5, 10)[0], 0.2366, atol=1e-3)
+    for n in range(1, 300):  # bounds hold the rate exactly (error bars never negative)
+        assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
