@@ -4,10 +4,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from pose.metrics import rotation_error_deg
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.sim import Simulation
-from scorbot_gym.sim.simulation import quat_to_mat
+from scorbot_gym.sim.simulation import quat_from_yaw, quat_mul, quat_to_mat
 
 
 @pytest.fixture(scope="module")
@@ -53,6 +54,10 @@ def test_motion_by_name_and_bad_parameters():
         SilhouetteMotion(min_shift_m=float("nan"))
     with pytest.raises(ValueError, match="min_area must be >= 1"):
         SilhouetteMotion(min_area=0)
+    with pytest.raises(ValueError, match="turns_deg must be finite angles"):
+        SilhouetteMotion(turns_deg=(0, 400))
+    with pytest.raises(ValueError, match="min_gain must be an IoU gain"):
+        SilhouetteMotion(min_gain=-0.1)
 
 
 def test_rollout_configuration_checks_the_motion_detector():
@@ -63,3 +68,48 @@ def test_rollout_configuration_checks_the_motion_detector():
     with pytest.raises(ValueError, match="motion only applies to pose 'manifold', not 'oracle'"):
         RolloutConfig(pose="oracle", motion="silhouette")
     assert RolloutConfig(pose="manifold", motion="silhouette").to_dict()["motion"] == "silhouette"
+
+
+@pytest.fixture(scope="module")
+def pushed_and_turned():
+    """Side-camera masks of a marker and a Duplo brick pushed 3.6 cm and turned 30 deg."""
+    out = {}
+    for name in ("large_marker", "lego_duplo"):
+        sim = Simulation(name, render_width=320, render_height=240)
+        before, quat = sim.resting_pose((0.28, -0.01), 0.4)
+        after = before + np.array([-0.02, 0.03, 0.0])
+        turned = quat_mul(quat_from_yaw(np.deg2rad(30.0)), quat)
+        sim.set_object_pose(after, turned)
+        sim.forward()
+        mask = sim.render("side", "segmentation")
+        camera = sim.camera_model("side")
+        sim.close()
+        hull = trimesh.convex.convex_hull(get_object(name).mesh_vertices()).vertices
+        out[name] = (mask, camera, before, after, quat_to_mat(quat), quat_to_mat(turned), hull)
+    return out
+
+
+@pytest.mark.parametrize("name", ["large_marker", "lego_duplo"])
+def test_a_pushed_and_turned_object_gets_its_new_heading(pushed_and_turned, name):
+    mask, camera, before, after, R, turned, hull = pushed_and_turned[name]
+    spec = get_object(name)
+    pos, R_new = SilhouetteMotion().moved_pose(mask, None, camera, before, R, hull)
+    assert np.linalg.norm(pos - after) < 0.003
+    assert rotation_error_deg(R_new, turned, spec.symmetry) <= 5.0
+    assert rotation_error_deg(R, turned, spec.symmetry) > 25.0  # the held heading was off
+    held = SilhouetteMotion(turns_deg=()).moved_pose(mask, None, camera, before, R, hull)
+    np.testing.assert_allclose(held[1], R)  # the ablation keeps the heading
+
+
+def test_an_object_symmetric_about_the_vertical_keeps_its_heading():
+    sim = Simulation("tomato_soup_can", render_width=320, render_height=240)
+    before, quat = sim.resting_pose((0.28, -0.01), 0.4)
+    sim.set_object_pose(before + np.array([0.03, 0.0, 0.0]), quat)
+    sim.forward()
+    mask, camera = sim.render("side", "segmentation"), sim.camera_model("side")
+    sim.close()
+    hull = trimesh.convex.convex_hull(get_object("tomato_soup_can").mesh_vertices()).vertices
+    R = quat_to_mat(quat)
+    moved = SilhouetteMotion().moved_pose(mask, None, camera, before, R, hull)
+    assert moved is not None
+    np.testing.assert_allclose(moved[1], R)  # every turn looks the same: no gain, none taken

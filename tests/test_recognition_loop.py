@@ -277,7 +277,8 @@ def test_fallback_camera_estimates_where_the_top_view_is_hidden(models):
 @pytest.mark.slow
 def test_motion_places_the_object_where_no_camera_can_estimate_it(models):
     """The object is pushed 3 cm while the top camera is blind: with ``motion="silhouette"``
-    the side camera's silhouette moves the last estimate there; without it, no answer."""
+    the side camera's silhouette moves the last estimate there, and confirms it at the next
+    step; without it, no answer."""
     from pose.camera import CameraModel
     from scorbot_gym.perception.base import PerceptionFrame
 
@@ -299,9 +300,15 @@ def test_motion_places_the_object_where_no_camera_can_estimate_it(models):
         obs, *_ = base.step(np.zeros(base.action_space.shape))
         obs = {**obs, "top_rgb": info["camera_background"]["top"]["rgb"]}  # top: blind
         answers[motion] = (source.estimate(frame(obs)), sim.object_pose()[0])
+        obs, *_ = base.step(np.zeros(base.action_space.shape))  # still blind from above
+        obs = {**obs, "top_rgb": info["camera_background"]["top"]["rgb"]}
+        answers[motion] += (source.estimate(frame(obs)),)
         base.close()
-    assert not answers[None][0].valid
-    moved, truth = answers["silhouette"]
+    assert not answers[None][0].valid and not answers[None][2].valid
+    moved, truth, again = answers["silhouette"]
     assert moved.valid and moved.camera == "side" and moved.reason.startswith("moved")
     assert np.linalg.norm(moved.position - truth) < 0.005
     assert moved.timings_ms["motion"] > 0
+    # the next step's silhouette agrees: the moved pose again, so a filter can confirm the jump
+    assert again.valid and again.reason == "moved: confirmed by the silhouette"
+    np.testing.assert_allclose(again.position, moved.position)

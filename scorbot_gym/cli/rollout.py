@@ -80,7 +80,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=motion_names(),
         default=None,
         help="for --pose manifold: where no camera can estimate the pose, 'silhouette' places an "
-        "object that moved from its silhouette in any camera (rotation held; default: none)",
+        "object that moved from its silhouette in any camera (position and heading; default: none)",
     )
     p.add_argument(
         "--segmenter",

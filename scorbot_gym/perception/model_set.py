@@ -32,6 +32,8 @@ from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.sim.simulation import mat_to_quat
 
+_MOVED = "moved"  # the start of the reason of an answer from the motion detector
+
 
 class ModelSetPoseSource:
     """Estimate the pose with a trained :class:`PoseModelSet` on one camera's images.
@@ -65,10 +67,10 @@ class ModelSetPoseSource:
         above, while a side camera still sees it.
     motion
         Where no camera gives a valid estimate: ``"silhouette"`` (a
-        :class:`~scorbot_gym.perception.motion.SilhouetteMotion`) answers the object's new
-        position if a clear silhouette in one of the cameras shows that it moved since the last
-        valid estimate, with that estimate's rotation (``reason`` says so); ``None`` (default)
-        answers invalid.
+        :class:`~scorbot_gym.perception.motion.SilhouetteMotion`, or one with other
+        parameters) answers the object's new position and heading if a clear silhouette in one
+        of the cameras shows that it moved since the last valid estimate (``reason`` says so);
+        ``None`` (default) answers invalid.
     """
 
     def __init__(
@@ -188,7 +190,9 @@ class ModelSetPoseSource:
         return pose
 
     def _moved(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
-        """The last valid pose, moved to where a clear silhouette now places the object."""
+        """The last valid pose, moved to where a clear silhouette now places the object; or,
+        after such a move, the moved pose again while silhouettes agree with it (the
+        controller's filter takes a lone jump for noise until later estimates confirm it)."""
         last = self._last
         if last is None or last.object_name != invalid.object_name:
             return None
@@ -197,20 +201,29 @@ class ModelSetPoseSource:
         for cam in self.cameras:
             if cam not in self._masks:  # not segmented on the way here (a recognition camera)
                 self._masks[cam] = self.segmenter.segment(frame, cam)
-            mask = self._masks[cam]
-            pos = self.motion.moved_position(
-                mask, excluded(cam), frame.cameras[cam], last.position, last.rotation, points
+            found = self.motion.locate(
+                self._masks[cam],
+                excluded(cam),
+                frame.cameras[cam],
+                last.position,
+                last.rotation,
+                points,
             )
-            if pos is not None:
+            if found is None:
+                continue
+            common = dict(n_keypoints=0, n_inliers=0, timings_ms=invalid.timings_ms, camera=cam)
+            if self.motion.is_move(found[0], last.position):
                 return dataclasses.replace(
                     last,
-                    position=pos,
+                    position=found[0],
+                    quaternion=mat_to_quat(found[1]),
                     confidence=0.5 * last.confidence,
-                    n_keypoints=0,
-                    n_inliers=0,
-                    timings_ms=invalid.timings_ms,
-                    reason="moved: position from the silhouette, rotation held",
-                    camera=cam,
+                    reason=f"{_MOVED}: position and heading from the silhouette",
+                    **common,
+                )
+            if last.reason.startswith(_MOVED):
+                return dataclasses.replace(
+                    last, reason=f"{_MOVED}: confirmed by the silhouette", **common
                 )
         return None
 
