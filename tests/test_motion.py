@@ -31,18 +31,18 @@ def pushed_duplo():
 def test_a_pushed_object_is_placed_from_its_silhouette(pushed_duplo):
     masks, camera, before, after, R, hull = pushed_duplo
     assert 30 < masks["after"].sum() < 2000  # a few keypoints' worth: too small to estimate
-    moved = SilhouetteMotion().moved_position(masks["after"], None, camera, before, R, hull)
+    moved = SilhouetteMotion().moved_pose(masks["after"], None, camera, before, R, hull)
     assert moved is not None
-    assert np.linalg.norm(moved - after) < 0.003  # the raw centroid: 9.5 mm off
+    assert np.linalg.norm(moved[0] - after) < 0.003  # the raw centroid: 9.5 mm off
 
 
 def test_no_move_no_answer_and_hidden_silhouettes_are_not_used(pushed_duplo):
     masks, camera, before, _, R, hull = pushed_duplo
     motion = SilhouetteMotion(min_shift_m=0.015)
-    assert motion.moved_position(masks["before"], None, camera, before, R, hull) is None
+    assert motion.moved_pose(masks["before"], None, camera, before, R, hull) is None
     touching_arm = masks["after"]  # an excluded region over the silhouette: the arm may hide it
-    assert motion.moved_position(masks["after"], touching_arm, camera, before, R, hull) is None
-    assert motion.moved_position(None, None, camera, before, R, hull) is None
+    assert motion.moved_pose(masks["after"], touching_arm, camera, before, R, hull) is None
+    assert motion.moved_pose(None, None, camera, before, R, hull) is None
 
 
 def test_motion_by_name_and_bad_parameters():

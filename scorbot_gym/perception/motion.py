@@ -110,19 +110,6 @@ class SilhouetteMotion:
         shift = np.asarray(position, float)[:2] - np.asarray(held_position, float)[:2]
         return bool(np.linalg.norm(shift) >= self.min_shift_m)
 
-    def moved_position(
-        self,
-        mask: np.ndarray | None,
-        excluded: np.ndarray | None,
-        camera: CameraModel,
-        held_position: np.ndarray,
-        held_rotation: np.ndarray,
-        model_points: np.ndarray,
-    ) -> np.ndarray | None:
-        """The position part of :meth:`moved_pose`."""
-        moved = self.moved_pose(mask, excluded, camera, held_position, held_rotation, model_points)
-        return None if moved is None else moved[0]
-
     @staticmethod
     def _placed(
         camera: CameraModel, body: np.ndarray, held: np.ndarray, target: np.ndarray
