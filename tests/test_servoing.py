@@ -95,6 +95,12 @@ def test_wrist_takes_the_nearest_roll_for_a_closing_line():
                 )
 
 
+def test_roll_tolerance_must_be_a_positive_angle():
+    for bad in (0.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="roll_tolerance must be a positive angle"):
+            ScriptedGraspPolicy(object_name="box", roll_tolerance=bad)
+
+
 def test_a_push_across_the_half_turn_does_not_swing_the_wrist_over_the_object():
     """Seed 1002: the can's closing direction is 179 deg, the push turns it by -21 deg. Wrapped
     into [-90, 90) the new wrist roll lay a half turn away, and the fingers, still turning,

@@ -88,7 +88,11 @@ class ScriptedGraspPolicy:
         self.speed, self.descend_speed = speed, descend_speed
         self.approach_height, self.lift_height = approach_height, lift_height
         self.close_time, self.replan_tolerance = close_time, replan_tolerance
-        self.roll_tolerance = roll_tolerance
+        if not (np.isfinite(roll_tolerance) and roll_tolerance > 0):
+            raise ValueError(
+                f"roll_tolerance must be a positive angle in radians, got {roll_tolerance!r}"
+            )
+        self.roll_tolerance = float(roll_tolerance)
         self.table_height = table_height
         self.kinematics = kinematics or ArmKinematics()
         if isinstance(pose_filter, str) and pose_filter != "gated":
