@@ -7,7 +7,10 @@ onto random objects (the steady state). Reported: resident memory (VmRSS) after 
 ``make``, after the catalogue pass and at the end; the first-reset (compile) times; the median
 and 90th-percentile steady-state reset times, split by whether the reset switched scenes, as
 wall time and as the process's CPU time (all its threads, software GL's included), which other
-load on a shared machine inflates much less.
+load on a shared machine inflates much less. With a camera, every reset renders the first
+observation's frame; the same frame is rendered once more after each reset and timed alone
+(``frame_cpu_ms``), so that the reset's own cost can be told from the image's. Resident memory
+is split into anonymous (heap: models, GL state) and file-backed (shared libraries) pages.
 
     python benchmarks/env_memory.py                  # writes benchmarks/results/env_memory.json
     python benchmarks/env_memory.py --resets 50 --out /tmp/m.json
@@ -69,12 +72,18 @@ def worker(config: str, resets: int, seed: int) -> dict:
         env.reset(seed=seed + i, options={"object_name": name})
         first[name] = time.perf_counter() - t0
     rss_catalogue = _rss_mb()
-    switch, same, cpu = [], [], []
+    rss_split = {k: _rss_mb(k) for k in ("RssAnon", "RssFile")}
+    switch, same, cpu, frame = [], [], [], []
+    cameras = CONFIGS[config].get("cameras", [])
     current = env.unwrapped.sim.object_spec.name
     for i in range(resets):
         c0, t0 = time.process_time(), time.perf_counter()
         _, info = env.reset(seed=seed + 1000 + i)
         dt, cpu_dt = time.perf_counter() - t0, time.process_time() - c0
+        if cameras:  # the observation's frame again, alone
+            c0 = time.process_time()
+            env.unwrapped.sim.render(cameras[0])
+            frame.append(time.process_time() - c0)
         (same if info["object_name"] == current else switch).append(dt)
         cpu.append((info["object_name"] != current, cpu_dt))
         current = info["object_name"]
@@ -90,6 +99,8 @@ def worker(config: str, resets: int, seed: int) -> dict:
             "after_import": round(rss_import, 1),
             "after_make": round(rss_make, 1),
             "after_catalogue_pass": round(rss_catalogue, 1),
+            "after_catalogue_pass_anonymous": round(rss_split["RssAnon"], 1),
+            "after_catalogue_pass_file_backed": round(rss_split["RssFile"], 1),
             "end": round(_rss_mb(), 1),
             "peak": round(_rss_mb("VmHWM"), 1),
         },
@@ -113,6 +124,7 @@ def worker(config: str, resets: int, seed: int) -> dict:
             "median_switching_scene": round(ms * _median(cpu_switch), 3) if cpu_switch else None,
             "median_same_scene": round(ms * _median(cpu_same), 3) if cpu_same else None,
         },
+        "frame_cpu_ms": {"median": round(ms * _median(frame), 3)} if frame else None,
     }
 
 

@@ -70,6 +70,14 @@ class ObjectSpec:
         """Vertices ``(N, 3)`` in the canonical object frame (metres), e.g. for ADD/ADD-S."""
         return self.model.vertices
 
+    def texture_image(self) -> np.ndarray:
+        """The object's cube-map grid image (RGB uint8, 768 x 1024), made on each call: it is
+        only read when a scene is compiled, and kept per object it would hold ~2.4 MB each."""
+        if self.texture_path is not None:
+            face = cv2.resize(load_texture_image(self.texture_path), (256, 256))
+            return np.tile(face, (3, 4, 1))
+        return cube_texture(self.name)
+
 
 @dataclass(frozen=True)
 class ObjectModel:
@@ -81,7 +89,6 @@ class ObjectModel:
     grasp_point: np.ndarray  # (2,) xy in the object frame, where the fingers close
     grasp_yaw: float  # direction (object frame) along which the fingers close, radians
     grasp_width: float  # footprint width along that direction at the grasp point, metres
-    texture: np.ndarray  # cube-map grid image, RGB uint8
 
     def stl_bytes(self) -> bytes:
         return trimesh.Trimesh(self.vertices, self.faces, process=False).export(file_type="stl")
@@ -193,13 +200,8 @@ def load_object_model(spec: ObjectSpec) -> ObjectModel:
     mesh = _load_mesh(spec.source, spec.scale)
     vertices, faces = _canonicalize(mesh)
     point, yaw, width = _grasp(vertices, faces)
-    if spec.texture_path is not None:
-        face = cv2.resize(load_texture_image(spec.texture_path), (256, 256))
-        texture = np.tile(face, (3, 4, 1))
-    else:
-        texture = cube_texture(spec.name)
     half = (vertices.max(0) - vertices.min(0)) / 2
-    return ObjectModel(vertices, faces, half, point, yaw, width, texture)
+    return ObjectModel(vertices, faces, half, point, yaw, width)
 
 
 def _ycb(name: str, ycb_id: str, mass: float, symmetry: Symmetry, **kw) -> ObjectSpec:
@@ -316,7 +318,8 @@ def register_object(
         scale=scale,
         description=f"user mesh {mesh_path.name}",
     )
-    model = spec.model  # validates mesh and texture now
+    model = spec.model  # validates the mesh now ...
+    spec.texture_image()  # ... and the texture
     if model.grasp_width > MAX_GRASP_WIDTH:
         raise ValueError(
             f"object {name!r} is {model.grasp_width * 1000:.0f} mm wide at its narrowest; the "

@@ -142,6 +142,45 @@ def test_scenes_share_one_renderer_and_match_mujoco_renderer():
     env.close()
 
 
+def test_scene_switches_reuse_uploaded_assets(monkeypatch):
+    """Each object's texture and mesh go up to GL once; switching back binds them again, with
+    the same pixels as a freshly built context."""
+    names = ["box", "banana", "foam_brick"]
+    env = ScorbotGraspEnv(objects=names, cameras=["top"], **SMALL)
+    first = {n: env.reset(seed=2, options={"object_name": n})[0]["top_rgb"] for n in names}
+    assert env._renderer.cached_assets == {"textures": 2, "meshes": 3}  # + the context's own
+    uploads = []
+    for name in ("mjr_uploadTexture", "mjr_uploadMesh"):
+        real = getattr(mujoco, name)
+        monkeypatch.setattr(mujoco, name, lambda *a, _real=real: uploads.append(a) or _real(*a))
+    for name in names[::-1] + names:
+        obs, _ = env.reset(seed=2, options={"object_name": name})
+        np.testing.assert_array_equal(obs["top_rgb"], first[name])
+    assert uploads == []
+    env.close()
+    for name in names:  # a context that never saw another object
+        alone = ScorbotGraspEnv(objects=[name], cameras=["top"], **SMALL)
+        obs, _ = alone.reset(seed=2, options={"object_name": name})
+        np.testing.assert_array_equal(obs["top_rgb"], first[name])
+        alone.close()
+
+
+def test_asset_cache_is_bounded():
+    from scorbot_gym.sim.rendering import SceneRenderer
+
+    with pytest.raises(ValueError, match="max_cached_assets must be >= 0"):
+        SceneRenderer(max_cached_assets=-1)
+    renderer = SceneRenderer(64, 48, max_cached_assets=1)
+    sims = {n: Simulation(n, renderer=renderer) for n in ("box", "banana", "foam_brick")}
+    images = {n: sim.render("top", width=64, height=48) for n, sim in sims.items()}
+    for name in ("banana", "box", "foam_brick", "box"):
+        np.testing.assert_array_equal(sims[name].render("top", width=64, height=48), images[name])
+        assert max(renderer.cached_assets.values()) <= 1
+    for sim in sims.values():
+        sim.close()
+    renderer.close()
+
+
 def test_standalone_renderer_grows_for_a_larger_image():
     sim = Simulation("box", render_width=64, render_height=48)
     assert sim.render("top").shape == (48, 64, 3)

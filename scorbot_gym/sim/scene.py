@@ -146,7 +146,7 @@ def _object(spec: ObjectSpec) -> mjcf.RootElement:
         type="cube",
         gridsize=[3, 4],
         gridlayout=".U..LFRB.D..",
-        file=mjcf.Asset(encode_png(model.texture), ".png"),
+        file=mjcf.Asset(encode_png(spec.texture_image()), ".png"),
     )
     obj.asset.add("material", name="mat", texture="tex", specular=0.2, shininess=0.2)
     body = obj.worldbody.add("body", name="object")
