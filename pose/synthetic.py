@@ -44,10 +44,12 @@ def top_camera(width: int = 320, height: int = 240, height_m: float = 0.6) -> Ca
     return CameraModel(K=K, world_from_camera=T, width=width, height=height, name="top")
 
 
-def card_pose(x: float, y: float, yaw: float) -> np.ndarray:
-    """``world_from_object`` of a card lying on the table at ``(x, y)`` turned by ``yaw``."""
+def card_pose(x: float, y: float, yaw: float, tilt: float = 0.0) -> np.ndarray:
+    """``world_from_object`` of a card at ``(x, y)`` on the table turned by ``yaw``, and tilted
+    by ``tilt`` radians about its own x axis (its centre stays on the table)."""
     T = np.eye(4)
-    T[:3, :3] = rot_z(yaw)
+    c, s = np.cos(tilt), np.sin(tilt)
+    T[:3, :3] = rot_z(yaw) @ np.array([[1.0, 0, 0], [0, c, -s], [0, s, c]])
     T[:3, 3] = [x, y, 0.0]
     return T
 
@@ -67,16 +69,28 @@ def render_card(
     return img, mask > 127
 
 
+def card_depth(camera: CameraModel, world_from_object: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Depth (metres along the optical axis) of the card's plane inside ``mask``, 0 elsewhere:
+    the ray through each pixel meets the plane ``z = 0`` of the object frame."""
+    cam_from_obj = camera.camera_from_world @ world_from_object
+    normal, origin = cam_from_obj[:3, 2], cam_from_obj[:3, 3]
+    v, u = np.mgrid[0 : camera.height, 0 : camera.width]
+    rays = np.stack([u, v, np.ones_like(u)], -1).astype(float) @ np.linalg.inv(camera.K).T
+    z = (normal @ origin) / (rays @ normal)
+    return np.where(mask, z, 0.0).astype(np.float32)
+
+
 def card_views(
     poses_xy_yaw: np.ndarray, camera: CameraModel | None = None, texture_seed: int = 0
 ) -> tuple[list[View], np.ndarray]:
-    """Views and ``camera_from_object`` poses for rows ``(x, y, yaw)``."""
+    """Views (with depth) and ``camera_from_object`` poses for rows ``(x, y, yaw)`` or
+    ``(x, y, yaw, tilt)``."""
     camera = camera or top_camera()
     tex = card_texture(texture_seed)
     views, poses = [], []
-    for x, y, yaw in np.asarray(poses_xy_yaw, float):
-        T = card_pose(x, y, yaw)
+    for row in np.asarray(poses_xy_yaw, float):
+        T = card_pose(*row)
         img, mask = render_card(tex, camera, T)
-        views.append(View(img, camera, mask, "card"))
+        views.append(View(img, camera, mask, "card", card_depth(camera, T, mask)))
         poses.append(camera.camera_from_world @ T)
     return views, np.array(poses)

@@ -144,11 +144,14 @@ class DescriptorIndex:
 
 class Match(NamedTuple):
     """One training view consistent with the query: its index, the homography mapping its
-    keypoints onto the query's, and the query keypoints that are inliers of it."""
+    keypoints onto the query's, the query keypoints that are inliers of it, and the rows of the
+    index's descriptors they matched (``db_rows[i]`` for ``inliers[i]``)."""
 
     view: int
     H: np.ndarray
     inliers: np.ndarray
+    db_rows: np.ndarray
+    pairs: np.ndarray  # (P, 2): every ratio-test pair (query keypoint, index row), inliers or not
 
 
 class RansacMatcher(BaseEstimator):
@@ -213,5 +216,7 @@ class RansacMatcher(BaseEstimator):
                 db_xy[a:b][pairs[:, 1]], xy[pairs[:, 0]], self.method, self.threshold, seed
             )
             if H is not None and inl.sum() >= self.min_inliers:
-                results.append(Match(int(v), H, pairs[inl, 0]))
+                results.append(
+                    Match(int(v), H, pairs[inl, 0], a + pairs[inl, 1], pairs + np.array([0, a]))
+                )
         return results

@@ -10,7 +10,7 @@ from pose.manifold.coordinates import anchor_index, manifold_coordinates, pairwi
 from pose.manifold.estimator import PoseManifoldEstimator, default_regressor
 from pose.manifold.featurizer import ManifoldFeaturizer
 from pose.manifold.reference import KeypointHeading, SilhouetteDirection
-from pose.manifold.refinement import HomographyRefiner
+from pose.manifold.refinement import HomographyRefiner, PnPRefiner
 from pose.manifold.regressors import NearestNeighbourRegressor, RBFNetwork, ScipyRBF
 from pose.manifold.variants import VARIANTS, make_variant
 
@@ -18,6 +18,7 @@ __all__ = [
     "VARIANTS",
     "Bunches",
     "HomographyRefiner",
+    "PnPRefiner",
     "KMeansBunches",
     "KeypointHeading",
     "ManifoldFeaturizer",

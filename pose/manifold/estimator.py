@@ -50,7 +50,7 @@ from pose.manifold.augment import occlude_features
 from pose.manifold.bunches import KMeansBunches
 from pose.manifold.featurizer import ManifoldFeaturizer
 from pose.manifold.reference import KeypointHeading
-from pose.manifold.refinement import HomographyRefiner
+from pose.manifold.refinement import HomographyRefiner, RefinementInput
 from pose.manifold.regressors import RBFNetwork
 from pose.metrics import rotation_error_deg, success_rate
 from pose.orientation import hull_mask
@@ -90,6 +90,16 @@ def _seeded(estimator, seed: int):
     if "random_state" in est.get_params(deep=False) and est.random_state is None:
         est.set_params(random_state=seed)
     return est
+
+
+def _lifted(view: View, xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Object-frame 3-D point of every keypoint ``(N, 3)``, NaN where the depth is unknown."""
+    from pose.baselines._common import lift_to_object
+
+    pts, ok = lift_to_object(view, np.asarray(xy, float), pose)
+    out = np.full((len(xy), 3), np.nan)
+    out[ok] = pts
+    return out
 
 
 class PoseManifoldEstimator(BaseEstimator):
@@ -189,7 +199,13 @@ class PoseManifoldEstimator(BaseEstimator):
         P = _check_poses(poses, len(views))
         rows, Y, D, T, Xt = [], [], [], [], []
         rng = np.random.default_rng(self.random_state)
-        db_xy, db_desc, db_view, db_phi = [], [], [], []
+        db_xy, db_desc, db_view, db_phi, db_xyz = [], [], [], [], []
+        needs_depth = bool(getattr(self.refiner, "needs_depth", False))
+        if needs_depth and any(v.depth is None for v in views):
+            raise ValueError(
+                f"{type(self.refiner).__name__} needs View.depth in every training view "
+                "(render_views(..., depth=True)) to lift the keypoints to 3-D"
+            )
         R_allo, centres, sizes, z_eff, z_origin = [], [], [], [], []
         for view, pose in zip(views, P, strict=True):
             f = self.keypoints.extract(view.image, view.mask, training=True)
@@ -220,6 +236,8 @@ class PoseManifoldEstimator(BaseEstimator):
             db_desc.append(f.descriptors)
             db_view.append(np.full(len(f), len(R_allo)))
             db_phi.append(np.angle(np.exp(1j * (f.angles - angle))))  # relative to the heading
+            if needs_depth:
+                db_xyz.append(_lifted(view, f.xy, pose))
             R_allo.append(R_a)
             centres.append(centre)
             sizes.append(size)
@@ -249,6 +267,10 @@ class PoseManifoldEstimator(BaseEstimator):
         self.view_size_ = np.array(sizes)
         self.view_z_eff_ = np.array(z_eff)
         self.view_z_origin_ = np.array(z_origin)
+        if needs_depth:
+            self.db_xyz_ = np.concatenate(db_xyz).astype(np.float32)
+        elif hasattr(self, "db_xyz_"):
+            del self.db_xyz_
         self.n_train_views_ = len(R_allo)
         self.n_features_in_ = Z.shape[1]
         self._build_index()
@@ -325,7 +347,7 @@ class PoseManifoldEstimator(BaseEstimator):
         lap("match")
         if not matches:
             return invalid("no training view matches geometrically", len(f))
-        best, H, best_inl = max(matches, key=lambda m: len(m.inliers))
+        best, H, best_inl, _, _ = max(matches, key=lambda m: len(m.inliers))
         kept = np.unique(np.concatenate([m.inliers for m in matches]))
         centre = apply_homography(H, self.view_centre_[best])[0]
         angle_h, scale_h = local_similarity(H, self.view_centre_[best])
@@ -349,15 +371,26 @@ class PoseManifoldEstimator(BaseEstimator):
         t_in = self._translation_input(K, centre, size)[None]
         t_reg = self.translation_regressor_.predict(t_in)[0]
         lap("regress")
-        R = R_coarse
+        R, t_solved = R_coarse, None
         if self.refiner is not None:
-            R = self.refiner.refine(R_coarse, R_ray, angle_h, self.view_R_allo_[best])
+            inl = np.concatenate([np.c_[m.inliers, m.db_rows] for m in matches])
+            pairs = np.concatenate([inl] + [m.pairs for m in matches])
+            _, first = np.unique(pairs[:, 0], return_index=True)
+            pairs = pairs[np.sort(first)]  # each query keypoint once, homography inliers first
+            inp = RefinementInput(
+                R_coarse, R_ray, angle_h, self.view_R_allo_[best], f.xy[pairs[:, 0]].astype(float),
+                pairs[:, 1], getattr(self, "db_xyz_", None), view.camera, self.random_state,
+                n_inliers=len(np.unique(inl[:, 0])),
+            )  # fmt: skip
+            R, t_solved = self.refiner.refine(inp)
         try:
             ground = view.camera.backproject_to_plane(centre[None], self.view_z_eff_[best])[0]
             ground[2] = self.view_z_origin_[best]
             t_geo = camera_point(view.camera, ground)
         except ValueError:  # viewing ray parallel to the table: only the regressed one is left
             t_geo = t_reg
+        if t_solved is not None:
+            t_geo = t_solved
         lap("refine")
         if not (np.isfinite(R).all() and np.isfinite(t_geo).all()):
             return invalid("the stages gave a non-finite pose (corrupt model?)", len(f))

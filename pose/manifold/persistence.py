@@ -23,7 +23,7 @@ from pose.features.matching import RansacMatcher
 from pose.manifold.bunches import KMeansBunches
 from pose.manifold.featurizer import ManifoldFeaturizer
 from pose.manifold.reference import KeypointHeading, SilhouetteDirection
-from pose.manifold.refinement import HomographyRefiner
+from pose.manifold.refinement import HomographyRefiner, PnPRefiner
 from pose.manifold.regressors import NearestNeighbourRegressor, RBFNetwork, ScipyRBF
 from pose.serialization import FORMAT_VERSION
 
@@ -52,7 +52,8 @@ def register_stage(cls: type) -> type:
 
 for _cls in (
     SiftKeypoints, RansacMatcher, KMeansBunches, KeypointHeading, SilhouetteDirection,
-    ManifoldFeaturizer, HomographyRefiner, RBFNetwork, ScipyRBF, NearestNeighbourRegressor,
+    ManifoldFeaturizer, HomographyRefiner, PnPRefiner, RBFNetwork, ScipyRBF,
+    NearestNeighbourRegressor,
 ):  # fmt: skip
     register_stage(_cls)
 
@@ -143,6 +144,8 @@ def estimator_to_arrays(est, prefix: str = "") -> dict[str, np.ndarray]:
     for k in _FITTED:
         v = getattr(est, k)
         out[prefix + k] = v.astype(np.float16) if k == "db_desc_" else v
+    if hasattr(est, "db_xyz_"):  # a refiner that lifts keypoints to 3-D (NaN: no depth)
+        out[prefix + "db_xyz_"] = est.db_xyz_
     for tag, reg in (("rot", est.regressor_), ("trans", est.translation_regressor_)):
         if not callable(getattr(reg, "to_arrays", None)):
             raise ValueError(
@@ -172,6 +175,21 @@ def estimator_from_arrays(cls, arrays: dict, prefix: str = "", version: int | No
     except (KeyError, TypeError, AttributeError, json.JSONDecodeError) as exc:
         raise ValueError(f"model file is missing or has bad entries ({exc}); {RETRAIN}") from exc
     _check_arrays(a)
+    xyz = arrays.get(prefix + "db_xyz_")
+    if xyz is not None:
+        xyz = np.asarray(xyz)
+        if xyz.shape != (len(a["db_xy_"]), 3) or not np.issubdtype(xyz.dtype, np.floating):
+            raise ValueError(
+                f"inconsistent model file: db_xyz_ has shape {xyz.shape}, expected "
+                f"({len(a['db_xy_'])}, 3) to match db_xy_; {RETRAIN}"
+            )
+        if np.isinf(xyz).any():
+            raise ValueError(f"inconsistent model file: db_xyz_ holds infinite values; {RETRAIN}")
+        est.db_xyz_ = xyz.astype(np.float32)
+    elif getattr(est.refiner, "needs_depth", False):
+        raise ValueError(
+            f"model file has no db_xyz_, which its {type(est.refiner).__name__} needs; {RETRAIN}"
+        )
     _check_widths(est, a)
     est.featurizer_ = _restored(est.featurizer, a)
     est.regressor_, est.translation_regressor_ = rot, trans

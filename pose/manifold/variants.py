@@ -14,12 +14,17 @@ from typing import Any
 from pose.manifold.estimator import PoseManifoldEstimator
 from pose.manifold.featurizer import ManifoldFeaturizer
 from pose.manifold.reference import SilhouetteDirection
+from pose.manifold.refinement import PnPRefiner
 from pose.manifold.regressors import NearestNeighbourRegressor, ScipyRBF
 
 # name -> (what it changes, factory of the swapped stages: fresh objects on every call)
 VARIANTS: dict[str, tuple[str, Callable[[], dict[str, Any]]]] = {
     "manifold": ("default composition", dict),
     "manifold-coarse": ("no refinement (refiner=None)", lambda: {"refiner": None}),
+    "manifold-pnp": (
+        "RANSAC PnP on the matched keypoints' 3-D points instead of the homography refiner",
+        lambda: {"refiner": PnPRefiner()},
+    ),
     "manifold-no-bunches": (
         "no bunch block (silhouette + visual words only)",
         lambda: {"featurizer": ManifoldFeaturizer(blocks=("shape", "words"))},
