@@ -240,3 +240,19 @@ def test_pnp_refiner_needs_training_depth(cards):
         make_estimator("manifold-pnp", refiner__min_inliers=3, **SMALL).fit(views, poses)
     est = make_estimator("manifold", **SMALL).fit(flat, poses)  # the homography needs none
     assert not hasattr(est, "db_xyz_")
+
+
+def test_pnp_model_files_are_checked(cards, tmp_path):
+    from pose.serialization import load_arrays, save_arrays
+
+    est = make_estimator("manifold-pnp", **SMALL).fit(*cards[:2])
+    est.save(tmp_path / "ok.npz")
+    header, arrays = load_arrays(tmp_path / "ok.npz")
+    meta = {k: v for k, v in header.items() if k not in ("format", "format_version")}
+    bad = dict(arrays, db_xyz_=arrays["db_xyz_"][:-1])
+    save_arrays(tmp_path / "short.npz", bad, meta)
+    with pytest.raises(ValueError, match="db_xyz_ has shape"):
+        PoseManifoldEstimator.load(tmp_path / "short.npz")
+    save_arrays(tmp_path / "none.npz", {k: v for k, v in arrays.items() if k != "db_xyz_"}, meta)
+    with pytest.raises(ValueError, match="has no db_xyz_, which its PnPRefiner needs"):
+        PoseManifoldEstimator.load(tmp_path / "none.npz")

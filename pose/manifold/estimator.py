@@ -373,14 +373,17 @@ class PoseManifoldEstimator(BaseEstimator):
         lap("regress")
         R, t_solved = R_coarse, None
         if self.refiner is not None:
-            inl = np.concatenate([np.c_[m.inliers, m.db_rows] for m in matches])
-            pairs = np.concatenate([inl] + [m.pairs for m in matches])
-            _, first = np.unique(pairs[:, 0], return_index=True)
-            pairs = pairs[np.sort(first)]  # each query keypoint once, homography inliers first
+            pairs, n_inl = np.zeros((0, 2), np.int64), 0
+            if getattr(self.refiner, "needs_depth", False):  # only 3-D refiners read matches
+                inl = np.concatenate([np.c_[m.inliers, m.db_rows] for m in matches])
+                pairs = np.concatenate([inl] + [m.pairs for m in matches])
+                _, first = np.unique(pairs[:, 0], return_index=True)
+                pairs = pairs[np.sort(first)]  # each query keypoint once, inliers first
+                n_inl = len(np.unique(inl[:, 0]))
             inp = RefinementInput(
                 R_coarse, R_ray, angle_h, self.view_R_allo_[best], f.xy[pairs[:, 0]].astype(float),
                 pairs[:, 1], getattr(self, "db_xyz_", None), view.camera, self.random_state,
-                n_inliers=len(np.unique(inl[:, 0])),
+                n_inliers=n_inl,
             )  # fmt: skip
             R, t_solved = self.refiner.refine(inp)
         try:
