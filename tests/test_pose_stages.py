@@ -256,3 +256,19 @@ def test_pnp_model_files_are_checked(cards, tmp_path):
     save_arrays(tmp_path / "none.npz", {k: v for k, v in arrays.items() if k != "db_xyz_"}, meta)
     with pytest.raises(ValueError, match="has no db_xyz_, which its PnPRefiner needs"):
         PoseManifoldEstimator.load(tmp_path / "none.npz")
+
+
+@pytest.mark.parametrize(
+    "param, value, message",
+    [
+        ("threshold", 0.0, "threshold must be > 0 pixels"),
+        ("min_inliers", 3, "min_inliers must be >= 6"),
+        ("max_turn_deg", 0.0, "max_turn_deg must be in"),
+        ("keep_ratio", -1.0, "keep_ratio must be >= 0"),
+        ("correspondences", "all", "correspondences must be 'ratio' or 'homography'"),
+    ],
+)
+def test_pnp_refiner_rejects_bad_parameters(cards, param, value, message):
+    est = make_estimator("manifold-pnp", **{f"refiner__{param}": value, **SMALL})
+    with pytest.raises(ValueError, match=message):
+        est.fit(*cards[:2])

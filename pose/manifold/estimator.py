@@ -45,7 +45,13 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.features.keypoints import Features, SiftKeypoints
 from pose.features.matching import RansacMatcher, apply_homography, local_similarity
-from pose.geometry import camera_point, centre_and_size, effective_height, world_point
+from pose.geometry import (
+    camera_point,
+    centre_and_size,
+    effective_height,
+    lift_to_object,
+    world_point,
+)
 from pose.manifold.augment import occlude_features
 from pose.manifold.bunches import KMeansBunches
 from pose.manifold.featurizer import ManifoldFeaturizer
@@ -94,8 +100,6 @@ def _seeded(estimator, seed: int):
 
 def _lifted(view: View, xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """Object-frame 3-D point of every keypoint ``(N, 3)``, NaN where the depth is unknown."""
-    from pose.baselines._common import lift_to_object
-
     pts, ok = lift_to_object(view, np.asarray(xy, float), pose)
     out = np.full((len(xy), 3), np.nan)
     out[ok] = pts

@@ -8,10 +8,11 @@ describe the aspect, but it can only answer rotations that some training view sh
 about the optical axis.
 
 :class:`PnPRefiner`: a 3-D answer. Training lifts every keypoint of the match database to the
-object frame with the view's depth; at prediction the homography inliers of every matched
-training view give 2-D-3-D correspondences, and RANSAC PnP solves the full pose from them. An
-object leaning out of its resting pose, which no training view shows, is answered by geometry
-instead of by the nearest view; when PnP finds too few inliers the homography answer is kept.
+object frame with the view's depth; at prediction the ratio-test pairs of the matched training
+views give 2-D-3-D correspondences, and RANSAC PnP solves the full pose from them. An object
+leaning out of its resting pose, which no training view shows, is answered by geometry instead
+of by the nearest view; the homography answer is kept when PnP finds too few inliers or does not
+reproject them clearly better.
 
 ``refiner=None`` in the estimator keeps the pure manifold answer (``PoseEstimate.rotation_coarse``
 always holds it).
@@ -21,11 +22,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from sklearn.base import BaseEstimator
 
 from pose.camera import CameraModel
-from pose.rotations import rot_z
+from pose.geometry import pnp
+from pose.rotations import geodesic_deg, rot_z
 
 
 @dataclass(frozen=True)
@@ -110,9 +113,6 @@ class PnPRefiner(BaseEstimator):
             )
 
     def refine(self, inp: RefinementInput) -> tuple[np.ndarray, np.ndarray | None]:
-        from pose.baselines._common import pnp
-        from pose.rotations import geodesic_deg
-
         fallback = inp.R_ray @ rot_z(inp.angle) @ inp.R_view
         if inp.db_xyz is None:
             return fallback, None
@@ -148,8 +148,6 @@ class PnPRefiner(BaseEstimator):
 
 def _polish(obj, img, camera: CameraModel, R: np.ndarray, t: np.ndarray):
     """Levenberg-Marquardt refinement of the pose ``(R, t)`` on the correspondences."""
-    import cv2
-
     rvec, tvec = cv2.solvePnPRefineLM(
         np.ascontiguousarray(obj, np.float64), np.ascontiguousarray(img, np.float64),
         np.asarray(camera.K, float), None, cv2.Rodrigues(np.asarray(R, float))[0],
