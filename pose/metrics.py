@@ -6,7 +6,6 @@ Rotations ``(3, 3)`` map object to camera coordinates; translations are in metre
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from pose.rotations import geodesic_deg
 from pose.symmetry import Symmetry
@@ -49,6 +48,8 @@ def add_s(R_est, t_est, R_gt, t_gt, points: np.ndarray) -> float:
     estimate-posed point; indifferent to symmetries."""
     est = _transform(R_est, t_est, points)
     gt = _transform(R_gt, t_gt, points)
+    from scipy.spatial import cKDTree  # imported here: scipy costs an oracle-only env ~20 MB
+
     return float(cKDTree(est).query(gt, k=1)[0].mean())
 
 

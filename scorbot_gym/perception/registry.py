@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
-from scorbot_gym.perception.model_set import ModelSetPoseSource
 from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
 
 
@@ -36,10 +35,18 @@ class FunctionPoseSource:
         return self.fn(frame)
 
 
+def _model_set_source(**kwargs: Any) -> PoseSource:
+    """The pose-manifold source, imported on first use: it pulls in OpenCV's and
+    scikit-learn's estimators, which an env run on the oracle never needs (tens of MB)."""
+    from scorbot_gym.perception.model_set import ModelSetPoseSource
+
+    return ModelSetPoseSource(**kwargs)
+
+
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
-    "manifold": ModelSetPoseSource,
+    "manifold": _model_set_source,
 }
 
 
