@@ -272,3 +272,34 @@ def test_pnp_refiner_rejects_bad_parameters(cards, param, value, message):
     est = make_estimator("manifold-pnp", **{f"refiner__{param}": value, **SMALL})
     with pytest.raises(ValueError, match=message):
         est.fit(*cards[:2])
+
+
+def test_pnp_refiner_solves_from_few_keypoints():
+    """A thin object seen from the side shows a handful of keypoints: eight exact 2-D-3-D
+    correspondences are enough for PnP (the default ``min_inliers=6``), where a 10-inlier
+    refiner falls back to the nearest training view's rotation."""
+    from pose.camera import CameraModel
+    from pose.manifold.refinement import PnPRefiner, RefinementInput
+    from pose.rotations import rot_z
+
+    rng = np.random.default_rng(0)
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K=K, world_from_camera=np.eye(4), width=320, height=240)
+    xyz = rng.uniform(-0.04, 0.04, (8, 3))  # points on a non-planar object
+    tilt = np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.4), -np.sin(0.4)], [0.0, np.sin(0.4), np.cos(0.4)]]
+    )
+    R_true, t_true = tilt @ rot_z(0.3), np.array([0.01, -0.02, 0.5])
+    cam = xyz @ R_true.T + t_true
+    xy = cam[:, :2] / cam[:, 2:] * 300.0 + [160.0, 120.0]
+    nearest_view = rot_z(0.3)  # the training view's rotation: right heading, no tilt
+    inp = RefinementInput(
+        R_coarse=nearest_view, R_ray=np.eye(3), angle=0.0, R_view=nearest_view, xy=xy,
+        db_rows=np.arange(8), db_xyz=xyz, camera=camera, n_inliers=8,
+    )  # fmt: skip
+    R, t = PnPRefiner().refine(inp)
+    assert rotation_error_deg(R, R_true, Symmetry()) < 0.5
+    np.testing.assert_allclose(t, t_true, atol=1e-4)
+    R10, t10 = PnPRefiner(min_inliers=10).refine(inp)
+    np.testing.assert_array_equal(R10, nearest_view)
+    assert t10 is None

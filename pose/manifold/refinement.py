@@ -87,7 +87,7 @@ class PnPRefiner(BaseEstimator):
     def __init__(
         self,
         threshold: float = 3.0,
-        min_inliers: int = 10,
+        min_inliers: int = 6,
         max_turn_deg: float = 45.0,
         keep_ratio: float = 1.1,
         correspondences: str = "ratio",
