@@ -17,8 +17,9 @@ Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 ``gymnasium.make_vec(..., vectorization_mode="async", vector_kwargs={"shared_memory": True})``
 (observations, images included, come back through shared memory; the env sends its constant
 camera calibration at reset only, so the per-step info stays small); with ``--ablations``,
-``async_cap-N`` also sets ``max_concurrency`` to the usable cores. The plain env renders with
-Mesa's default threads, vector-env workers with one each (``scorbot_gym._gl``).
+``async_cap-N`` also sets ``max_concurrency`` to the usable cores, and ``async_raster_thread-2``
+gives each worker's rasterizer one thread of its own. The plain env renders with Mesa's default
+threads (one per core), vector-env workers in their calling thread (``scorbot_gym._gl``).
 """
 
 from __future__ import annotations
@@ -45,7 +46,14 @@ FAMILIES: dict[str, dict] = {
         "vectorization_mode": "async",
         "vector_kwargs": {"shared_memory": True, "max_concurrency": len(os.sched_getaffinity(0))},
     },
+    "async_raster_thread": {
+        "vectorization_mode": "async",
+        "vector_kwargs": {"shared_memory": True},
+    },
 }
+# Environment the workers of a family start with: ``async_raster_thread`` (with --ablations)
+# gives llvmpipe one rasterizer thread per worker, the previous default, instead of none.
+WORKER_ENV: dict[str, dict[str, str]] = {"async_raster_thread": {"LP_NUM_THREADS": "1"}}
 SETTINGS = {
     "no_images": {},
     "camera_320x240": {"cameras": ["top"], "image_width": 320, "image_height": 240},
@@ -58,6 +66,7 @@ def configurations(counts: tuple[int, ...], ablations: bool) -> list[str]:
         names += [f"{kind}-{n}" for n in counts]
     if ablations:  # the cap only acts with more envs than cores
         names += [f"async_cap-{n}" for n in counts if n > len(os.sched_getaffinity(0))]
+        names += [f"async_raster_thread-{n}" for n in counts if n == 2]
     return names
 
 
@@ -70,6 +79,7 @@ def build(config: str, env_kwargs: dict):
     if config == "plain":
         return gym.make(ENV_ID, **env_kwargs), 0
     kind, n = config.rsplit("-", 1)
+    os.environ.update(WORKER_ENV.get(kind, {}))  # inherited by the workers
     return gym.make_vec(ENV_ID, int(n), **FAMILIES[kind], **env_kwargs), int(n)
 
 
@@ -239,7 +249,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--image-steps", type=int, default=300, help="env steps with images")
     parser.add_argument("--counts", type=int, nargs="+", default=list(COUNTS))
     parser.add_argument(
-        "--ablations", action="store_true", help="also async_cap-N for N above the cores"
+        "--ablations",
+        action="store_true",
+        help="also async_cap-N for N above the cores and async_raster_thread-2",
     )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vector_env.json"))
     args = parser.parse_args(argv)

@@ -12,10 +12,12 @@ Two process-level choices follow from software rendering:
   :func:`import_mjcf` imports it with its rendering disabled, so the display is opened by
   MuJoCo's own context on the first rendered frame, in the process that renders.
 * llvmpipe rasterizes with one thread per core. A single env gains from that, but in a worker
-  process of a vector env the processes already use every core and the rasterizer threads only
-  contend with them (``benchmarks/vector_env.py`` measures both). :func:`prepare_first_context`
-  therefore asks llvmpipe for one thread in a child process (``multiprocessing.parent_process()``
-  is set) unless ``LP_NUM_THREADS`` is set; a main process keeps Mesa's default.
+  process of a vector env the processes already use every core: the rasterizer threads only
+  contend with them, and the worker's own thread waits idle on its frame
+  (``benchmarks/vector_env.py`` measures these). :func:`prepare_first_context` therefore asks
+  llvmpipe to rasterize in the calling thread (``LP_NUM_THREADS=0``) in a child process
+  (``multiprocessing.parent_process()`` is set) unless ``LP_NUM_THREADS`` is set; a main
+  process keeps Mesa's default.
 """
 
 from __future__ import annotations
@@ -78,4 +80,4 @@ def import_mjcf():
 def prepare_first_context() -> None:
     """Settings read when the process opens its display (before the first GL context)."""
     if multiprocessing.parent_process() is not None:
-        os.environ.setdefault("LP_NUM_THREADS", "1")
+        os.environ.setdefault("LP_NUM_THREADS", "0")

@@ -115,10 +115,11 @@ def test_no_working_backend_gives_one_error_saying_what_to_install():
     assert "apt-get install libegl1" in out.stdout and "MUJOCO_GL=egl" in out.stdout
 
 
-def test_import_opens_no_display_and_a_worker_renders_on_one_thread():
+def test_import_opens_no_display_and_a_worker_renders_in_its_own_thread():
     """Importing opens no EGL display (a fork after import inherits no rasterizer); a child
-    process's first frame sets one llvmpipe thread unless the user chose; the parent keeps
-    Mesa's default. (A fork *after* rendering is still unsafe with software GL: use spawn.)"""
+    process's first frame makes llvmpipe rasterize in the calling thread unless the user chose;
+    the parent keeps Mesa's default. (A fork *after* rendering is still unsafe with software GL:
+    use spawn.)"""
     code = (
         "import multiprocessing as mp, os, sys\n"
         "import scorbot_gym\n"
@@ -149,7 +150,7 @@ def test_import_opens_no_display_and_a_worker_renders_on_one_thread():
             timeout=120,
         )
         assert out.returncode == 0, out.stderr
-        assert out.stdout.split() == ["None", "1"]
+        assert out.stdout.split() == ["None", "0"]
         out = subprocess.run(
             [sys.executable, path],
             env={**env, "MUJOCO_GL": "egl", "LP_NUM_THREADS": "2"},
