@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry
+from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
 from pose.symmetry import Symmetry
 from scorbot_gym.assets.textures import cube_texture, load_texture_image
 
@@ -223,7 +223,8 @@ def load_object_model(spec: ObjectSpec) -> ObjectModel:
     in every process, vector-env workers included) and rasterises the footprint (~0.1 s); the
     cache entry is keyed by the mesh source, its file's bytes, this module's code and trimesh's
     version, so any change to them derives it again. An unreadable entry is discarded (with a
-    warning) and rebuilt; an unwritable cache folder only costs the derivation.
+    warning) and rebuilt, temporary files of a killed write are removed, and an unwritable cache
+    folder only costs the derivation.
     """
     path = _model_cache_path(spec)
     try:
@@ -243,6 +244,8 @@ def load_object_model(spec: ObjectSpec) -> ObjectModel:
         discard_cache_entry(path, exc)
     model = _derive_model(spec)
     try:
+        if path.parent.is_dir():
+            remove_orphaned_tmp(path.parent)  # left by a killed write
         atomic_savez(path, **{name: np.asarray(getattr(model, name)) for name in _MODEL_FIELDS})
     except OSError:
         pass

@@ -1,5 +1,7 @@
 """The catalogue: real meshes, textures rich enough for SIFT, annotations; user objects."""
 
+import os
+
 import cv2
 import numpy as np
 import pytest
@@ -137,7 +139,7 @@ def test_cached_geometry_is_the_derived_geometry(name, tmp_path, monkeypatch):
     np.testing.assert_array_equal(ours["normal"], theirs["normal"])  # up to the sign of zero
 
 
-def test_unreadable_object_cache_entry_is_rebuilt(tmp_path, monkeypatch):
+def test_unreadable_object_cache_entry_is_rebuilt_and_orphans_removed(tmp_path, monkeypatch):
     from scorbot_gym import objects
 
     monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path))
@@ -145,6 +147,9 @@ def test_unreadable_object_cache_entry_is_rebuilt(tmp_path, monkeypatch):
     path = objects._model_cache_path(spec)
     path.parent.mkdir(parents=True)
     path.write_bytes(b"PK\x03\x04 truncated")
+    orphan = path.parent / ".box-killed.npz.tmp"  # what a write killed mid-way leaves
+    orphan.write_bytes(b"partial")
+    os.utime(orphan, (0, 0))
     objects.load_object_model.cache_clear()
     try:
         with pytest.warns(RuntimeWarning, match="unreadable"):
@@ -154,6 +159,7 @@ def test_unreadable_object_cache_entry_is_rebuilt(tmp_path, monkeypatch):
     np.testing.assert_allclose(model.half_extents * 2, [0.06, 0.045, 0.07], atol=1e-9)
     with np.load(path) as z:  # rewritten, readable
         np.testing.assert_array_equal(z["vertices"], model.vertices)
+    assert not orphan.exists()
 
 
 def test_env_runs_without_the_vision_and_mesh_stacks():
