@@ -218,7 +218,8 @@ def plot(report: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 3.4), sharey=True)
     for ax, setting in zip(axes, settings, strict=True):
         res = report["results"][setting]
-        for kind, style in (("sync", "s--"), ("async", "o-"), ("async_cap", "^:")):
+        styles = {"sync": "s--", "async": "o-", "async_cap": "^:", "async_raster_thread": "D"}
+        for kind, style in styles.items():
             pts = [
                 (n, res[f"{kind}-{n}"]["ratio_to_plain"])
                 for n in report["counts"]
