@@ -264,7 +264,7 @@ def _derive_model(spec: ObjectSpec) -> ObjectModel:
 
 
 def _model_cache_path(spec: ObjectSpec) -> Path:
-    from scorbot_gym.data.views import default_cache_dir
+    from scorbot_gym.data import default_cache_dir
 
     kind, _, arg = spec.source.partition(":")
     mesh_file = ycb_mesh_path(arg) if kind == "ycb" else Path(spec.source)

@@ -27,6 +27,7 @@ from tqdm import tqdm
 from pose.camera import CameraModel
 from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
 from pose.view import View
+from scorbot_gym.data import default_cache_dir
 from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 
 CACHE_VERSION = 1
@@ -83,11 +84,6 @@ def workspace_bounds() -> tuple[tuple[float, float], tuple[float, float]]:
     from scorbot_gym.sim.scene import WORKSPACE_X, WORKSPACE_Y
 
     return (tuple(WORKSPACE_X), tuple(WORKSPACE_Y))
-
-
-def default_cache_dir() -> Path:
-    env = os.environ.get("SCORBOT_GYM_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "scorbot-gym"
 
 
 def grid_poses(
