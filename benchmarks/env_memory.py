@@ -36,8 +36,8 @@ _CAMERA = {"cameras": ["top"], "image_width": 320, "image_height": 240}
 CONFIGS = {
     "no_camera": {},
     "camera_top_320x240": _CAMERA,
-    # The same with an empty cache folder: the objects' geometry is derived (trimesh, scipy) in
-    # this process, as on the first run after installing or upgrading.
+    # The same with an empty cache folder, as on the first run after installing or upgrading:
+    # each object's geometry is derived (trimesh, scipy) in a short-lived child process.
     "camera_top_320x240_cold_object_cache": _CAMERA,
 }
 

@@ -14,6 +14,10 @@ import functools
 import hashlib
 import importlib.metadata
 import importlib.util
+import os
+import pickle
+import subprocess
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -219,14 +223,70 @@ def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, 
 def load_object_model(spec: ObjectSpec) -> ObjectModel:
     """The object's derived geometry, from the on-disk cache when it is there.
 
-    Deriving it loads the mesh with trimesh (which brings scipy and networkx, ~50 MB of memory
-    in every process, vector-env workers included) and rasterises the footprint (~0.1 s); the
-    cache entry is keyed by the mesh source, its file's bytes, this module's code and trimesh's
-    version, so any change to them derives it again. An unreadable entry is discarded (with a
-    warning) and rebuilt, temporary files of a killed write are removed, and an unwritable cache
-    folder only costs the derivation.
+    Deriving it loads the mesh with trimesh, which brings scipy and networkx: ~70 MB that would
+    stay in every process that ever derived a model, vector-env workers and training runs
+    included. So on a cache miss a short-lived child process derives it and writes the cache
+    entry (see :func:`derive_missing_models`), unless trimesh is loaded here already; if the
+    child fails, the derivation runs here and raises the real error. The entry is keyed by the
+    mesh source, its file's bytes, this module's code and trimesh's version, so any change to
+    them derives it again. An unreadable entry is discarded (with a warning) and rebuilt,
+    temporary files of a killed write are removed, and an unwritable cache folder only costs
+    the derivation.
     """
     path = _model_cache_path(spec)
+    model = _read_cached_model(path)
+    if model is None and derive_missing_models([spec]):
+        model = _read_cached_model(path)
+    if model is None:
+        model = _derive_model(spec)
+        _store_model(model, path)
+    return model
+
+
+def derive_missing_models(specs: Sequence[ObjectSpec]) -> int:
+    """Derive, in one child process, the geometry of every spec that has no cache entry yet;
+    returns how many entries it wrote.
+
+    An env calls this at construction for its objects: the child's start and imports (~1 s)
+    are then paid once, not at every object's first reset. Specs the child cannot derive (a bad
+    mesh, an unwritable cache) are skipped; :func:`load_object_model` then derives them in this
+    process and raises the real error. With trimesh loaded here already there is nothing to
+    save: nothing is done, and each model is derived here when first loaded.
+    """
+    if "trimesh" in sys.modules or not sys.executable:
+        return 0
+    todo = [(spec, _model_cache_path(spec)) for spec in dict.fromkeys(specs)]
+    todo = [(spec, path) for spec, path in todo if not path.is_file()]
+    if not todo:
+        return 0
+    here = str(Path(__file__).resolve().parents[1])  # finds scorbot_gym and pose, installed or not
+    paths = os.pathsep.join(filter(None, [here, os.environ.get("PYTHONPATH")]))
+    try:
+        subprocess.run(
+            [sys.executable, "-c", _CHILD],
+            input=pickle.dumps([(spec, str(path)) for spec, path in todo]),
+            env={**os.environ, "PYTHONPATH": paths},
+            capture_output=True,
+            timeout=600,
+        )
+    except (OSError, subprocess.SubprocessError):
+        return 0
+    return sum(path.is_file() for _, path in todo)
+
+
+_CHILD = """\
+import pickle, sys
+from pathlib import Path
+from scorbot_gym.objects import _derive_model, _store_model
+for spec, path in pickle.loads(sys.stdin.buffer.read()):
+    try:
+        _store_model(_derive_model(spec), Path(path))
+    except Exception:  # reported by the parent, which derives this one itself
+        pass
+"""
+
+
+def _read_cached_model(path: Path) -> ObjectModel | None:
     try:
         with np.load(path) as z:
             fields = {name: z[name] for name in _MODEL_FIELDS}
@@ -239,17 +299,19 @@ def load_object_model(spec: ObjectSpec) -> ObjectModel:
             grasp_width=float(fields["grasp_width"]),
         )
     except FileNotFoundError:
-        pass
+        return None
     except UNREADABLE as exc:
         discard_cache_entry(path, exc)
-    model = _derive_model(spec)
+        return None
+
+
+def _store_model(model: ObjectModel, path: Path) -> None:
     try:
         if path.parent.is_dir():
             remove_orphaned_tmp(path.parent)  # left by a killed write
         atomic_savez(path, **{name: np.asarray(getattr(model, name)) for name in _MODEL_FIELDS})
     except OSError:
         pass
-    return model
 
 
 _MODEL_FIELDS = ("vertices", "faces", "half_extents", "grasp_point", "grasp_yaw", "grasp_width")
@@ -267,13 +329,28 @@ def _model_cache_path(spec: ObjectSpec) -> Path:
     from scorbot_gym.data import default_cache_dir
 
     kind, _, arg = spec.source.partition(":")
-    mesh_file = ycb_mesh_path(arg) if kind == "ycb" else Path(spec.source)
+    mesh_file = None
+    if kind not in ("box", "cylinder"):
+        mesh_file = ycb_mesh_path(arg) if kind == "ycb" else Path(spec.source)
+    try:
+        stamp = mesh_file.stat() if mesh_file is not None else None
+        stamp = (stamp.st_mtime_ns, stamp.st_size) if stamp is not None else None
+    except OSError:
+        stamp = None
+    digest = _model_digest(spec.source, spec.scale, mesh_file, stamp)
+    return default_cache_dir() / "objects" / f"{spec.name}-{digest}.npz"
+
+
+@functools.lru_cache(maxsize=256)
+def _model_digest(source: str, scale: float, mesh_file: Path | None, stamp: tuple | None) -> str:
+    """Hash of what the derived geometry depends on; remembered per file version (``stamp``),
+    since an env looks every object's entry up at ``make``."""
     h = hashlib.blake2b(digest_size=12)
-    h.update(f"{spec.source}|{spec.scale!r}|{_trimesh_version()}".encode())
+    h.update(f"{source}|{scale!r}|{_trimesh_version()}".encode())
     h.update(Path(__file__).read_bytes())
-    if kind not in ("box", "cylinder") and mesh_file.is_file():
+    if stamp is not None:
         h.update(mesh_file.read_bytes())
-    return default_cache_dir() / "objects" / f"{spec.name}-{h.hexdigest()}.npz"
+    return h.hexdigest()
 
 
 @functools.cache

@@ -162,22 +162,49 @@ def test_unreadable_object_cache_entry_is_rebuilt_and_orphans_removed(tmp_path, 
     assert not orphan.exists()
 
 
-def test_env_runs_without_the_vision_and_mesh_stacks():
-    """An env on the oracle, with a camera, imports neither scikit-learn nor trimesh/scipy once
-    the object cache is warm: they cost every process (vector-env workers too) ~110 MB."""
+def test_env_runs_without_the_vision_and_mesh_stacks(tmp_path):
+    """An env on the oracle, with a camera, imports neither scikit-learn nor trimesh/scipy, even
+    with an empty object cache (the geometry is then derived in a child process): they would
+    cost every process (vector-env workers too) ~110 MB."""
     import subprocess
     import sys
 
     code = (
         "import sys, gymnasium as gym, scorbot_gym\n"
-        "from scorbot_gym.objects import CATALOGUE\n"
-        "[s.model for s in CATALOGUE.values()]\n"
         "env = gym.make('ScorbotGrasp-v0', cameras=['top'], image_width=64, image_height=48)\n"
         "env.reset(seed=0, options={'object_name': 'banana'})\n"
         "env.step(env.action_space.sample())\n"
         "print(sorted(m for m in ('sklearn', 'trimesh', 'scipy', 'pose.manifold')"
         " if m in sys.modules))\n"
     )
-    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)  # warms
-    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True)
-    assert out.stdout.strip().splitlines()[-1] == "[]"
+    env = {**os.environ, "SCORBOT_GYM_CACHE": str(tmp_path)}
+    for run in ("cold", "warm"):
+        out = subprocess.run(
+            [sys.executable, "-c", code], check=True, capture_output=True, text=True, env=env
+        )
+        assert out.stdout.strip().splitlines()[-1] == "[]", run
+    assert len(list((tmp_path / "objects").glob("banana-*.npz"))) == 1
+
+
+def test_geometry_derived_in_a_child_is_the_derived_geometry(tmp_path, monkeypatch):
+    """One child process derives every missing entry, bit-identical to deriving here; a spec it
+    cannot derive is skipped (the caller then derives it here and raises the real error)."""
+    import sys
+
+    from scorbot_gym import objects
+
+    monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path))
+    monkeypatch.delitem(sys.modules, "trimesh")  # as in an env's process
+    specs = [get_object("banana"), get_object("cylinder")]
+    missing = objects.ObjectSpec("ghost", str(tmp_path / "ghost.stl"), mass=0.1)
+    assert objects.derive_missing_models([*specs, missing, specs[0]]) == 2
+    assert objects.derive_missing_models(specs) == 0  # nothing left to do
+    for spec in specs:
+        child = objects._read_cached_model(objects._model_cache_path(spec))
+        here = objects._derive_model(spec)
+        for field in ("vertices", "faces", "half_extents", "grasp_point"):
+            np.testing.assert_array_equal(getattr(child, field), getattr(here, field))
+        assert (child.grasp_yaw, child.grasp_width) == (here.grasp_yaw, here.grasp_width)
+    assert not objects._model_cache_path(missing).exists()
+    with pytest.raises(FileNotFoundError, match="mesh file not found"):
+        objects.load_object_model(missing)

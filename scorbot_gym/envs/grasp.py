@@ -15,7 +15,7 @@ from gymnasium.error import ResetNeeded
 from pose.camera import CameraModel
 from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 from scorbot_gym.envs import arguments as args
-from scorbot_gym.objects import get_object
+from scorbot_gym.objects import derive_missing_models, get_object
 from scorbot_gym.robot import JOINT_HIGH, JOINT_LOW, Robot, tool_pitch
 from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
@@ -150,6 +150,7 @@ class ScorbotGraspEnv(gym.Env):
         )
         self._needs_reset = True
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
+        derive_missing_models([get_object(n) for n in self.object_names])  # first run only
         self._activate(self.object_names[0])
         for cam in (*self.cameras, render_camera):
             self.sim.camera_id(cam)  # ValueError listing the valid cameras
