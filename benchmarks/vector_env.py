@@ -16,7 +16,9 @@ Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 ``gymnasium.make_vec(..., vectorization_mode="sync")``; ``async-N`` is
 ``gymnasium.make_vec(..., vectorization_mode="async", vector_kwargs={"shared_memory": True})``
 (observations, images included, come back through shared memory; the env sends its constant
-camera calibration at reset only, so the per-step info stays small); with ``--ablations``,
+camera calibration at reset only, so the per-step info stays small); ``async_pinned-N`` is
+``gymnasium.vector.AsyncVectorEnv(scorbot_gym.pin_env_fns(...), shared_memory=True)``, the same
+with worker ``i`` pinned to core ``i % cores``; with ``--ablations``,
 ``async_cap-N`` also sets ``max_concurrency`` to the usable cores, and ``async_raster_thread-2``
 gives each worker's rasterizer one thread of its own. The plain env renders with Mesa's default
 threads (one per core), vector-env workers in their calling thread (``scorbot_gym._gl``).
@@ -25,6 +27,7 @@ threads (one per core), vector-env workers in their calling thread (``scorbot_gy
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import platform
@@ -50,6 +53,8 @@ FAMILIES: dict[str, dict] = {
         "vectorization_mode": "async",
         "vector_kwargs": {"shared_memory": True},
     },
+    # built by ``build`` from ``scorbot_gym.pin_env_fns``: worker i pinned to core i % cores
+    "async_pinned": {"shared_memory": True},
 }
 # Environment the workers of a family start with: ``async_raster_thread`` (with --ablations)
 # gives llvmpipe one rasterizer thread per worker, the previous default, instead of none.
@@ -62,7 +67,7 @@ SETTINGS = {
 
 def configurations(counts: tuple[int, ...], ablations: bool) -> list[str]:
     names = ["plain"]
-    for kind in ("sync", "async"):
+    for kind in ("sync", "async", "async_pinned"):
         names += [f"{kind}-{n}" for n in counts]
     if ablations:  # the cap only acts with more envs than cores
         names += [f"async_cap-{n}" for n in counts if n > len(os.sched_getaffinity(0))]
@@ -74,12 +79,15 @@ def build(config: str, env_kwargs: dict):
     """The env a configuration names, and its number of sub-environments (0: a plain env)."""
     import gymnasium as gym
 
-    import scorbot_gym  # noqa: F401  (registers the ids)
+    import scorbot_gym  # registers the ids
 
     if config == "plain":
         return gym.make(ENV_ID, **env_kwargs), 0
     kind, n = config.rsplit("-", 1)
     os.environ.update(WORKER_ENV.get(kind, {}))  # inherited by the workers
+    if kind == "async_pinned":
+        fns = scorbot_gym.pin_env_fns([functools.partial(gym.make, ENV_ID, **env_kwargs)] * int(n))
+        return gym.vector.AsyncVectorEnv(fns, **FAMILIES[kind]), int(n)
     return gym.make_vec(ENV_ID, int(n), **FAMILIES[kind], **env_kwargs), int(n)
 
 
@@ -218,7 +226,13 @@ def plot(report: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, len(settings), figsize=(5 * len(settings), 3.4), sharey=True)
     for ax, setting in zip(axes, settings, strict=True):
         res = report["results"][setting]
-        styles = {"sync": "s--", "async": "o-", "async_cap": "^:", "async_raster_thread": "D"}
+        styles = {
+            "sync": "s--",
+            "async": "o-",
+            "async_pinned": "v-",
+            "async_cap": "^:",
+            "async_raster_thread": "D",
+        }
         for kind, style in styles.items():
             pts = [
                 (n, res[f"{kind}-{n}"]["ratio_to_plain"])

@@ -44,18 +44,22 @@ def test_async_make_vec_with_image_steps_inside_its_space():
         vec.close()
 
 
-def test_sync_and_async_give_the_same_observations():
-    kw = {"object_name": "tomato_soup_can"}
-    sync = gym.make_vec("ScorbotGrasp-v0", 2, vectorization_mode="sync", **kw)
-    asyn = gym.make_vec("ScorbotGrasp-v0", 2, **ASYNC, **kw)
+def _assert_same_rollouts(first: gym.vector.VectorEnv, second: gym.vector.VectorEnv) -> None:
+    """Roll both vector envs alike and compare their observations; closes both."""
     try:
-        a, _, _ = _roll(sync)
-        b, _, _ = _roll(asyn)
+        a, _, _ = _roll(first)
+        b, _, _ = _roll(second)
         for key in a:
             np.testing.assert_array_equal(a[key], b[key], err_msg=key)
     finally:
-        sync.close()
-        asyn.close()
+        first.close()
+        second.close()
+
+
+def test_sync_and_async_give_the_same_observations():
+    kw = {"object_name": "tomato_soup_can"}
+    sync = gym.make_vec("ScorbotGrasp-v0", 2, vectorization_mode="sync", **kw)
+    _assert_same_rollouts(sync, gym.make_vec("ScorbotGrasp-v0", 2, **ASYNC, **kw))
 
 
 def test_calibration_at_reset_matches_camera_params():
@@ -90,3 +94,33 @@ def test_camera_on_the_arm_sends_its_calibration_every_step():
         assert np.linalg.norm(after[:3, 3] - before[:3, 3]) > 1e-3  # the arm moved it
     finally:
         env.close()
+
+
+def test_pinned_workers_run_on_their_cores_and_match_unpinned():
+    """``pin_env_fns``: worker i on core i % cores (checked from outside, in /proc), the main
+    process left unpinned, and the observations the same as unpinned workers give."""
+    import functools
+    import os
+
+    import pytest
+
+    from scorbot_gym import pin_env_fns
+
+    allowed = sorted(os.sched_getaffinity(0))
+    make = functools.partial(
+        gym.make, "scorbot_gym:ScorbotGrasp-v0", object_name="tomato_soup_can", **IMAGE
+    )
+    fns = pin_env_fns([make] * 3)
+    assert [f.core for f in fns] == [allowed[i % len(allowed)] for i in range(3)]
+    pinned = gym.vector.AsyncVectorEnv(fns[:2], shared_memory=True, context="spawn")
+    cores = [os.sched_getaffinity(p.pid) for p in pinned.processes]
+    assert sorted(os.sched_getaffinity(0)) == allowed  # the dummy env did not pin us
+    plain = gym.vector.AsyncVectorEnv([make] * 2, shared_memory=True, context="spawn")
+    _assert_same_rollouts(pinned, plain)
+    assert cores == [{f.core} for f in fns[:2]]
+    with pytest.raises(ValueError, match="cores this process may use"):
+        pin_env_fns([make], cores=[max(allowed) + 1])
+    with pytest.raises(ValueError, match="cores"):
+        pin_env_fns([make], cores=[])
+    with pytest.raises(ValueError, match="one env function per worker"):
+        pin_env_fns([])
