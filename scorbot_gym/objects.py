@@ -249,14 +249,15 @@ def derive_missing_models(specs: Sequence[ObjectSpec]) -> int:
 
     An env calls this at construction for its objects: the child's start and imports (~1 s)
     are then paid once, not at every object's first reset. Specs the child cannot derive (a bad
-    mesh, an unwritable cache) are skipped; :func:`load_object_model` then derives them in this
-    process and raises the real error. With trimesh loaded here already there is nothing to
+    mesh, an unwritable cache) are skipped, and not tried in a child again by this process;
+    :func:`load_object_model` then derives them in this process and raises the real error. With
+    trimesh loaded here already there is nothing to
     save: nothing is done, and each model is derived here when first loaded.
     """
     if "trimesh" in sys.modules or not sys.executable:
         return 0
     todo = [(spec, _model_cache_path(spec)) for spec in dict.fromkeys(specs)]
-    todo = [(spec, path) for spec, path in todo if not path.is_file()]
+    todo = [(spec, path) for spec, path in todo if not path.is_file() and path not in _CHILD_FAILED]
     if not todo:
         return 0
     here = str(Path(__file__).resolve().parents[1])  # finds scorbot_gym and pose, installed or not
@@ -270,8 +271,13 @@ def derive_missing_models(specs: Sequence[ObjectSpec]) -> int:
             timeout=600,
         )
     except (OSError, subprocess.SubprocessError):
-        return 0
-    return sum(path.is_file() for _, path in todo)
+        pass
+    missing = {path for _, path in todo if not path.is_file()}
+    _CHILD_FAILED.update(missing)  # not tried again by this process (e.g. an unwritable cache)
+    return len(todo) - len(missing)
+
+
+_CHILD_FAILED: set[Path] = set()
 
 
 _CHILD = """\

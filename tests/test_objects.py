@@ -208,3 +208,6 @@ def test_geometry_derived_in_a_child_is_the_derived_geometry(tmp_path, monkeypat
     assert not objects._model_cache_path(missing).exists()
     with pytest.raises(FileNotFoundError, match="mesh file not found"):
         objects.load_object_model(missing)
+    # a failure is not retried by this process (an unwritable cache would cost a child per make)
+    monkeypatch.setattr(objects.subprocess, "run", lambda *a, **k: pytest.fail("retried"))
+    assert objects.derive_missing_models([missing]) == 0
