@@ -251,8 +251,8 @@ def derive_missing_models(specs: Sequence[ObjectSpec]) -> int:
     are then paid once, not at every object's first reset. Specs the child cannot derive (a bad
     mesh, an unwritable cache) are skipped, and not tried in a child again by this process;
     :func:`load_object_model` then derives them in this process and raises the real error. With
-    trimesh loaded here already there is nothing to
-    save: nothing is done, and each model is derived here when first loaded.
+    trimesh loaded here already there is nothing to save: nothing is done, and each model is
+    derived here when first loaded.
     """
     if "trimesh" in sys.modules or not sys.executable:
         return 0
