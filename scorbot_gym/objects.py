@@ -338,11 +338,10 @@ def _model_cache_path(spec: ObjectSpec) -> Path:
     mesh_file = None
     if kind not in ("box", "cylinder"):
         mesh_file = ycb_mesh_path(arg) if kind == "ycb" else Path(spec.source)
-    try:
-        stamp = mesh_file.stat() if mesh_file is not None else None
-        stamp = (stamp.st_mtime_ns, stamp.st_size) if stamp is not None else None
-    except OSError:
-        stamp = None
+    stamp = None
+    if mesh_file is not None and mesh_file.is_file():
+        st = mesh_file.stat()
+        stamp = (st.st_mtime_ns, st.st_size)
     digest = _model_digest(spec.source, spec.scale, mesh_file, stamp)
     return default_cache_dir() / "objects" / f"{spec.name}-{digest}.npz"
 
