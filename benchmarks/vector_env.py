@@ -18,7 +18,10 @@ Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 (observations, images included, come back through shared memory; the env sends its constant
 camera calibration at reset only, so the per-step info stays small); ``async_pinned-N`` is
 ``gymnasium.vector.AsyncVectorEnv(scorbot_gym.pin_env_fns(...), shared_memory=True)``, the same
-with worker ``i`` pinned to core ``i % cores``; with ``--ablations``,
+with worker ``i`` pinned to core ``i % cores``; ``independent-N`` is the ceiling no vector env
+can beat: N plain envs in N separate processes with no vector env between them, started
+together, each pinned to its own core and rasterizing in its own thread like a worker, their
+steps/s added up; with ``--ablations``,
 ``async_cap-N`` also sets ``max_concurrency`` to the usable cores, and ``async_raster_thread-2``
 gives each worker's rasterizer one thread of its own. The plain env renders with Mesa's default
 threads (one per core), vector-env workers in their calling thread (``scorbot_gym._gl``).
@@ -69,6 +72,7 @@ def configurations(counts: tuple[int, ...], ablations: bool) -> list[str]:
     names = ["plain"]
     for kind in ("sync", "async", "async_pinned"):
         names += [f"{kind}-{n}" for n in counts]
+    names += [f"independent-{n}" for n in counts if n > 1]
     if ablations:  # the cap only acts with more envs than cores
         names += [f"async_cap-{n}" for n in counts if n > len(os.sched_getaffinity(0))]
         names += [f"async_raster_thread-{n}" for n in counts if n == 2]
@@ -170,7 +174,75 @@ def _median(xs: list[float]) -> float:
     return s[k // 2] if k % 2 else 0.5 * (s[k // 2 - 1] + s[k // 2])
 
 
+def run_solo(setting: str, env_steps: int, seed: int, core: int) -> dict:
+    """One plain env of an ``independent-N`` run: pinned, warmed up, then it reports ``ready``
+    and waits for ``go`` on stdin, so that the N processes time their loops together."""
+    os.sched_setaffinity(0, {core})
+    env, _ = build("plain", {"object_name": "tomato_soup_can", **SETTINGS[setting]})
+    env.action_space.seed(seed)
+    actions = [env.action_space.sample() for _ in range(env_steps + 10)]
+    env.reset(seed=seed)
+    for a in actions[:10]:
+        _step(env, a, 0)
+    print("ready", flush=True)
+    sys.stdin.readline()
+    cpu0, t0 = time.process_time(), time.perf_counter()
+    for a in actions[10:]:
+        _step(env, a, 0)
+    elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    env.close()
+    return {
+        "env_steps_per_second": env_steps / elapsed,
+        "cpu_ms_per_env_step": 1e3 * cpu / env_steps,
+    }
+
+
+def run_independent(n: int, setting: str, env_steps: int, seed: int) -> dict:
+    """``independent-N``: N ``run_solo`` processes on cores ``i % cores``, steps/s summed."""
+    cores = sorted(os.sched_getaffinity(0))
+    env = {**os.environ, "LP_NUM_THREADS": "0"}  # as in a vector-env worker (scorbot_gym._gl)
+    procs = [
+        subprocess.Popen(
+            [
+                sys.executable,
+                __file__,
+                "--solo",
+                setting,
+                str(env_steps // n),
+                str(seed + i),
+                str(cores[i % len(cores)]),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+        )
+        for i in range(n)
+    ]
+    if not all(p.stdout.readline().strip() == "ready" for p in procs):
+        for p in procs:
+            p.kill()
+        return {"error": "an independent env process failed before its timed loop"}
+    for p in procs:
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    outs = [p.communicate() for p in procs]
+    if any(p.returncode != 0 for p in procs):
+        tail = [e.strip().splitlines()[-1:] for _, e in outs if e.strip()]
+        return {"error": f"an independent env process failed: {tail[:1]}"}
+    rs = [json.loads(o.strip().splitlines()[-1]) for o, _ in outs]
+    return {
+        "env_steps_per_second": sum(r["env_steps_per_second"] for r in rs),
+        "env_steps": n * (env_steps // n),
+        "cpu_ms_per_env_step": _median([r["cpu_ms_per_env_step"] for r in rs]),
+    }
+
+
 def run_child(config: str, setting: str, env_steps: int, seed: int) -> dict:
+    kind, _, n = config.rpartition("-")
+    if kind == "independent":
+        return run_independent(int(n), setting, env_steps, seed)
     cmd = [sys.executable, __file__, "--child", config, setting, str(env_steps), str(seed)]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
@@ -232,6 +304,7 @@ def plot(report: dict, path: Path) -> None:
             "async_pinned": "v-",
             "async_cap": "^:",
             "async_raster_thread": "D",
+            "independent": "k:",
         }
         for kind, style in styles.items():
             pts = [
@@ -257,6 +330,10 @@ def main(argv: list[str] | None = None) -> int:
     if argv[:1] == ["--child"]:
         config, setting, steps, seed = argv[1:5]
         print(json.dumps(time_config(config, setting, int(steps), int(seed))))
+        return 0
+    if argv[:1] == ["--solo"]:
+        setting, steps, seed, core = argv[1:5]
+        print(json.dumps(run_solo(setting, int(steps), int(seed), int(core))))
         return 0
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=3)
