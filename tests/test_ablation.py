@@ -74,6 +74,23 @@ def local_sweep(tmp_path_factory):
     return d, first, second, out.getvalue()
 
 
+def test_an_estimator_that_cannot_fit_an_object_scores_invalid_answers(tmp_path):
+    """The golf ball covers ~90 px in the overview camera: too few SIFT keypoints for the
+    manifold to fit. The sweep records invalid answers for it and the error, and goes on."""
+    from scorbot_gym.experiments.trial import ModelJob, run_model_job
+
+    job = ModelJob(
+        "overview", "manifold", "golf_ball", 0, (0.0,), 160, 120, 3, 6, (), str(tmp_path)
+    )
+    out = run_model_job(job)
+    (trial,) = out["trials"]
+    assert "SIFT keypoints" in trial["fit_error"] and out["stats"]["fit_errors"] == 1
+    assert trial["views"]["valid"] == [False] * 3
+    assert trial["views"]["rot_err_deg"] == [None] * 3
+    again = run_model_job(job)  # cached, with its error
+    assert again["stats"]["trials_cached"] == 1 and again["trials"][0]["fit_error"]
+
+
 @pytest.mark.slow
 def test_local_sweep_records_and_figure(local_sweep):
     d, rep, _, _ = local_sweep

@@ -129,6 +129,20 @@ def _fit_or_load(job: ModelJob, spec, load_train, stats: dict):
     return est
 
 
+class _Unfitted:
+    """Stands in for an estimator whose ``fit`` rejected this object's training views (e.g.
+    too few SIFT keypoints on a small object): every test view is an invalid answer, so the
+    method scores what it can do on the object (nothing) instead of stopping the whole sweep."""
+
+    def __init__(self, reason: str):
+        self.reason = reason
+
+    def predict(self, view):
+        from pose.view import PoseEstimate
+
+        return PoseEstimate.invalid(f"not fitted: {self.reason}", {"total": 0.0})
+
+
 def _constant_rotation(spec, camera) -> np.ndarray:
     """The image-blind answer "resting face 0, heading 0" in the test camera's frame."""
     from scorbot_gym.sim.simulation import quat_to_mat
@@ -189,7 +203,8 @@ def run_model_job(job: ModelJob) -> dict:
     from scorbot_gym.objects import get_object
 
     cv2.setNumThreads(1)  # one worker per core: no nested thread pools
-    stats = {"fits": 0, "fit_s": 0.0, "model_cache_hits": 0, "trials_cached": 0, "trials_run": 0}
+    stats = {"fits": 0, "fit_s": 0.0, "fit_errors": 0, "model_cache_hits": 0, "trials_cached": 0,
+             "trials_run": 0}  # fmt: skip
     trials, todo = [], []
     for occ in job.occlusions:
         rec = read_trial(trial_path(job, occ))
@@ -208,7 +223,13 @@ def run_model_job(job: ModelJob) -> dict:
             by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
             return [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
 
-        est = _fit_or_load(job, spec, load_train, stats)
+        fit_error = None
+        try:
+            est = _fit_or_load(job, spec, load_train, stats)
+        except ValueError as exc:  # the estimator's one-line "cannot fit these views"
+            fit_error = str(exc)
+            stats["fit_errors"] += 1
+            est = _Unfitted(fit_error)
         pert = Perturbation(**dict(job.perturbation))
         for occ in todo:
             views = held_out_views(
@@ -224,6 +245,8 @@ def run_model_job(job: ModelJob) -> dict:
                 "symmetry": obj.symmetry.kind,
                 "views": _score(est, views, obj),
             }
+            if fit_error is not None:
+                rec["fit_error"] = fit_error
             atomic_write_json(trial_path(job, occ), rec)
             stats["trials_run"] += 1
             trials.append(rec)
