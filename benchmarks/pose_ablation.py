@@ -182,6 +182,8 @@ def main(argv: list[str] | None = None) -> int:
             print(table)
         for t in report["targets"]:
             print(f"target {t}")
+        for f in report["fit_errors"]:
+            print(f"not fitted: {f['estimator']} on {f['object']}: {f['error']}")
         print(f"stats {report['stats']}\nwrote {stem}.json / .png")
     return 0
 

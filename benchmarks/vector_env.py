@@ -37,6 +37,7 @@ import platform
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -95,8 +96,15 @@ def build(config: str, env_kwargs: dict):
     return gym.make_vec(ENV_ID, int(n), **FAMILIES[kind], **env_kwargs), int(n)
 
 
-def time_config(config: str, setting: str, env_steps: int, seed: int) -> dict:
-    """Env steps per wall second over ``env_steps`` env steps (after a short warm-up)."""
+def time_config(
+    config: str,
+    setting: str,
+    env_steps: int,
+    seed: int,
+    before_timing: Callable[[], None] | None = None,
+) -> dict:
+    """Env steps per wall second over ``env_steps`` env steps (after a short warm-up);
+    ``before_timing()``, if given, is called between the warm-up and the timed loop."""
     env, n = build(config, {"object_name": "tomato_soup_can", **SETTINGS[setting]})
     calls = max(1, env_steps // max(n, 1))
     env.action_space.seed(seed)
@@ -104,6 +112,8 @@ def time_config(config: str, setting: str, env_steps: int, seed: int) -> dict:
     env.reset(seed=seed)
     for a in actions[:10]:  # warm-up: GL contexts, caches, worker start-up
         _step(env, a, n)
+    if before_timing is not None:
+        before_timing()
     pids = [p.pid for p in getattr(env, "processes", [])]
     cpu0, t0 = _cpu_seconds(pids), time.perf_counter()
     for a in actions[10:]:
@@ -178,23 +188,12 @@ def run_solo(setting: str, env_steps: int, seed: int, core: int) -> dict:
     """One plain env of an ``independent-N`` run: pinned, warmed up, then it reports ``ready``
     and waits for ``go`` on stdin, so that the N processes time their loops together."""
     os.sched_setaffinity(0, {core})
-    env, _ = build("plain", {"object_name": "tomato_soup_can", **SETTINGS[setting]})
-    env.action_space.seed(seed)
-    actions = [env.action_space.sample() for _ in range(env_steps + 10)]
-    env.reset(seed=seed)
-    for a in actions[:10]:
-        _step(env, a, 0)
-    print("ready", flush=True)
-    sys.stdin.readline()
-    cpu0, t0 = time.process_time(), time.perf_counter()
-    for a in actions[10:]:
-        _step(env, a, 0)
-    elapsed, cpu = time.perf_counter() - t0, time.process_time() - cpu0
-    env.close()
-    return {
-        "env_steps_per_second": env_steps / elapsed,
-        "cpu_ms_per_env_step": 1e3 * cpu / env_steps,
-    }
+
+    def handshake() -> None:
+        print("ready", flush=True)
+        sys.stdin.readline()
+
+    return time_config("plain", setting, env_steps, seed, before_timing=handshake)
 
 
 def run_independent(n: int, setting: str, env_steps: int, seed: int) -> dict:

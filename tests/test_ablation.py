@@ -77,6 +77,7 @@ def local_sweep(tmp_path_factory):
 def test_an_estimator_that_cannot_fit_an_object_scores_invalid_answers(tmp_path):
     """The golf ball covers ~90 px in the overview camera: too few SIFT keypoints for the
     manifold to fit. The sweep records invalid answers for it and the error, and goes on."""
+    from scorbot_gym.experiments.aggregate import fit_errors
     from scorbot_gym.experiments.trial import ModelJob, run_model_job
 
     job = ModelJob(
@@ -89,6 +90,11 @@ def test_an_estimator_that_cannot_fit_an_object_scores_invalid_answers(tmp_path)
     assert trial["views"]["rot_err_deg"] == [None] * 3
     again = run_model_job(job)  # cached, with its error
     assert again["stats"]["trials_cached"] == 1 and again["trials"][0]["fit_error"]
+    (err,) = fit_errors(out["trials"] + again["trials"])  # one line per fit, not per trial
+    assert [err[k] for k in ("protocol", "estimator", "object")] == [
+        "overview", "manifold", "golf_ball"
+    ]  # fmt: skip
+    assert err["error"] == trial["fit_error"]
 
 
 @pytest.mark.slow

@@ -128,6 +128,8 @@ def run_ablate(args: argparse.Namespace) -> int:
         f"\n{st['jobs']} models: {st['fits']} fitted, {st['model_cache_hits']} from cache;"
         f" {st['trials_run']} trials run, {st['trials_cached']} from the cache ({st['wall_s']} s)"
     )
+    for f in report["fit_errors"]:  # their test views count as failures
+        print(f"not fitted: {f['estimator']} on {f['object']}: {f['error']}")
     write_report(report, args.json, args.png)
     for path in (args.json, args.png):
         if path:

@@ -98,6 +98,20 @@ def aggregate(trials: Sequence[dict]) -> list[dict]:
     ]
 
 
+def fit_errors(trials: Sequence[dict]) -> list[dict]:
+    """The (protocol, estimator, object) triples whose fit rejected the training views, with the
+    estimator's message: their test views count as failures, and a table must say which."""
+    seen = {
+        (t["protocol"], t["estimator"], t["object"]): t["fit_error"]
+        for t in trials
+        if t.get("fit_error")
+    }
+    return [
+        {"protocol": p, "estimator": e, "object": o, "error": msg}
+        for (p, e, o), msg in sorted(seen.items())
+    ]
+
+
 def chance_level(results: Sequence[dict]) -> dict:
     """Chance success@5° per occlusion: the ``chance`` estimator's if swept, else the constant
     answer's (identical for every estimator: the same views)."""
