@@ -5,7 +5,8 @@ Run:  python benchmarks/vector_env.py [--repeats 3] [--out benchmarks/results/ve
 
 Every configuration runs in a fresh process (rendering settings are per process), and the
 repetitions interleave the configurations so that a change in the machine's load hits all of
-them alike; medians are reported. Nothing is pinned: the vector envs are meant to use every core.
+them alike; medians are reported. Only the families named pinned, overlapped and independent pin
+processes to cores; the others leave placement to the scheduler.
 The figures are env steps per wall second over a rollout of random actions, resets included
 (the plain env resets itself when an episode ends, the vector envs autoreset), and the CPU time
 per env step of the process and its workers, all threads: on a machine shared with other work,
@@ -18,7 +19,10 @@ Configurations: ``plain`` is ``gym.make`` stepped in a loop; ``sync-N`` is
 (observations, images included, come back through shared memory; the env sends its constant
 camera calibration at reset only, so the per-step info stays small); ``async_pinned-N`` is
 ``gymnasium.vector.AsyncVectorEnv(scorbot_gym.pin_env_fns(...), shared_memory=True)``, the same
-with worker ``i`` pinned to core ``i % cores``; ``independent-N`` is the ceiling no vector env
+with worker ``i`` pinned to core ``i % cores``; ``overlapped-N`` is
+``scorbot_gym.OverlappedVectorEnv(scorbot_gym.pin_env_fns(...), shared_memory=True)``: env 0 steps
+in the main process (rasterizing in its own thread, ``LP_NUM_THREADS=0``) while pinned workers
+step the others; ``independent-N`` is the ceiling no vector env
 can beat: N plain envs in N separate processes with no vector env between them, started
 together, each pinned to its own core and rasterizing in its own thread like a worker, their
 steps/s added up; with ``--ablations``,
@@ -59,10 +63,16 @@ FAMILIES: dict[str, dict] = {
     },
     # built by ``build`` from ``scorbot_gym.pin_env_fns``: worker i pinned to core i % cores
     "async_pinned": {"shared_memory": True},
+    # built by ``build``: env 0 in the main process, the others in pinned workers
+    "overlapped": {"shared_memory": True},
 }
 # Environment the workers of a family start with: ``async_raster_thread`` (with --ablations)
 # gives llvmpipe one rasterizer thread per worker, the previous default, instead of none.
-WORKER_ENV: dict[str, dict[str, str]] = {"async_raster_thread": {"LP_NUM_THREADS": "1"}}
+WORKER_ENV: dict[str, dict[str, str]] = {
+    "async_raster_thread": {"LP_NUM_THREADS": "1"},
+    # the main process steps env 0: it rasterizes in its own thread, like a worker
+    "overlapped": {"LP_NUM_THREADS": "0"},
+}
 SETTINGS = {
     "no_images": {},
     "camera_320x240": {"cameras": ["top"], "image_width": 320, "image_height": 240},
@@ -73,6 +83,7 @@ def configurations(counts: tuple[int, ...], ablations: bool) -> list[str]:
     names = ["plain"]
     for kind in ("sync", "async", "async_pinned"):
         names += [f"{kind}-{n}" for n in counts]
+    names += [f"overlapped-{n}" for n in counts if n > 1]  # env 0 here, the others in workers
     names += [f"independent-{n}" for n in counts if n > 1]
     if ablations:  # the cap only acts with more envs than cores
         names += [f"async_cap-{n}" for n in counts if n > len(os.sched_getaffinity(0))]
@@ -93,6 +104,9 @@ def build(config: str, env_kwargs: dict):
     if kind == "async_pinned":
         fns = scorbot_gym.pin_env_fns([functools.partial(gym.make, ENV_ID, **env_kwargs)] * int(n))
         return gym.vector.AsyncVectorEnv(fns, **FAMILIES[kind]), int(n)
+    if kind == "overlapped":
+        fns = scorbot_gym.pin_env_fns([functools.partial(gym.make, ENV_ID, **env_kwargs)] * int(n))
+        return scorbot_gym.OverlappedVectorEnv(fns, **FAMILIES[kind]), int(n)
     return gym.make_vec(ENV_ID, int(n), **FAMILIES[kind], **env_kwargs), int(n)
 
 
@@ -303,6 +317,7 @@ def plot(report: dict, path: Path) -> None:
             "async_pinned": "v-",
             "async_cap": "^:",
             "async_raster_thread": "D",
+            "overlapped": "P-",
             "independent": "k:",
         }
         for kind, style in styles.items():

@@ -15,7 +15,15 @@ from scorbot_gym.envs import ENV_IDS, ScorbotGraspEnv, register_envs  # noqa: E4
 register_envs()
 
 from scorbot_gym.envs.factory import make_env  # noqa: E402
+from scorbot_gym.envs.overlapped import OverlappedVectorEnv  # noqa: E402
 from scorbot_gym.envs.vector import pin_env_fns  # noqa: E402
 
 __version__ = "0.1.0"
-__all__ = ["ENV_IDS", "ScorbotGraspEnv", "make_env", "pin_env_fns", "register_envs"]
+__all__ = [
+    "ENV_IDS",
+    "OverlappedVectorEnv",
+    "ScorbotGraspEnv",
+    "make_env",
+    "pin_env_fns",
+    "register_envs",
+]
