@@ -156,3 +156,37 @@ def test_bad_input_raises_clear_errors(rendered):
         baselines.N3MEstimator(points_per_marker=3).fit(views, poses)
     with pytest.raises(ValueError, match="expects a pose.view.View"):
         make_estimator("nearest-view").fit(views, poses).predict("image.png")
+
+
+def test_sift_pnp_with_an_upscaled_crop_fits_saves_and_loads(rendered, tmp_path):
+    """``upscale`` (for cameras in which the objects are small) is a parameter like the others:
+    more training points than without it, and kept by save/load."""
+    views, poses, test = rendered
+    est = make_estimator("sift-pnp", upscale=2).fit(views, poses)
+    assert est.upscale == 2 and len(est.points_) > len(
+        make_estimator("sift-pnp").fit(views, poses).points_
+    )
+    est.save(tmp_path / "m.npz")
+    loaded = type(est).load(tmp_path / "m.npz")
+    assert loaded.upscale == 2
+    a, b = est.predict(test[0].view), loaded.predict(test[0].view)
+    np.testing.assert_allclose(b.rotation, a.rotation, atol=1e-6)
+
+
+def test_chance_answers_the_same_world_rotation_in_another_camera(fitted, rendered, tmp_path):
+    """The constant answer is a rotation of the object on the table, not of its image: fitted on
+    top-camera views and asked about a side-camera view, it gives the side camera's view of the
+    same world rotation (so it stays the image-blind reference in ``cross-camera``)."""
+    views, poses, _ = rendered
+    chance = fitted["chance"]
+    i = int(chance.medoid_)
+    world = views[i].camera.world_from_camera[:3, :3] @ poses[i][:3, :3]
+    np.testing.assert_allclose(chance.medoid_world_, world, atol=1e-12)
+    n_rest = len(get_object(OBJECT).resting_quats)
+    side = render_views(OBJECT, random_poses(2, n_rest, workspace_bounds(), seed=9), "side",
+                        W, H, cache_dir=tmp_path, progress=False)  # fmt: skip
+    for lv in side:
+        expected = lv.view.camera.camera_from_world[:3, :3] @ world
+        np.testing.assert_allclose(chance.predict(lv.view).rotation, expected, atol=1e-9)
+    top = rendered[2][0].view  # in a training camera: the medoid training rotation itself
+    np.testing.assert_allclose(chance.predict(top).rotation, poses[i][:3, :3], atol=1e-9)

@@ -54,3 +54,37 @@ def test_no_keypoints_gives_empty_features(case, scene):
     else:
         f = extract_sift(img, np.zeros_like(mask))
     assert len(f) == 0 and f.descriptors.shape == (0, 128)
+
+
+def test_upscaled_crop_finds_more_keypoints_on_a_small_object_in_image_pixels(scene):
+    """``upscale`` enlarges the crop before SIFT: a card 80 px wide gets several times more
+    keypoints, still inside its mask, and on a large card the keypoints found both ways sit at
+    the same image locations (the mapping back keeps pixel centres)."""
+    import cv2
+
+    img, _ = scene
+    card = np.zeros((240, 320), bool)
+    card[20:220, 60:260] = True
+    plain, big = extract_sift(img, card), extract_sift(img, card, upscale=2)
+    d = np.linalg.norm(plain.xy[:, None] - big.xy[None], axis=2).min(axis=1)
+    assert np.median(d) < 0.3 and np.mean(d < 0.5) > 0.6
+
+    small = np.full((240, 320, 3), 90, np.uint8)
+    small[100:160, 120:200] = cv2.resize(img[20:220, 60:260], (80, 60), cv2.INTER_AREA)
+    mask = np.zeros((240, 320), bool)
+    mask[100:160, 120:200] = True
+    n1 = len(extract_sift(small, mask))
+    f3 = extract_sift(small, mask, upscale=3)
+    assert len(f3) > 3 * n1
+    u, v = f3.xy[:, 0], f3.xy[:, 1]
+    assert np.all((u >= 120 - 3) & (u <= 200 + 2) & (v >= 100 - 3) & (v <= 160 + 2))
+
+
+def test_upscale_below_one_is_refused_with_the_valid_range(scene):
+    from pose.features.keypoints import SiftKeypoints
+
+    img, mask = scene
+    with pytest.raises(ValueError, match="upscale must be >= 1"):
+        extract_sift(img, mask, upscale=0.5)
+    with pytest.raises(ValueError, match="upscale must be >= 1"):
+        SiftKeypoints(upscale=float("nan")).validate()

@@ -303,3 +303,14 @@ def test_pnp_refiner_solves_from_few_keypoints():
     R10, t10 = PnPRefiner(min_inliers=10).refine(inp)
     np.testing.assert_array_equal(R10, nearest_view)
     assert t10 is None
+
+
+def test_keypoint_upscale_is_a_nested_parameter_that_round_trips(cards, tmp_path):
+    views, poses, tviews, tposes = cards
+    est = PoseManifoldEstimator().set_params(**SMALL, keypoints__upscale=2).fit(views, poses)
+    assert est.score(tviews, tposes) >= 0.5
+    est.save(tmp_path / "m.npz")
+    loaded = PoseManifoldEstimator.load(tmp_path / "m.npz")
+    assert loaded.keypoints.upscale == 2
+    with pytest.raises(ValueError, match="upscale must be >= 1"):
+        PoseManifoldEstimator().set_params(keypoints__upscale=0).fit(views, poses)

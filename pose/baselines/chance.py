@@ -5,7 +5,12 @@ camera, objects resting upright on the table have only a few distinct rotations 
 symmetry, so a constant answer is right more often than "chance" suggests (an upright can is
 always right under its axial symmetry). :class:`ChanceEstimator` answers the *medoid* of the
 training rotations — the one with the smallest summed geodesic distance to all others, i.e. the
-most common resting face at a typical heading — and places it at the mask centroid with the
+most common resting face at a typical heading. Both are taken in the world frame (through each
+view's camera extrinsics) and the answer is turned into the test view's camera frame: an object
+resting on the table is upright whichever camera looks at it, so the constant answer stays the
+image-blind reference when the test camera is not a training camera (``cross-camera``); in one
+camera's frame it would be a rotation that no test view can have. It is placed at the mask
+centroid with the
 shared silhouette position (:class:`pose.baselines._common.BaselineEstimator`), so that its
 position error is the same reference as every other baseline's.
 """
@@ -38,14 +43,17 @@ class ChanceEstimator(BaselineEstimator):
     one, the rotation needs nothing.
     """
 
-    _FITTED = ("medoid_", *BaselineEstimator.TRANSLATION)
+    _FITTED = ("medoid_", "medoid_world_", *BaselineEstimator.TRANSLATION)
 
     def fit(self, views: Sequence[View], poses) -> ChanceEstimator:
         views, P = check_training_set(views, poses)
         require_masks(views, "ChanceEstimator")
-        R = P[:, :3, :3]
+        R = np.stack(
+            [v.camera.world_from_camera[:3, :3] @ p[:3, :3] for v, p in zip(views, P, strict=True)]
+        )
         cost = np.array([geodesic_deg(R, r[None]).sum() for r in R])
         self.medoid_ = np.array(int(np.argmin(cost)))
+        self.medoid_world_ = R[int(self.medoid_)].copy()
         self._fit_translation(views, P)
         return self
 
@@ -56,16 +64,16 @@ class ChanceEstimator(BaselineEstimator):
         region = object_region(view)
         if region is None:
             return invalid("no object mask", timer)
-        i = int(self.medoid_)
         centre, size = centre_and_size(region, np.zeros((1, 2)))
-        t = self._translation(view.camera, centre, size, i)
+        t = self._translation(view.camera, centre, size, int(self.medoid_))
+        R = view.camera.camera_from_world[:3, :3] @ self.medoid_world_
         timer.lap("constant")
         return PoseEstimate(
-            rotation=self.tr_rotation_[i].copy(),
+            rotation=R,
             translation=t,
             confidence=0.0,
             valid=True,
             timings_ms=timer.done(),
-            rotation_coarse=self.tr_rotation_[i].copy(),
+            rotation_coarse=R.copy(),
             translation_regressed=t,
         )

@@ -37,13 +37,18 @@ from pose.view import PoseEstimate, View
 
 
 def lifted_features(
-    views: Sequence[View], poses: np.ndarray, n_features: int, contrast_threshold: float
+    views: Sequence[View],
+    poses: np.ndarray,
+    n_features: int,
+    contrast_threshold: float,
+    upscale: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object-frame points ``(M, 3)``, unit descriptors ``(M, 128)`` and view indices ``(M,)``
     of the training views' SIFT keypoints that have a depth."""
     xyz, desc, vid = [], [], []
     for i, (view, pose) in enumerate(zip(views, poses, strict=True)):
-        f = extract_sift(view.image, object_region(view), n_features, contrast_threshold)
+        region = object_region(view)
+        f = extract_sift(view.image, region, n_features, contrast_threshold, upscale=upscale)
         if len(f) == 0:
             continue
         pts, ok = lift_to_object(view, f.xy.astype(float), pose)
@@ -94,6 +99,7 @@ class SiftPnPEstimator(BaselineEstimator):
         reprojection_error: float = 3.0,
         min_inliers: int = 8,
         random_state: int = 0,
+        upscale: float = 1.0,
     ):
         self.max_train_features = max_train_features
         self.contrast_threshold = contrast_threshold
@@ -102,6 +108,7 @@ class SiftPnPEstimator(BaselineEstimator):
         self.reprojection_error = reprojection_error
         self.min_inliers = min_inliers
         self.random_state = random_state
+        self.upscale = upscale
 
     def fit(self, views: Sequence[View], poses) -> SiftPnPEstimator:
         if self.min_inliers < 6 or not 0.0 < self.ratio <= 1.0:
@@ -110,7 +117,7 @@ class SiftPnPEstimator(BaselineEstimator):
             )
         views, P = check_training_set(views, poses)
         self.points_, self.descriptors_, self.point_view_ = lifted_features(
-            views, P, self.max_train_features, self.contrast_threshold
+            views, P, self.max_train_features, self.contrast_threshold, self.upscale
         )
         self.points_ = self.points_.astype(np.float32)
         self._fit_translation(views, P)
@@ -128,7 +135,7 @@ class SiftPnPEstimator(BaselineEstimator):
         check_view(view)
         timer = Timer()
         mask = view.mask if view.mask is None else np.asarray(view.mask, bool)
-        f = extract_sift(view.image, mask, 0, self.contrast_threshold)
+        f = extract_sift(view.image, mask, 0, self.contrast_threshold, upscale=self.upscale)
         timer.lap("sift")
         if len(f) < self.min_inliers:
             return invalid(f"only {len(f)} keypoints", timer, len(f))

@@ -53,13 +53,19 @@ def extract_sift(
     n_features: int = 0,
     contrast_threshold: float = 0.04,
     mask_dilation: int = 2,
+    upscale: float = 1.0,
 ) -> Features:
     """Detect SIFT keypoints (inside ``mask`` when given) and L2-normalise their descriptors.
 
     The mask is dilated by ``mask_dilation`` pixels so that corners on the silhouette, whose
     support straddles the boundary, are kept. With a mask, only its bounding box (plus a
     ``CROP_MARGIN`` border) is processed: the cost follows the object's size, not the image's.
+    ``upscale`` > 1 enlarges that crop (bicubic) before detection, for objects only a few dozen
+    pixels across: SIFT's finest octave is then finer than the image's pixels, and the
+    locations are mapped back to image pixels.
     """
+    if not upscale >= 1.0:
+        raise ValueError(f"upscale must be >= 1 (1: the image as it is), got {upscale}")
     gray = to_gray(image)
     cv_mask = None
     x0 = y0 = 0
@@ -74,11 +80,19 @@ def extract_sift(
         if mask_dilation > 0:
             m = cv2.dilate(m, np.ones((2 * mask_dilation + 1,) * 2, np.uint8))
         cv_mask = m
+    if upscale != 1.0:
+        gray = cv2.resize(gray, None, fx=upscale, fy=upscale, interpolation=cv2.INTER_CUBIC)
+        if cv_mask is not None:
+            size = (gray.shape[1], gray.shape[0])
+            cv_mask = cv2.resize(cv_mask, size, interpolation=cv2.INTER_NEAREST)
     sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=contrast_threshold)
     kps, desc = sift.detectAndCompute(np.ascontiguousarray(gray), cv_mask)
     if desc is None or len(kps) == 0:
         return Features.empty()
-    xy = np.array([k.pt for k in kps], dtype=np.float32) + np.float32([x0, y0])
+    xy = np.array([k.pt for k in kps], dtype=np.float32)
+    if upscale != 1.0:  # cv2.resize keeps pixel centres aligned: x_big + 0.5 = f (x + 0.5)
+        xy = (xy + 0.5) / np.float32(upscale) - 0.5
+    xy += np.float32([x0, y0])
     angles = np.radians(np.array([k.angle for k in kps], dtype=np.float32))  # degrees, u -> v
     desc = desc.astype(np.float32)
     desc /= np.maximum(np.linalg.norm(desc, axis=1, keepdims=True), 1e-12)
@@ -92,7 +106,8 @@ class SiftKeypoints(BaseEstimator):
     descriptor database that every query is matched against, so capping them bounds the index
     size and the matching time. Query views keep all their keypoints, since occlusion may leave
     only weak ones. ``contrast_threshold`` is SIFT's (lower finds more keypoints on faint
-    texture).
+    texture). ``upscale`` enlarges the object's crop before detection (see :func:`extract_sift`):
+    for cameras in which the objects are small.
     """
 
     def __init__(
@@ -100,14 +115,18 @@ class SiftKeypoints(BaseEstimator):
         contrast_threshold: float = 0.03,
         max_train_features: int = 200,
         mask_dilation: int = 2,
+        upscale: float = 1.0,
     ):
         self.contrast_threshold = contrast_threshold
         self.max_train_features = max_train_features
         self.mask_dilation = mask_dilation
+        self.upscale = upscale
 
     def validate(self) -> None:
         if self.contrast_threshold <= 0:
             raise ValueError(f"contrast_threshold must be > 0, got {self.contrast_threshold}")
+        if not self.upscale >= 1.0:
+            raise ValueError(f"upscale must be >= 1 (1: the image as it is), got {self.upscale}")
         if self.max_train_features < 0 or self.mask_dilation < 0:
             raise ValueError(
                 "max_train_features and mask_dilation must be >= 0, got "
@@ -118,4 +137,6 @@ class SiftKeypoints(BaseEstimator):
         self, image: np.ndarray, mask: np.ndarray | None, training: bool = False
     ) -> Features:
         n = self.max_train_features if training else 0
-        return extract_sift(image, mask, n, self.contrast_threshold, self.mask_dilation)
+        return extract_sift(
+            image, mask, n, self.contrast_threshold, self.mask_dilation, self.upscale
+        )
