@@ -43,6 +43,22 @@ TARGETS = {
 RESULT = Path(__file__).resolve().parent / "results" / "pose_manifold.json"
 
 
+def parse_params(items: list[str]) -> dict:
+    """``["keypoints__upscale=2", ...]`` -> ``{"keypoints__upscale": 2}`` (Python literals)."""
+    import ast
+
+    params = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or not name:
+            raise ValueError(f"--params takes NAME=VALUE items, got {item!r}")
+        try:
+            params[name] = ast.literal_eval(value)
+        except (ValueError, SyntaxError):
+            raise ValueError(f"--params {name}: {value!r} is not a Python literal") from None
+    return params
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--objects", nargs="*", default=None, help="default: the whole catalogue")
@@ -53,7 +69,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULT))
+    ap.add_argument(
+        "--params",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="estimator parameters for set_params, stage ones included (keypoints__upscale=2)",
+    )
     args = ap.parse_args(argv)
+    try:
+        params = parse_params(args.params)
+    except ValueError as err:
+        ap.error(str(err))
     objects = args.objects
     if args.quick:
         objects = objects or ["foam_brick", "banana", "tomato_soup_can"]
@@ -64,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         models, info = train_models(
             objects, None, "top", args.width, args.height, seed=0, cache_dir=cache,
-            jobs=args.jobs, progress=False,
+            jobs=args.jobs, progress=False, params=params,
         )  # fmt: skip
         train_s = time.perf_counter() - t0
         results = evaluate(
@@ -96,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
             "predict_threads": 1,
             "train_jobs": args.jobs,
         },
+        "params": params,
         "setup": {
             "camera": "top",
             "image": [args.width, args.height],
