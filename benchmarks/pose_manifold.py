@@ -44,19 +44,11 @@ RESULT = Path(__file__).resolve().parent / "results" / "pose_manifold.json"
 
 
 def parse_params(items: list[str]) -> dict:
-    """``["keypoints__upscale=2", ...]`` -> ``{"keypoints__upscale": 2}`` (Python literals)."""
-    import ast
+    """``["keypoints__upscale=2", ...]`` -> ``{"keypoints__upscale": 2}``, parsed as the
+    parameters of an estimator spec (``pose ablate``'s ``manifold(keypoints__upscale=2)``)."""
+    from scorbot_gym.experiments.spec import EstimatorSpec
 
-    params = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep or not name:
-            raise ValueError(f"--params takes NAME=VALUE items, got {item!r}")
-        try:
-            params[name] = ast.literal_eval(value)
-        except (ValueError, SyntaxError):
-            raise ValueError(f"--params {name}: {value!r} is not a Python literal") from None
-    return params
+    return dict(EstimatorSpec.parse(f"manifold({', '.join(items)})").params)
 
 
 def main(argv: list[str] | None = None) -> int:
