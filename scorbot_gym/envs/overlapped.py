@@ -6,8 +6,7 @@ idle while it collects, and each vector step pays a full round trip before any e
 the next one. Stepping env 0 in the calling process, between sending the others their actions
 and collecting their results, puts that waiting time to work: N envs need N - 1 workers, and
 the round trip overlaps with env 0's own step (``benchmarks/vector_env.py`` measures it against
-``AsyncVectorEnv`` and against N independent processes). Sample Factory and RLlib's rollout
-workers keep an env in the sampling process for the same reason.
+``AsyncVectorEnv`` and against N independent processes).
 
 The result is an ordinary Gymnasium ``VectorEnv``: batched observations and infos in env
 order, seeds ``seed + i``, and the autoreset mode of ``AsyncVectorEnv`` (env 0 goes through a
