@@ -3,10 +3,17 @@
 Every registered estimator follows the same contract — ``fit(views, poses)`` with
 ``camera_from_object`` poses ``(N, 4, 4)``, ``predict(view) -> PoseEstimate`` — so an ablation
 is a swap of names (the CLI, the sweep runner and the pose sources all resolve them here).
+
+A *spec* string names an estimator with parameters: ``name`` or ``name(param=value, ...)`` with
+Python literal values, nested stage parameters (``bunches__n_bunches=4``, scikit-learn's
+convention) set with ``set_params`` after construction. :func:`make_from_spec` builds one; the
+``fallback`` composition takes its two parts as specs.
 """
 
 from __future__ import annotations
 
+import ast
+import re
 from collections.abc import Callable
 from functools import partial
 from typing import Any
@@ -23,6 +30,50 @@ _ESTIMATORS["part-based"] = baselines.PartBasedEstimator
 _ESTIMATORS["n3m"] = baselines.N3MEstimator
 _ESTIMATORS["sift-pnp"] = baselines.SiftPnPEstimator
 _ESTIMATORS["nearest-view"] = baselines.NearestViewEstimator
+
+
+_SPEC = re.compile(r"^\s*([A-Za-z_][\w.\-]*)\s*(?:\((.*)\))?\s*$", re.DOTALL)
+
+
+def parse_spec(text: str) -> tuple[str, dict[str, Any]]:
+    """``"name(a=1, b__c='x')"`` -> ``("name", {"a": 1, "b__c": "x"})``; one-line
+    ``ValueError`` saying what is wrong otherwise."""
+    m = _SPEC.match(text) if isinstance(text, str) else None
+    if not m:
+        raise ValueError(
+            f"bad estimator spec {text!r}; expected NAME or NAME(param=value, ...), "
+            "e.g. manifold(refine=False)"
+        )
+    name, args = m.group(1), (m.group(2) or "").strip()
+    params: dict[str, Any] = {}
+    if args:
+        try:
+            call = ast.parse(f"f({args})", mode="eval").body
+            if not isinstance(call, ast.Call) or call.args:
+                raise ValueError("positional arguments")
+            for kw in call.keywords:
+                if kw.arg is None:
+                    raise ValueError("**kwargs")
+                params[kw.arg] = ast.literal_eval(kw.value)
+        except (SyntaxError, ValueError) as exc:
+            raise ValueError(
+                f"bad parameters in estimator spec {text!r} ({exc}); "
+                "use keyword=literal pairs, e.g. manifold(n_bunches=4, refine=False)"
+            ) from exc
+    return name, params
+
+
+def make_with_params(name: str, params: dict[str, Any]) -> Any:
+    """A new estimator: plain parameters go to the registered factory, nested ones
+    (``stage__param``) through ``set_params`` afterwards."""
+    est = make_estimator(name, **{k: v for k, v in params.items() if "__" not in k})
+    nested = {k: v for k, v in params.items() if "__" in k}
+    return est.set_params(**nested) if nested else est
+
+
+def make_from_spec(spec: str) -> Any:
+    """A new, unfitted estimator from a spec string: ``"manifold-pnp(keypoints__upscale=2)"``."""
+    return make_with_params(*parse_spec(spec))
 
 
 def estimator_names() -> tuple[str, ...]:
@@ -59,3 +110,17 @@ def _register_manifold_variants() -> None:
 
 
 _register_manifold_variants()
+
+
+def _fallback(estimator: Any = "manifold", fallback: Any = "chance", min_confidence: float = 0.2):
+    """``fallback(estimator='manifold-pnp(...)', fallback='chance', min_confidence=0.2)``:
+    the parts are spec strings (or estimator objects)."""
+    from pose.fallback import ConfidenceFallback
+
+    def part(x: Any) -> Any:
+        return make_from_spec(x) if isinstance(x, str) else x
+
+    return ConfidenceFallback(part(estimator), part(fallback), min_confidence)
+
+
+register_estimator("fallback", _fallback)

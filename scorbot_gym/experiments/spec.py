@@ -10,15 +10,11 @@ registered or flagged for it.
 
 from __future__ import annotations
 
-import ast
-import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from scorbot_gym.data.perturbations import Perturbation
-
-_NAME = re.compile(r"^\s*([A-Za-z_][\w.\-]*)\s*(?:\((.*)\))?\s*$", re.DOTALL)
 
 
 @dataclass(frozen=True)
@@ -30,41 +26,17 @@ class EstimatorSpec:
 
     @classmethod
     def parse(cls, text: str) -> EstimatorSpec:
-        m = _NAME.match(text)
-        if not m:
-            raise ValueError(
-                f"bad estimator spec {text!r}; expected NAME or NAME(param=value, ...), "
-                "e.g. manifold(refine=False)"
-            )
-        name, args = m.group(1), (m.group(2) or "").strip()
-        params: dict[str, Any] = {}
-        if args:
-            try:
-                call = ast.parse(f"f({args})", mode="eval").body
-                if not isinstance(call, ast.Call) or call.args:
-                    raise ValueError("positional arguments")
-                for kw in call.keywords:
-                    if kw.arg is None:
-                        raise ValueError("**kwargs")
-                    params[kw.arg] = ast.literal_eval(kw.value)
-            except (SyntaxError, ValueError) as exc:
-                raise ValueError(
-                    f"bad parameters in estimator spec {text!r} ({exc}); "
-                    "use keyword=literal pairs, e.g. manifold(n_bunches=4, refine=False)"
-                ) from exc
+        from pose.registry import parse_spec
+
+        name, params = parse_spec(text)
         return cls(name, tuple(sorted(params.items())))
 
     def make(self) -> Any:
         """A new estimator: plain parameters go to the registered factory, nested ones
         (``stage__param``, scikit-learn's convention) through ``set_params`` afterwards."""
-        from pose.registry import make_estimator
+        from pose.registry import make_with_params
 
-        plain = {k: v for k, v in self.params if "__" not in k}
-        nested = {k: v for k, v in self.params if "__" in k}
-        est = make_estimator(self.name, **plain)
-        if nested:
-            est.set_params(**nested)
-        return est
+        return make_with_params(self.name, dict(self.params))
 
     def __str__(self) -> str:
         if not self.params:
