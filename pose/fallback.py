@@ -113,9 +113,7 @@ class ConfidenceFallback(BaseEstimator):
         timings.update({f"fallback/{k}": v for k, v in back.timings_ms.items()})
         timings["main"] = (t1 - t0) * 1e3
         timings["total"] = (time.perf_counter() - t0) * 1e3
-        reason = why if not back.valid else f"fallback: {why}"
-        if not back.valid:
-            reason = f"{why}; fallback invalid too ({back.reason})"
+        reason = f"fallback: {why}" if back.valid else f"{why}; fallback invalid too: {back.reason}"
         return replace(
             back,
             timings_ms=timings,
