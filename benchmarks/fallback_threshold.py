@@ -43,7 +43,10 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
-    main_spec, back_spec = (str(EstimatorSpec.parse(s)) for s in (args.main, args.fallback))
+    try:
+        main_spec, back_spec = (str(EstimatorSpec.parse(s)) for s in (args.main, args.fallback))
+    except ValueError as err:
+        ap.error(str(err))
     trials, stats = [], []
     for protocol in args.protocols.split(","):
         spec = sweep(protocol, [main_spec, back_spec], args.occlusion, seed=args.seed)

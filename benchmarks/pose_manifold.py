@@ -46,9 +46,9 @@ RESULT = Path(__file__).resolve().parent / "results" / "pose_manifold.json"
 def parse_params(items: list[str]) -> dict:
     """``["keypoints__upscale=2", ...]`` -> ``{"keypoints__upscale": 2}``, parsed as the
     parameters of an estimator spec (``pose ablate``'s ``manifold(keypoints__upscale=2)``)."""
-    from scorbot_gym.experiments.spec import EstimatorSpec
+    from pose.registry import parse_spec
 
-    return dict(EstimatorSpec.parse(f"manifold({', '.join(items)})").params)
+    return parse_spec(f"manifold({', '.join(items)})")[1]
 
 
 def main(argv: list[str] | None = None) -> int:

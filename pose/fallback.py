@@ -23,6 +23,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 from sklearn.utils.validation import check_is_fitted
 
+from pose.baselines._common import check_training_set
 from pose.metrics import rotation_error_deg, success_rate
 from pose.serialization import load_arrays, save_arrays
 from pose.symmetry import Symmetry
@@ -75,7 +76,8 @@ class ConfidenceFallback(BaseEstimator):
         fb = ChanceEstimator() if self.fallback is None else self.fallback
         _check_estimator("estimator", est)
         _check_estimator("fallback", fb)
-        if not 0.0 <= float(self.min_confidence) <= 1.0:
+        c = self.min_confidence
+        if isinstance(c, bool) or not isinstance(c, (int, float)) or not 0.0 <= c <= 1.0:
             raise ValueError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
         return est, fb
 
@@ -124,10 +126,10 @@ class ConfidenceFallback(BaseEstimator):
 
     def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
         """Share of ``views`` within 5 degrees of ``poses`` (invalid answers fail)."""
-        P = np.asarray(poses, float)
+        views, P = check_training_set(views, poses)
         errs = [
             rotation_error_deg(e.rotation, p[:3, :3], symmetry) if e.valid else np.nan
-            for e, p in zip(self.predict(list(views)), P, strict=True)
+            for e, p in zip(self.predict(views), P, strict=True)
         ]
         return success_rate(errs, 5.0)
 
@@ -158,9 +160,9 @@ class ConfidenceFallback(BaseEstimator):
                     parts.append(part_cls.from_arrays(arrays, prefix + sub, format_version))
                 else:
                     parts.append(part_cls.from_arrays(arrays, prefix + sub))
-        except (KeyError, TypeError, json.JSONDecodeError) as exc:
+            est = cls(parts[0], parts[1], float(head["min_confidence"]))
+        except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
             raise ValueError(f"fallback model file is missing or has bad entries ({exc})") from exc
-        est = cls(parts[0], parts[1], head["min_confidence"])
         est.estimator_, est.fallback_ = parts
         return est
 

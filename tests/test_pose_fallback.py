@@ -93,6 +93,8 @@ def test_batch_predict_and_score(fitted, views):
         ]
     )
     assert fitted.score([lv.view for lv in test], poses, symmetry) == pytest.approx(expected)
+    with pytest.raises(ValueError, match=r"poses must be \(4, 4, 4\)"):
+        fitted.score([lv.view for lv in test], poses[:2])
 
 
 def test_save_load_round_trip(fitted, views, tmp_path):
@@ -132,6 +134,7 @@ def test_manifold_part_round_trips(tmp_path, views):
         ({"estimator": "not an estimator"}, "estimator must be a pose estimator"),
         ({"fallback": 3}, "fallback must be a pose estimator"),
         ({"min_confidence": 1.5}, r"min_confidence must be in \[0, 1\]"),
+        ({"min_confidence": "high"}, r"min_confidence must be in \[0, 1\]"),
     ],
 )
 def test_bad_parameters_are_one_line_errors(params, match, views):
@@ -182,3 +185,13 @@ def test_gate_curve_scores_each_threshold_like_the_composition():
     assert best_threshold([cell]) == (0.12, cell["gated"])
     with pytest.raises(ValueError, match="same cells"):
         gate_curve(trials[:1], "main", "chance", (0.1,))
+
+
+def test_damaged_fallback_file_is_refused(tmp_path):
+    from pose.serialization import save_arrays
+
+    path = tmp_path / "damaged.npz"
+    header = {"kind": "estimator", "class": "ConfidenceFallback"}
+    save_arrays(path, {"unrelated": np.zeros(2)}, header)
+    with pytest.raises(ValueError, match="missing or has bad entries"):
+        ConfidenceFallback.load(path)
