@@ -221,6 +221,17 @@ def test_pnp_refiner_answers_a_tilt_no_training_view_shows(cards, tmp_path):
     assert np.median(errors(homography)) > 10.0
     err = errors(pnp)
     assert np.median(err) < 3.0, err
+    # the estimator hands the whole database's matches to a refiner that asks for them
+    wide = make_estimator(
+        "manifold-pnp", refiner__correspondences="ratio+global", refiner__keep_ratio=0.0, **SMALL
+    ).fit(views, poses)
+    seen, refine = [], wide.refiner.refine
+    wide.refiner.refine = lambda inp: seen.append(inp.neighbours[0].shape[0]) or refine(inp)
+    assert np.median(errors(wide)) < 3.0
+    assert len(seen) == len(tviews) and min(seen) >= 6
+    wide.save(tmp_path / "wide.npz")
+    params = PoseManifoldEstimator.load(tmp_path / "wide.npz").refiner.get_params()
+    assert params["correspondences"] == "ratio+global" and params["keep_ratio"] == 0.0
     e = pnp.predict(tviews[0])  # PnP's translation replaces the table-plane one
     assert np.linalg.norm(e.translation - tposes[0][:3, 3]) < 0.01
     path = tmp_path / "pnp.npz"
@@ -265,7 +276,9 @@ def test_pnp_model_files_are_checked(cards, tmp_path):
         ("min_inliers", 3, "min_inliers must be >= 6"),
         ("max_turn_deg", 0.0, "max_turn_deg must be in"),
         ("keep_ratio", -1.0, "keep_ratio must be >= 0"),
-        ("correspondences", "all", "correspondences must be 'ratio' or 'homography'"),
+        ("correspondences", "all", "correspondences must be one of"),
+        ("global_ratio", 1.5, "global_ratio must be in"),
+        ("merge_radius", -0.001, "merge_radius must be >= 0"),
     ],
 )
 def test_pnp_refiner_rejects_bad_parameters(cards, param, value, message):
@@ -303,6 +316,56 @@ def test_pnp_refiner_solves_from_few_keypoints():
     R10, t10 = PnPRefiner(min_inliers=10).refine(inp)
     np.testing.assert_array_equal(R10, nearest_view)
     assert t10 is None
+
+
+def test_global_matches_reach_training_views_the_matcher_missed():
+    """The matched views give PnP four correspondences (too few): ``"ratio+global"`` adds the
+    query's 3-D-aware ratio matches against the whole database and solves the tilt, where
+    ``"ratio"`` keeps the nearest view's rotation."""
+    from pose.camera import CameraModel
+    from pose.manifold.refinement import PnPRefiner, RefinementInput
+    from pose.rotations import rot_z
+
+    rng = np.random.default_rng(1)
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K=K, world_from_camera=np.eye(4), width=320, height=240)
+    xyz = rng.uniform(-0.04, 0.04, (10, 3))
+    tilt = np.array(
+        [[1.0, 0.0, 0.0], [0.0, np.cos(0.35), -np.sin(0.35)], [0.0, np.sin(0.35), np.cos(0.35)]]
+    )
+    R_true, t_true = tilt @ rot_z(0.3), np.array([0.0, 0.01, 0.5])
+    cam = xyz @ R_true.T + t_true
+    xy = cam[:, :2] / cam[:, 2:] * 300.0 + [160.0, 120.0]
+    # Database: every model point twice (seen from two training views, the same 3-D place),
+    # then a row without depth. Each query's nearest rows are its own point's two rows.
+    db_xyz = np.r_[xyz, xyz + 1e-4, np.full((1, 3), np.nan)]
+    idx = np.c_[np.arange(10), np.arange(10, 20), np.roll(np.arange(10), 1)]
+    dist = np.tile([0.1, 0.12, 0.5], (10, 1))
+    nearest_view = rot_z(0.3)
+    inp = RefinementInput(
+        R_coarse=nearest_view, R_ray=np.eye(3), angle=0.0, R_view=nearest_view, xy=xy[:4],
+        db_rows=np.arange(4), db_xyz=db_xyz, camera=camera, n_inliers=4, keypoints_xy=xy,
+        neighbours=(idx, dist),
+    )  # fmt: skip
+    R, _ = PnPRefiner(correspondences="ratio").refine(inp)
+    np.testing.assert_array_equal(R, nearest_view)
+    R, t = PnPRefiner(correspondences="ratio+global").refine(inp)
+    assert rotation_error_deg(R, R_true, Symmetry()) < 0.5
+    np.testing.assert_allclose(t, t_true, atol=1e-4)
+
+
+def test_3d_ratio_test_compares_with_another_place():
+    from pose.features.matching import ratio_test_3d
+
+    points = np.array([[0, 0, 0], [0.001, 0, 0], [0.05, 0, 0], [np.nan] * 3, [0.1, 0, 0]])
+    idx = np.array([[0, 1, 2], [0, 2, 4], [3, 0, 1], [0, 3, 4], [-1, -1, -1]])
+    dist = np.array([[0.1, 0.11, 0.2], [0.1, 0.11, 0.2], [0.1, 0.2, 0.3], [0.1, 0.11, 0.3],
+                     [np.inf] * 3])  # fmt: skip
+    q, rows = ratio_test_3d(idx, dist, points, ratio=0.8, merge_radius=0.004)
+    # 0: the second row is the same place, the third is far and clearly worse: kept;
+    # 1: the second is another place nearly as close: ambiguous; 2: no 3-D point; 3: an
+    # unknown point may be another place, so it is compared with (ambiguous); 4: no neighbour.
+    assert q.tolist() == [0] and rows.tolist() == [0]
 
 
 def test_keypoint_upscale_is_a_nested_parameter_that_round_trips(cards, tmp_path):

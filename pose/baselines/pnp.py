@@ -31,8 +31,8 @@ from pose.baselines._common import (
     object_region,
     pnp,
 )
+from pose.features.matching import DescriptorIndex, ratio_test_3d
 from pose.keypoints import extract_sift
-from pose.matching import DescriptorIndex
 from pose.view import PoseEstimate, View
 
 
@@ -71,18 +71,10 @@ def match_3d(
     merge_radius: float,
     k: int = 8,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Query indices and model-point indices of the matches passing the 3-D-aware ratio test."""
+    """Query indices and model-point indices of the matches passing the 3-D-aware ratio test
+    (:func:`pose.features.matching.ratio_test_3d`) among each query's ``k`` nearest descriptors."""
     idx, dist = index.nearest(query, k)
-    q, m = [], []
-    for i, (row, d) in enumerate(zip(idx, dist, strict=True)):
-        if row[0] < 0:
-            continue
-        far = np.linalg.norm(points[row[row >= 0]] - points[row[0]], axis=1) > merge_radius
-        second = d[: len(far)][far]
-        if len(second) == 0 or d[0] < ratio * second[0]:
-            q.append(i)
-            m.append(row[0])
-    return np.array(q, int), np.array(m, int)
+    return ratio_test_3d(idx, dist, points, ratio, merge_radius)
 
 
 class SiftPnPEstimator(BaselineEstimator):

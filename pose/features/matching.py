@@ -93,6 +93,31 @@ def apply_homography(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return q[:, :2] / q[:, 2:3]
 
 
+def ratio_test_3d(
+    idx: np.ndarray, dist: np.ndarray, points: np.ndarray, ratio: float, merge_radius: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Query indices and index rows of the matches passing a 3-D-aware ratio test.
+
+    ``idx``, ``dist``: each query descriptor's nearest index rows, nearest first
+    (:meth:`DescriptorIndex.nearest`); ``points``: every row's object-frame point (NaN where
+    unknown). The second neighbour of the ratio test is the nearest one from a *different*
+    3-D place (over ``merge_radius`` away): the nearest several descriptors are often the same
+    point seen from neighbouring training views, and comparing with those would reject it.
+    A query whose nearest row has no 3-D point is skipped."""
+    q, m = [], []
+    for i, (row, d) in enumerate(zip(idx, dist, strict=True)):
+        if row[0] < 0 or not np.isfinite(points[row[0]]).all():
+            continue
+        others = points[row[row >= 0]]
+        # An unknown point is never "the same place": it can only make the test stricter.
+        far = ~(np.linalg.norm(others - points[row[0]], axis=1) <= merge_radius)
+        second = d[: len(far)][far]
+        if len(second) == 0 or d[0] < ratio * second[0]:
+            q.append(i)
+            m.append(row[0])
+    return np.array(q, int), np.array(m, int)
+
+
 @dataclass
 class DescriptorIndex:
     """Approximate nearest-neighbour index over the descriptors of all training views."""

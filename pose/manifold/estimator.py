@@ -387,7 +387,7 @@ class PoseManifoldEstimator(BaseEstimator):
             inp = RefinementInput(
                 R_coarse, R_ray, angle_h, self.view_R_allo_[best], f.xy[pairs[:, 0]].astype(float),
                 pairs[:, 1], getattr(self, "db_xyz_", None), view.camera, self.random_state,
-                n_inliers=n_inl,
+                n_inliers=n_inl, keypoints_xy=f.xy, neighbours=neighbours,
             )  # fmt: skip
             R, t_solved = self.refiner.refine(inp)
         try:

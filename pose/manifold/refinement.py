@@ -27,8 +27,11 @@ import numpy as np
 from sklearn.base import BaseEstimator
 
 from pose.camera import CameraModel
+from pose.features.matching import ratio_test_3d
 from pose.geometry import pnp
 from pose.rotations import geodesic_deg, rot_z
+
+_CORRESPONDENCES = ("ratio", "homography", "ratio+global")
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,10 @@ class RefinementInput:
     homography angle and rotation, and the matched keypoints (query pixels ``xy`` with the
     database rows they matched, ``db_rows``: the first ``n_inliers`` are homography inliers,
     the rest other ratio-test pairs of the matched views; ``db_xyz`` holds the object-frame
-    point of every database row, NaN where training had no depth, or is None)."""
+    point of every database row, NaN where training had no depth, or is None;
+    ``keypoints_xy`` every query keypoint's pixel and ``neighbours`` its nearest database rows
+    and descriptor distances, nearest first, for a refiner that matches against the whole
+    database)."""
 
     R_coarse: np.ndarray
     R_ray: np.ndarray
@@ -49,6 +55,8 @@ class RefinementInput:
     camera: CameraModel
     seed: int = 0
     n_inliers: int | None = None
+    keypoints_xy: np.ndarray | None = None
+    neighbours: tuple[np.ndarray, np.ndarray] | None = None
 
 
 class HomographyRefiner(BaseEstimator):
@@ -79,7 +87,11 @@ class PnPRefiner(BaseEstimator):
     answer. ``keep_ratio=0`` always takes PnP's. ``correspondences="ratio"`` solves from every
     ratio-test pair of the matched training views (RANSAC PnP removes the outliers);
     ``"homography"`` only from the homography inliers, which drop true matches on curved or
-    many-sided objects. Training views must carry ``View.depth``.
+    many-sided objects; ``"ratio+global"`` adds the query's matches against *every* training
+    keypoint that pass a 3-D-aware ratio test (``global_ratio``, the second neighbour taken
+    over ``merge_radius`` away: the matches ``sift-pnp`` solves from), which reach the training
+    views around a pose that the few matched views miss, such as a tilt that no training view
+    shows. Training views must carry ``View.depth``.
     """
 
     needs_depth = True
@@ -91,12 +103,16 @@ class PnPRefiner(BaseEstimator):
         max_turn_deg: float = 45.0,
         keep_ratio: float = 1.1,
         correspondences: str = "ratio",
+        global_ratio: float = 0.8,
+        merge_radius: float = 0.004,
     ):
         self.threshold = threshold
         self.min_inliers = min_inliers
         self.max_turn_deg = max_turn_deg
         self.keep_ratio = keep_ratio
         self.correspondences = correspondences
+        self.global_ratio = global_ratio
+        self.merge_radius = merge_radius
 
     def validate(self) -> None:
         if not self.threshold > 0:
@@ -107,21 +123,32 @@ class PnPRefiner(BaseEstimator):
             raise ValueError(f"max_turn_deg must be in (0, 180], got {self.max_turn_deg}")
         if not self.keep_ratio >= 0:
             raise ValueError(f"keep_ratio must be >= 0, got {self.keep_ratio}")
-        if self.correspondences not in ("ratio", "homography"):
+        if self.correspondences not in _CORRESPONDENCES:
             raise ValueError(
-                f"correspondences must be 'ratio' or 'homography', got {self.correspondences!r}"
+                f"correspondences must be one of {list(_CORRESPONDENCES)}, "
+                f"got {self.correspondences!r}"
             )
+        if not 0 < self.global_ratio <= 1:
+            raise ValueError(f"global_ratio must be in (0, 1], got {self.global_ratio}")
+        if not self.merge_radius >= 0:
+            raise ValueError(f"merge_radius must be >= 0 metres, got {self.merge_radius}")
 
     def refine(self, inp: RefinementInput) -> tuple[np.ndarray, np.ndarray | None]:
         fallback = inp.R_ray @ rot_z(inp.angle) @ inp.R_view
         if inp.db_xyz is None:
             return fallback, None
-        n = len(inp.db_rows) if self.correspondences == "ratio" else inp.n_inliers
-        obj = inp.db_xyz[inp.db_rows[:n]]
+        n = inp.n_inliers if self.correspondences == "homography" else len(inp.db_rows)
+        obj, img = inp.db_xyz[inp.db_rows[:n]], inp.xy[:n]
+        if self.correspondences == "ratio+global" and inp.neighbours is not None:
+            q, rows = ratio_test_3d(
+                *inp.neighbours, inp.db_xyz, self.global_ratio, self.merge_radius
+            )
+            obj = np.concatenate([obj, inp.db_xyz[rows]])
+            img = np.concatenate([img, np.asarray(inp.keypoints_xy, float)[q]])
         known = np.isfinite(obj).all(axis=1)
         if known.sum() < self.min_inliers:
             return fallback, None
-        obj, img = obj[known], inp.xy[:n][known]
+        obj, img = obj[known], img[known]
         R, t, inliers = pnp(obj, img, inp.camera, self.threshold, inp.seed)
         if R is None or inliers.sum() < self.min_inliers:
             return fallback, None
