@@ -14,7 +14,6 @@ and ``GridSearchCV`` reach both parts, and the threshold is a swept parameter, n
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import replace
@@ -23,21 +22,9 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 from sklearn.utils.validation import check_is_fitted
 
-from pose.baselines._common import check_training_set
-from pose.metrics import rotation_error_deg, success_rate
-from pose.serialization import load_arrays, save_arrays
+from pose.composition import Composition, load_part
 from pose.symmetry import Symmetry
-from pose.view import PoseEstimate, View
-
-
-def _loadable_classes() -> dict[str, type]:
-    """Estimator classes a fallback file may hold, by class name."""
-    from pose import baselines
-    from pose.manifold.estimator import PoseManifoldEstimator
-
-    classes = [PoseManifoldEstimator, ConfidenceFallback]
-    classes += [getattr(baselines, name) for name in baselines.__all__]
-    return {c.__name__: c for c in classes}
+from pose.view import PoseEstimate, View, predict_each
 
 
 def keeps_main(valid: bool, confidence: float, min_confidence: float) -> bool:
@@ -54,7 +41,7 @@ def _check_estimator(name: str, est) -> None:
             )
 
 
-class ConfidenceFallback(BaseEstimator):
+class ConfidenceFallback(Composition, BaseEstimator):
     """``estimator``'s pose, or ``fallback``'s where that is invalid or below
     ``min_confidence`` (``PoseEstimate.confidence``, in [0, 1]).
 
@@ -81,23 +68,21 @@ class ConfidenceFallback(BaseEstimator):
             raise ValueError(f"min_confidence must be in [0, 1], got {self.min_confidence!r}")
         return est, fb
 
-    def fit(self, views: Sequence[View], poses) -> ConfidenceFallback:
-        """Fit fresh copies of both estimators on the same views and poses."""
+    def fit(self, views: Sequence[View], poses, symmetry: Symmetry | None = None):
+        """Fit fresh copies of both estimators on the same views and poses (``symmetry`` goes
+        to the parts whose ``fit`` takes it, e.g. a
+        :class:`~pose.selection.ValidationSelection`)."""
+        from pose.selection import fit_estimator
+
         est, fb = self._parts()
         views = list(views)
-        self.estimator_ = clone(est).fit(views, poses)
-        self.fallback_ = clone(fb).fit(views, poses)
+        self.estimator_ = fit_estimator(clone(est), views, poses, symmetry)
+        self.fallback_ = fit_estimator(clone(fb), views, poses, symmetry)
         return self
 
     def predict(self, view: View | Sequence[View]) -> PoseEstimate | list[PoseEstimate]:
         check_is_fitted(self, "estimator_")
-        if isinstance(view, View):
-            return self._predict_one(view)
-        if isinstance(view, (str, bytes)) or not isinstance(view, Sequence):
-            raise ValueError(
-                f"predict expects a pose.view.View or a sequence of them, got {type(view).__name__}"
-            )
-        return [self._predict_one(v) for v in view]
+        return predict_each(self._predict_one, view)
 
     def _predict_one(self, view: View) -> PoseEstimate:
         t0 = time.perf_counter()
@@ -124,15 +109,6 @@ class ConfidenceFallback(BaseEstimator):
             n_inliers=main.n_inliers,
         )
 
-    def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
-        """Share of ``views`` within 5 degrees of ``poses`` (invalid answers fail)."""
-        views, P = check_training_set(views, poses)
-        errs = [
-            rotation_error_deg(e.rotation, p[:3, :3], symmetry) if e.valid else np.nan
-            for e, p in zip(self.predict(views), P, strict=True)
-        ]
-        return success_rate(errs, 5.0)
-
     # ---------------------------------------------------------------- files
     def to_arrays(self, prefix: str = "") -> dict[str, np.ndarray]:
         check_is_fitted(self, "estimator_")
@@ -150,31 +126,14 @@ class ConfidenceFallback(BaseEstimator):
     def from_arrays(
         cls, arrays: dict[str, np.ndarray], prefix: str = "", format_version: int | None = None
     ) -> ConfidenceFallback:
-        classes = _loadable_classes()
         try:
             head = json.loads(str(arrays[prefix + "fallback_params"]))
-            parts = []
-            for key, sub in (("estimator_class", "main/"), ("fallback_class", "fallback/")):
-                part_cls = classes[head[key]]
-                if part_cls.__name__ in ("PoseManifoldEstimator", "ConfidenceFallback"):
-                    parts.append(part_cls.from_arrays(arrays, prefix + sub, format_version))
-                else:
-                    parts.append(part_cls.from_arrays(arrays, prefix + sub))
+            parts = [
+                load_part(head[key], arrays, prefix + sub, format_version)
+                for key, sub in (("estimator_class", "main/"), ("fallback_class", "fallback/"))
+            ]
             est = cls(parts[0], parts[1], float(head["min_confidence"]))
         except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
             raise ValueError(f"fallback model file is missing or has bad entries ({exc})") from exc
         est.estimator_, est.fallback_ = parts
         return est
-
-    def save(self, path: str | os.PathLike) -> None:
-        """Both fitted estimators in one ``.npz`` (atomic, pickle-free, versioned)."""
-        save_arrays(path, self.to_arrays(), {"kind": "estimator", "class": type(self).__name__})
-
-    @classmethod
-    def load(cls, path: str | os.PathLike) -> ConfidenceFallback:
-        header, arrays = load_arrays(path)
-        if header.get("kind") != "estimator" or header.get("class") != cls.__name__:
-            raise ValueError(
-                f"{path} holds a {header.get('class', header.get('kind'))!r}, not a {cls.__name__}"
-            )
-        return cls.from_arrays(arrays, format_version=header["format_version"])

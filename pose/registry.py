@@ -7,7 +7,7 @@ is a swap of names (the CLI, the sweep runner and the pose sources all resolve t
 A *spec* string names an estimator with parameters: ``name`` or ``name(param=value, ...)`` with
 Python literal values, nested stage parameters (``bunches__n_bunches=4``, scikit-learn's
 convention) set with ``set_params`` after construction. :func:`make_from_spec` builds one; the
-``fallback`` composition takes its two parts as specs.
+``fallback`` composition takes its two parts as specs, ``select`` a tuple of candidate specs.
 """
 
 from __future__ import annotations
@@ -124,3 +124,20 @@ def _fallback(estimator: Any = "manifold", fallback: Any = "chance", min_confide
 
 
 register_estimator("fallback", _fallback)
+
+
+def _select(estimators: Any = (), cv: int = 4, random_state: int = 0):
+    """``select(estimators=('manifold-pnp(...)', 'pca-rbf'), cv=4)``: the candidates are spec
+    strings (named by them) or estimator objects."""
+    from pose.selection import ValidationSelection
+
+    if isinstance(estimators, (str, bytes)):
+        raise ValueError(
+            f"select needs a tuple of estimator specs, e.g. estimators=('sift-pnp', 'pca-rbf'), "
+            f"got the single string {estimators!r}"
+        )
+    pairs = [(x, make_from_spec(x)) if isinstance(x, str) else x for x in estimators]
+    return ValidationSelection(pairs, cv, random_state)
+
+
+register_estimator("select", _select)

@@ -60,3 +60,14 @@ def load_arrays(path: str | os.PathLike) -> tuple[dict, dict[str, np.ndarray]]:
             "`scorbot-gym pose train`"
         )
     return header, arrays
+
+
+def load_estimator_arrays(path: str | os.PathLike, class_name: str) -> tuple[dict, dict]:
+    """``load_arrays(path)`` of a file that ``save`` of the estimator class ``class_name``
+    wrote; a one-line ``ValueError`` naming what the file holds otherwise."""
+    header, arrays = load_arrays(path)
+    if header.get("kind") != "estimator" or header.get("class") != class_name:
+        raise ValueError(
+            f"{path} holds a {header.get('class', header.get('kind'))!r}, not a {class_name}"
+        )
+    return header, arrays

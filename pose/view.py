@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,3 +75,20 @@ class PoseEstimate:
             n_keypoints=n_keypoints,
             reason=reason,
         )
+
+
+def predict_each(
+    predict_one: Callable[[View], PoseEstimate], view: View | Sequence[View]
+) -> PoseEstimate | list[PoseEstimate]:
+    """``predict_one(view)`` for one view, a list of its answers for a sequence of views: the
+    batch ``predict`` of the compositions and the manifold estimator, with one message for
+    anything else."""
+    if isinstance(view, View):
+        return predict_one(view)
+    if isinstance(view, (str, bytes)) or not isinstance(view, Sequence):
+        raise ValueError(
+            f"predict expects a pose.view.View or a sequence of them, got {type(view).__name__}"
+        )
+    if not all(isinstance(v, View) for v in view):
+        raise ValueError("predict expects pose.view.View objects in the sequence")
+    return [predict_one(v) for v in view]

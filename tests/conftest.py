@@ -31,3 +31,20 @@ def user_object(tmp_path):
     spec = register_object("user_block", mesh_path, tex_path, mass=0.08, overwrite=True)
     yield spec
     CATALOGUE.pop("user_block", None)
+
+
+@pytest.fixture(scope="session")
+def can_views(tmp_path_factory):
+    """The potted-meat can at 320 x 240 from the top camera: training views every 30 degrees
+    with depth, 4 random test views; ``(train views, train poses, test LabeledViews)``. Shared
+    by the composition tests (fallback, selection)."""
+    from scorbot_gym.data.views import grid_poses, random_poses, render_views, workspace_bounds
+    from scorbot_gym.objects import get_object
+
+    obj, cache = "potted_meat_can", tmp_path_factory.mktemp("can-views")
+    n_rest = len(get_object(obj).resting_quats)
+    train = render_views(obj, grid_poses(n_rest, 30.0, n_positions=1, seed=0), width=320,
+                         height=240, cache_dir=cache, progress=False, depth=True)  # fmt: skip
+    test = render_views(obj, random_poses(4, n_rest, workspace_bounds(), seed=5), width=320,
+                        height=240, seed=2, cache_dir=cache, progress=False)  # fmt: skip
+    return [lv.view for lv in train], np.array([lv.camera_from_object for lv in train]), test

@@ -9,22 +9,15 @@ from pose.fallback import ConfidenceFallback
 from pose.metrics import rotation_error_deg
 from pose.registry import estimator_names, make_from_spec, parse_spec
 from pose.view import View
-from scorbot_gym.data.views import grid_poses, random_poses, render_views, workspace_bounds
 from scorbot_gym.objects import get_object
 
 OBJECT = "potted_meat_can"
-W, H = 320, 240
+W, H = 320, 240  # the size of the shared can_views fixture
 
 
 @pytest.fixture(scope="session")
-def views(tmp_path_factory):
-    cache = tmp_path_factory.mktemp("fallback-views")
-    n_rest = len(get_object(OBJECT).resting_quats)
-    train = render_views(OBJECT, grid_poses(n_rest, 30.0, n_positions=1, seed=0), width=W,
-                         height=H, cache_dir=cache, progress=False, depth=True)  # fmt: skip
-    test = render_views(OBJECT, random_poses(4, n_rest, workspace_bounds(), seed=5), width=W,
-                        height=H, seed=2, cache_dir=cache, progress=False)  # fmt: skip
-    return [lv.view for lv in train], np.array([lv.camera_from_object for lv in train]), test
+def views(can_views):
+    return can_views
 
 
 @pytest.fixture(scope="session")

@@ -41,7 +41,7 @@ from pose.geometry import (  # noqa: F401  (MIN_MASK_PIXELS, lift_to_object, pnp
 )
 from pose.keypoints import to_gray
 from pose.rotations import geodesic_deg
-from pose.serialization import load_arrays, save_arrays
+from pose.serialization import load_estimator_arrays, save_arrays
 from pose.view import PoseEstimate, View
 
 
@@ -199,11 +199,7 @@ class BaselineEstimator(BaseEstimator):
 
     @classmethod
     def load(cls, path: str | os.PathLike):
-        header, arrays = load_arrays(path)
-        if header.get("kind") != "estimator" or header.get("class") != cls.__name__:
-            raise ValueError(
-                f"{path} holds a {header.get('class', header.get('kind'))!r}, not a {cls.__name__}"
-            )
+        header, arrays = load_estimator_arrays(path, cls.__name__)
         return cls.from_arrays(arrays)
 
 

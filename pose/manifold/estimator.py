@@ -62,7 +62,7 @@ from pose.metrics import rotation_error_deg, success_rate
 from pose.orientation import hull_mask
 from pose.rotations import from_6d, ray_rotation, rot_z, to_6d
 from pose.symmetry import Symmetry
-from pose.view import PoseEstimate, View
+from pose.view import PoseEstimate, View, predict_each
 
 
 def default_regressor() -> RBFNetwork:
@@ -303,15 +303,7 @@ class PoseManifoldEstimator(BaseEstimator):
         (never an exception) when a view has too few keypoints, none consistent with a training
         view, or the stages give a non-finite pose."""
         check_is_fitted(self, "regressor_")
-        if isinstance(view, View):
-            return self._predict_one(view)
-        if isinstance(view, (str, bytes)) or not isinstance(view, Sequence):
-            raise ValueError(
-                f"predict expects a pose.view.View or a sequence of them, got {type(view).__name__}"
-            )
-        if not all(isinstance(v, View) for v in view):
-            raise ValueError("predict expects pose.view.View objects in the sequence")
-        return [self._predict_one(v) for v in view]
+        return predict_each(self._predict_one, view)
 
     def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
         """Share of ``views`` whose rotation is within 5 degrees of ``poses`` (``(N, 4, 4)``

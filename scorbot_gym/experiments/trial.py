@@ -101,9 +101,12 @@ def read_trial(path: Path) -> dict | None:
         return None
 
 
-def _fit_or_load(job: ModelJob, spec, load_train, stats: dict):
+def _fit_or_load(job: ModelJob, spec, load_train, stats: dict, symmetry=None):
     """The fitted estimator, from the model cache when the estimator can save and load
-    (``load_train()`` renders or reads the training views only when a fit is needed)."""
+    (``load_train()`` renders or reads the training views only when a fit is needed). The
+    object's ``symmetry`` goes to estimators whose ``fit`` takes it (a validation selection)."""
+    from pose.selection import fit_estimator
+
     path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
     est = spec.make()
     can_save = callable(getattr(est, "save", None)) and callable(getattr(type(est), "load", None))
@@ -118,7 +121,7 @@ def _fit_or_load(job: ModelJob, spec, load_train, stats: dict):
     views = [lv.view for lv in train]
     poses = np.stack([lv.camera_from_object for lv in train])
     t0 = time.perf_counter()
-    est.fit(views, poses)
+    fit_estimator(est, views, poses, symmetry)
     stats["fits"] += 1
     stats["fit_s"] += time.perf_counter() - t0
     if can_save:
@@ -225,7 +228,7 @@ def run_model_job(job: ModelJob) -> dict:
 
         fit_error = None
         try:
-            est = _fit_or_load(job, spec, load_train, stats)
+            est = _fit_or_load(job, spec, load_train, stats, obj.symmetry)
         except ValueError as exc:  # the estimator's one-line "cannot fit these views"
             fit_error = str(exc)
             stats["fit_errors"] += 1

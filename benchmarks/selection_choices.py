@@ -1,0 +1,95 @@
+"""Which candidate a ``select(...)`` estimator chose for each object, and its cross-validated
+scores: the table behind the README's *Choosing per object* section.
+
+Reads the fitted selections from the sweep's model cache (the ones ``pose_ablation.py`` fitted
+with the same arguments), fitting them where the cache has none.
+
+    python benchmarks/selection_choices.py --estimator "select(estimators=(...))" \
+        --protocols overview,top-resting
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import numpy as np  # noqa: E402
+
+from pose.fileio import atomic_write_json  # noqa: E402
+from pose.selection import ValidationSelection, fit_estimator  # noqa: E402
+from scorbot_gym.data.protocols import protocol_names, train_views  # noqa: E402
+from scorbot_gym.experiments import sweep  # noqa: E402
+from scorbot_gym.experiments.runners import make_jobs  # noqa: E402
+from scorbot_gym.experiments.spec import EstimatorSpec  # noqa: E402
+from scorbot_gym.experiments.trial import default_cache_dir, model_key  # noqa: E402
+from scorbot_gym.objects import get_object  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def fitted_selection(job) -> ValidationSelection:
+    """The job's fitted selection: from the model cache, else fitted here (not cached)."""
+    path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
+    if path.is_file():
+        try:
+            return ValidationSelection.load(path)
+        except (OSError, ValueError, KeyError):
+            pass
+    by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True,
+                         width=job.width, height=job.height, cache_dir=job.cache_dir)  # fmt: skip
+    train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
+    est = EstimatorSpec.parse(job.estimator).make()
+    poses = np.stack([lv.camera_from_object for lv in train])
+    symmetry = get_object(job.object_name).symmetry
+    return fit_estimator(est, [lv.view for lv in train], poses, symmetry)
+
+
+def choices(protocol: str, estimator: str, seed: int, cache_dir: str) -> list[dict]:
+    spec = sweep(protocol, [estimator], "0", seed=seed)
+    out = []
+    for job in make_jobs(spec, cache_dir):
+        sel = fitted_selection(job)
+        out.append({
+            "protocol": protocol, "object": job.object_name,
+            "symmetry": get_object(job.object_name).symmetry.kind, "chosen": sel.best_name_,
+            "candidates": sel.candidate_names_,
+            "cv_success_5deg": [None if np.isnan(s) else s for s in sel.validation_success_],
+            "cv_median_rot_err_deg": [None if np.isnan(m) else m for m in
+                                      sel.validation_median_deg_],
+            "fit_errors": sel.fit_errors_,
+        })  # fmt: skip
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--estimator", required=True, help="a select(...) spec")
+    ap.add_argument("--protocols", default=",".join(protocol_names()))
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--cache-dir", default=None)
+    ap.add_argument("--json", default=str(RESULTS / "selection_choices.json"))
+    args = ap.parse_args(argv)
+    try:
+        spec = EstimatorSpec.parse(args.estimator)
+    except ValueError as exc:
+        ap.error(str(exc))
+    if spec.name != "select":
+        ap.error(f"--estimator must be a select(...) spec, got {spec.name!r}")
+    protocols = [p for p in args.protocols.split(",") if p]
+    unknown = sorted(set(protocols) - set(protocol_names()))
+    if unknown:
+        ap.error(f"unknown protocols {unknown}; known: {', '.join(protocol_names())}")
+    cache = str(args.cache_dir or default_cache_dir())
+    rows = [r for p in protocols for r in choices(p, str(spec), args.seed, cache)]
+    for r in rows:
+        print(f"{r['protocol']:16s} {r['object']:16s} {r['symmetry']:9s} {r['chosen'][:70]}")
+    atomic_write_json(Path(args.json), {"estimator": str(spec), "seed": args.seed,
+                                        "choices": rows})  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
