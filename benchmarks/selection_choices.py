@@ -2,7 +2,7 @@
 scores: the table behind the README's *Choosing per object* section.
 
 Reads the fitted selections from the sweep's model cache (the ones ``pose_ablation.py`` fitted
-with the same arguments), fitting them where the cache has none.
+with the same arguments), fitting and caching them where the cache has none.
 
     python benchmarks/selection_choices.py --estimator "select(estimators=(...))" \
         --protocols overview,top-resting
@@ -19,39 +19,21 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import numpy as np  # noqa: E402
 
 from pose.fileio import atomic_write_json  # noqa: E402
-from pose.selection import ValidationSelection, fit_estimator  # noqa: E402
-from scorbot_gym.data.protocols import protocol_names, train_views  # noqa: E402
+from scorbot_gym.data.protocols import protocol_names  # noqa: E402
 from scorbot_gym.experiments import sweep  # noqa: E402
 from scorbot_gym.experiments.runners import make_jobs  # noqa: E402
 from scorbot_gym.experiments.spec import EstimatorSpec  # noqa: E402
-from scorbot_gym.experiments.trial import default_cache_dir, model_key  # noqa: E402
+from scorbot_gym.experiments.trial import default_cache_dir, fitted_model  # noqa: E402
 from scorbot_gym.objects import get_object  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
-
-
-def fitted_selection(job) -> ValidationSelection:
-    """The job's fitted selection: from the model cache, else fitted here (not cached)."""
-    path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
-    if path.is_file():
-        try:
-            return ValidationSelection.load(path)
-        except (OSError, ValueError, KeyError):
-            pass
-    by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True,
-                         width=job.width, height=job.height, cache_dir=job.cache_dir)  # fmt: skip
-    train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
-    est = EstimatorSpec.parse(job.estimator).make()
-    poses = np.stack([lv.camera_from_object for lv in train])
-    symmetry = get_object(job.object_name).symmetry
-    return fit_estimator(est, [lv.view for lv in train], poses, symmetry)
 
 
 def choices(protocol: str, estimator: str, seed: int, cache_dir: str) -> list[dict]:
     spec = sweep(protocol, [estimator], "0", seed=seed)
     out = []
     for job in make_jobs(spec, cache_dir):
-        sel = fitted_selection(job)
+        sel = fitted_model(job)  # the sweep's cached fit, or fitted and cached here
         out.append({
             "protocol": protocol, "object": job.object_name,
             "symmetry": get_object(job.object_name).symmetry.kind, "chosen": sel.best_name_,

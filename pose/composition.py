@@ -1,4 +1,4 @@
-"""What the estimators built from other estimators share: scoring, files, their parts' files.
+"""What the estimators built from other estimators share: fitting, scoring, their files.
 
 :class:`~pose.fallback.ConfidenceFallback` and :class:`~pose.selection.ValidationSelection`
 hold fitted estimators as parts. Both score like every estimator, and both store their parts
@@ -31,6 +31,15 @@ def _loadable_classes() -> dict[str, type]:
     classes = [PoseManifoldEstimator, ConfidenceFallback, ValidationSelection]
     classes += [getattr(baselines, name) for name in baselines.__all__]
     return {c.__name__: c for c in classes}
+
+
+def fit_estimator(est, views: Sequence[View], poses, symmetry: Symmetry | None = None):
+    """``est.fit(views, poses)``, passing the object's ``symmetry`` to estimators whose ``fit``
+    takes it (a :class:`~pose.selection.ValidationSelection` scores its candidates with it);
+    returns the fitted estimator."""
+    if symmetry is not None and "symmetry" in inspect.signature(est.fit).parameters:
+        return est.fit(views, poses, symmetry=symmetry)
+    return est.fit(views, poses)
 
 
 def load_part(class_name: str, arrays: dict, prefix: str, format_version: int | None):

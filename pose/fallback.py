@@ -22,7 +22,7 @@ import numpy as np
 from sklearn.base import BaseEstimator, clone
 from sklearn.utils.validation import check_is_fitted
 
-from pose.composition import Composition, load_part
+from pose.composition import Composition, fit_estimator, load_part
 from pose.symmetry import Symmetry
 from pose.view import PoseEstimate, View, predict_each
 
@@ -72,8 +72,6 @@ class ConfidenceFallback(Composition, BaseEstimator):
         """Fit fresh copies of both estimators on the same views and poses (``symmetry`` goes
         to the parts whose ``fit`` takes it, e.g. a
         :class:`~pose.selection.ValidationSelection`)."""
-        from pose.selection import fit_estimator
-
         est, fb = self._parts()
         views = list(views)
         self.estimator_ = fit_estimator(clone(est), views, poses, symmetry)

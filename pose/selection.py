@@ -14,7 +14,6 @@ then the winner refitted on all views. It is scikit-learn's model selection appl
 
 from __future__ import annotations
 
-import inspect
 import json
 from collections.abc import Sequence
 
@@ -23,18 +22,10 @@ from sklearn.base import BaseEstimator, clone
 from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import check_training_set
-from pose.composition import Composition, load_part
+from pose.composition import Composition, fit_estimator, load_part
 from pose.metrics import rotation_error_deg, success_rate
 from pose.symmetry import Symmetry
 from pose.view import PoseEstimate, View, predict_each
-
-
-def fit_estimator(est, views: Sequence[View], poses, symmetry: Symmetry | None = None):
-    """``est.fit(views, poses)``, passing the object's ``symmetry`` to estimators whose ``fit``
-    takes it (a selection scores its candidates with it); returns the fitted estimator."""
-    if symmetry is not None and "symmetry" in inspect.signature(est.fit).parameters:
-        return est.fit(views, poses, symmetry=symmetry)
-    return est.fit(views, poses)
 
 
 def _named(estimators) -> list[tuple[str, object]]:

@@ -5,9 +5,10 @@ import pytest
 from sklearn.base import clone
 
 from pose import baselines
+from pose.composition import fit_estimator
 from pose.fallback import ConfidenceFallback
 from pose.registry import estimator_names, make_from_spec
-from pose.selection import ValidationSelection, fit_estimator
+from pose.selection import ValidationSelection
 from pose.symmetry import Symmetry
 from pose.view import View
 from scorbot_gym.objects import get_object

@@ -101,14 +101,19 @@ def read_trial(path: Path) -> dict | None:
         return None
 
 
-def _fit_or_load(job: ModelJob, spec, load_train, stats: dict, symmetry=None):
-    """The fitted estimator, from the model cache when the estimator can save and load
-    (``load_train()`` renders or reads the training views only when a fit is needed). The
-    object's ``symmetry`` goes to estimators whose ``fit`` takes it (a validation selection)."""
-    from pose.selection import fit_estimator
+def fitted_model(job: ModelJob, stats: dict | None = None):
+    """The job's fitted estimator, from the model cache when the estimator can save and load,
+    else fitted on the protocol's training views (rendered or read only then) and cached.
+    The object's symmetry goes to estimators whose ``fit`` takes it (a validation selection).
+    ``ValueError`` where the estimator refuses the views; ``stats`` counts fits and cache hits."""
+    from pose.composition import fit_estimator
+    from scorbot_gym.data.protocols import train_views
+    from scorbot_gym.experiments.spec import EstimatorSpec
+    from scorbot_gym.objects import get_object
 
+    stats = {"fits": 0, "fit_s": 0.0, "model_cache_hits": 0} if stats is None else stats
     path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
-    est = spec.make()
+    est = EstimatorSpec.parse(job.estimator).make()
     can_save = callable(getattr(est, "save", None)) and callable(getattr(type(est), "load", None))
     if can_save and path.is_file():
         try:
@@ -117,11 +122,14 @@ def _fit_or_load(job: ModelJob, spec, load_train, stats: dict, symmetry=None):
             return loaded
         except (OSError, ValueError, KeyError, TypeError):
             path.unlink(missing_ok=True)  # unreadable: refitted and rewritten below
-    train = load_train()
+    # with depth: estimators that lift keypoints to 3-D (PnP) train on it; tests are RGB
+    by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True,
+                         width=job.width, height=job.height, cache_dir=job.cache_dir)  # fmt: skip
+    train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
     views = [lv.view for lv in train]
     poses = np.stack([lv.camera_from_object for lv in train])
     t0 = time.perf_counter()
-    fit_estimator(est, views, poses, symmetry)
+    fit_estimator(est, views, poses, get_object(job.object_name).symmetry)
     stats["fits"] += 1
     stats["fit_s"] += time.perf_counter() - t0
     if can_save:
@@ -201,8 +209,7 @@ def run_model_job(job: ModelJob) -> dict:
     import cv2
 
     from scorbot_gym.data.perturbations import Perturbation
-    from scorbot_gym.data.protocols import held_out_views, train_views
-    from scorbot_gym.experiments.spec import EstimatorSpec
+    from scorbot_gym.data.protocols import held_out_views
     from scorbot_gym.objects import get_object
 
     cv2.setNumThreads(1)  # one worker per core: no nested thread pools
@@ -217,18 +224,11 @@ def run_model_job(job: ModelJob) -> dict:
             stats["trials_cached"] += 1
             trials.append(rec)
     if todo:
-        spec = EstimatorSpec.parse(job.estimator)
         obj = get_object(job.object_name)
         size = {"width": job.width, "height": job.height, "cache_dir": job.cache_dir}
-
-        def load_train() -> list:
-            # with depth: estimators that lift keypoints to 3-D (PnP) train on it; tests are RGB
-            by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True, **size)
-            return [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
-
         fit_error = None
         try:
-            est = _fit_or_load(job, spec, load_train, stats, obj.symmetry)
+            est = fitted_model(job, stats)
         except ValueError as exc:  # the estimator's one-line "cannot fit these views"
             fit_error = str(exc)
             stats["fit_errors"] += 1
