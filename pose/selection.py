@@ -10,11 +10,18 @@ the way a practitioner would, from the training data alone: k-fold cross-validat
 candidate on the training views (symmetry-aware success@5°, the median error breaking ties),
 then the winner refitted on all views. It is scikit-learn's model selection applied per object
 (one fitted selection per object model), not a change of any candidate.
+
+The image-blind ``chance`` answer (the training medoid) belongs among the candidates as model
+selection's null model. Where every training pose of an object is one pose up to its symmetry
+(a can or a ball standing upright) it is right on every view and exact, so it wins the tie on
+the median error, and it stays right under any occlusion or camera change, where an image-based
+answer degrades; where the poses differ, it loses the validation and is never chosen.
 """
 
 from __future__ import annotations
 
 import json
+from collections import Counter
 from collections.abc import Sequence
 
 import numpy as np
@@ -29,13 +36,13 @@ from pose.view import PoseEstimate, View, predict_each
 
 
 def _named(estimators) -> list[tuple[str, object]]:
-    """``estimators`` as ``(name, estimator)`` pairs (bare estimators get their class name)."""
+    """``estimators`` as ``(name, estimator)`` pairs with unique names."""
     if isinstance(estimators, (str, bytes)) or not isinstance(estimators, Sequence):
         raise ValueError(
             f"estimators must be a non-empty sequence of estimators or (name, estimator) pairs, "
             f"got {estimators!r}"
         )
-    pairs = []
+    given, ests = [], []
     for i, item in enumerate(estimators):
         name, est = item if isinstance(item, tuple) and len(item) == 2 else (None, item)
         for method in ("fit", "predict", "to_arrays"):
@@ -44,10 +51,26 @@ def _named(estimators) -> list[tuple[str, object]]:
                     f"estimators[{i}] must be a pose estimator with fit/predict/to_arrays (e.g. "
                     f"make_estimator('pca-rbf')), got {est!r}"
                 )
-        pairs.append((str(name) if name is not None else type(est).__name__, est))
-    if not pairs:
+        given.append(None if name is None else str(name))
+        ests.append(est)
+    if not ests:
         raise ValueError("estimators must hold at least one candidate, got none")
-    return pairs
+    # bare estimators are named by class, numbered where a class repeats (as scikit-learn's
+    # make_pipeline does), so the scores and fit errors of each stay apart
+    bare = [type(e).__name__ for n, e in zip(given, ests, strict=True) if n is None]
+    seen: Counter = Counter()
+    names = []
+    for n, e in zip(given, ests, strict=True):
+        if n is None:
+            n = type(e).__name__
+            if bare.count(n) > 1:
+                seen[n] += 1
+                n = f"{n}-{seen[n]}"
+        names.append(n)
+    repeated = sorted(n for n, c in Counter(names).items() if c > 1)
+    if repeated:
+        raise ValueError(f"candidate names must be unique, got {repeated[0]!r} more than once")
+    return list(zip(names, ests, strict=True))
 
 
 class ValidationSelection(Composition, BaseEstimator):

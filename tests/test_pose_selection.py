@@ -86,6 +86,42 @@ def test_symmetry_changes_what_counts_as_right(can_views):
     assert np.isnan(est.fit(train, P).validation_success_).all()  # one candidate: no validation
 
 
+class _Leaning(baselines.ChanceEstimator):
+    """The chance baseline's answer tipped 3 degrees: right within 5 degrees, never exact."""
+
+    def predict(self, view):
+        e = super().predict(view)
+        c, s = np.cos(np.radians(3.0)), np.sin(np.radians(3.0))
+        e.rotation = e.rotation @ np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+        return e
+
+
+def test_equal_success_goes_to_the_smaller_median_error(can_views):
+    # Every training pose of an upright, axially symmetric object is the same pose: any
+    # upright answer is right, and the constant answer (the null model) is the exact one.
+    train, poses, _ = can_views
+    P = poses.copy()
+    for i in range(len(P)):
+        c, s = np.cos(np.radians(30.0 * i)), np.sin(np.radians(30.0 * i))
+        P[i, :3, :3] = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    P[:, :3, :3] = np.einsum("nij,njk->nik", np.stack([v.camera.camera_from_world[:3, :3]
+                                                       for v in train]), P[:, :3, :3])  # fmt: skip
+    est = ValidationSelection([("leaning", _Leaning()), ("null", baselines.ChanceEstimator())])
+    est.fit(train, P, symmetry=Symmetry("axial", axis=(0.0, 0.0, 1.0)))
+    np.testing.assert_array_equal(est.validation_success_, [1.0, 1.0])
+    assert est.validation_median_deg_[0] > 2.9 and est.validation_median_deg_[1] < 1e-3
+    assert est.best_name_ == "null"
+
+
+def test_repeated_candidates_get_distinct_names(can_views):
+    train, poses, _ = can_views
+    est = ValidationSelection([baselines.ChanceEstimator(), baselines.PCAEstimator(),
+                               baselines.ChanceEstimator()]).fit(train, poses)  # fmt: skip
+    assert est.candidate_names_ == ["ChanceEstimator-1", "PCAEstimator", "ChanceEstimator-2"]
+    with pytest.raises(ValueError, match="candidate names must be unique, got 'pca-rbf' more"):
+        make_from_spec("select(estimators=('pca-rbf', 'pca-rbf'))").fit(train, poses)
+
+
 def test_candidate_that_cannot_fit_is_passed_over(can_views):
     train, poses, _ = can_views
     est = ValidationSelection([("sift", baselines.SiftPnPEstimator()), ("chance", _Recorder())])
@@ -94,7 +130,8 @@ def test_candidate_that_cannot_fit_is_passed_over(can_views):
     est.fit(blank, poses)
     assert est.best_name_ == "chance" and "sift" in est.fit_errors_
     assert np.isnan(est.validation_success_[0])
-    with pytest.raises(ValueError, match="no candidate could be fitted"):
+    both = "fitted on these views: SiftPnPEstimator-1: .*; SiftPnPEstimator-2: "
+    with pytest.raises(ValueError, match=both):
         ValidationSelection([baselines.SiftPnPEstimator(), baselines.SiftPnPEstimator()]).fit(
             blank, poses
         )
