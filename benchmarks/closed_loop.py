@@ -112,7 +112,7 @@ def _plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=220, help="episodes per main arm")
     parser.add_argument("--push-episodes", type=int, default=110, help="per disturbed arm")
     parser.add_argument("--curve-episodes", type=int, default=44, help="per robustness point")

@@ -200,7 +200,7 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--peers", action="store_true", help="also time the peer envs")
     parser.add_argument("--rebuild-peers", action="store_true", help="rebuild the peer venvs")
     parser.add_argument("--steps", type=int, default=2000, help="timed steps without images")

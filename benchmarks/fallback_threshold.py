@@ -34,7 +34,7 @@ THRESHOLDS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5)
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--main", default=MAIN, help="estimator spec to gate")
     ap.add_argument("--fallback", default="chance", help="estimator spec answering below it")
     ap.add_argument("--protocols", default=PROTOCOLS)

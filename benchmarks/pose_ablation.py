@@ -113,7 +113,7 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--protocols", default=",".join(PROTOCOLS))
     ap.add_argument("--estimators", default=None, help="default: every registered estimator")
     ap.add_argument("--occlusion", default="0:95:5")

@@ -140,7 +140,7 @@ def plot(results: dict, path: Path, key: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--objects", nargs="*", default=list(OBJECTS))
     ap.add_argument("--protocols", nargs="*", default=list(PROTOCOLS))
     ap.add_argument("--estimators", nargs="*", default=list(ESTIMATORS),

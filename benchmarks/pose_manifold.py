@@ -52,7 +52,7 @@ def parse_params(items: list[str]) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--objects", nargs="*", default=None, help="default: the whole catalogue")
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)

@@ -77,7 +77,7 @@ def sample_views(name: str, n: int, w: int, h: int, rng: np.random.Generator) ->
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--objects", nargs="*", default=list(CATALOGUE))
     parser.add_argument("--per-object", type=int, default=20)
     parser.add_argument("--seed", type=int, default=1000)

@@ -232,7 +232,7 @@ def plot(rows: list[dict], timings: dict | None, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--objects", nargs="*", default=list(CATALOGUE))
     parser.add_argument("--episodes", type=int, default=2, help="per object, mask quality")
     parser.add_argument("--every", type=int, default=4, help="segment every n-th step")

@@ -1,5 +1,7 @@
-"""Which candidate a ``select(...)`` estimator chose for each object, and its cross-validated
-scores: the table behind the README's *Choosing per object* section.
+"""Which candidate a ``select(...)`` estimator chose for each object, with the scores.
+
+The cross-validated scores of every candidate: the table behind the README's *Choosing per
+object* section.
 
 Reads the fitted selections from the sweep's model cache (the ones ``pose_ablation.py`` fitted
 with the same arguments), fitting and caching them where the cache has none.
@@ -47,7 +49,7 @@ def choices(protocol: str, estimator: str, seed: int, cache_dir: str) -> list[di
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--estimator", required=True, help="a select(...) spec")
     ap.add_argument("--protocols", default=",".join(protocol_names()))
     ap.add_argument("--seed", type=int, default=0)

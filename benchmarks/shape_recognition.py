@@ -47,7 +47,7 @@ def _accuracies(result: dict) -> dict[str, float]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--per-object", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0, help="rendering seed")
     parser.add_argument("--splits", type=int, default=3, help="split seeds for the headline")

@@ -349,7 +349,7 @@ def main(argv: list[str] | None = None) -> int:
         setting, steps, seed, core = argv[1:5]
         print(json.dumps(run_solo(setting, int(steps), int(seed), int(core))))
         return 0
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--steps", type=int, default=3000, help="env steps without images")
     parser.add_argument("--image-steps", type=int, default=300, help="env steps with images")
