@@ -90,6 +90,24 @@ def test_chance_is_image_blind(fitted, rendered):
         np.testing.assert_array_equal(R, answers[0])
 
 
+def test_chance_breaks_ties_between_equally_central_rotations_by_order(rendered):
+    """On a uniform heading grid every rotation is equally central; float noise far below a
+    degree (the size a different machine or numpy changes) must not move the answer off the
+    first training rotation."""
+    from pose.rotations import rot_z
+
+    camera = rendered[0][0].camera
+    view = View(np.full((H, W, 3), 128, np.uint8), camera, np.ones((H, W), bool))
+    rng = np.random.default_rng(0)
+    for trial in range(20):
+        poses = np.tile(np.eye(4), (36, 1, 1))
+        for k in range(36):
+            jitter = rot_z(rng.normal(0.0, 1e-7)) if trial else np.eye(3)
+            poses[k, :3, :3] = jitter @ rot_z(np.radians(10.0 * k))
+        chance = baselines.ChanceEstimator().fit([view] * 36, poses)
+        assert int(chance.medoid_) == 0, trial
+
+
 def _blank_views(camera):
     grey = np.full((H, W, 3), 128, np.uint8)
     return [

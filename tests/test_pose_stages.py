@@ -1,6 +1,7 @@
 """The estimator as composed stages: swaps, clone, nested params, GridSearchCV, named variants."""
 
 import copy
+import dataclasses
 
 import numpy as np
 import pytest
@@ -223,7 +224,7 @@ def test_pnp_refiner_answers_a_tilt_no_training_view_shows(cards, tmp_path):
     assert np.median(err) < 3.0, err
     # the estimator hands the whole database's matches to a refiner that asks for them
     wide = make_estimator(
-        "manifold-pnp", refiner__correspondences="ratio+global", refiner__keep_ratio=0.0, **SMALL
+        "manifold-pnp", refiner__correspondences="ratio+global", refiner__keep_margin=0.0, **SMALL
     ).fit(views, poses)
     seen, refine = [], wide.refiner.refine
     wide.refiner.refine = lambda inp: seen.append(inp.neighbours[0].shape[0]) or refine(inp)
@@ -231,7 +232,7 @@ def test_pnp_refiner_answers_a_tilt_no_training_view_shows(cards, tmp_path):
     assert len(seen) == len(tviews) and min(seen) >= 6
     wide.save(tmp_path / "wide.npz")
     params = PoseManifoldEstimator.load(tmp_path / "wide.npz").refiner.get_params()
-    assert params["correspondences"] == "ratio+global" and params["keep_ratio"] == 0.0
+    assert params["correspondences"] == "ratio+global" and params["keep_margin"] == 0.0
     e = pnp.predict(tviews[0])  # PnP's translation replaces the table-plane one
     assert np.linalg.norm(e.translation - tposes[0][:3, 3]) < 0.01
     path = tmp_path / "pnp.npz"
@@ -275,7 +276,8 @@ def test_pnp_model_files_are_checked(cards, tmp_path):
         ("threshold", 0.0, "threshold must be > 0 pixels"),
         ("min_inliers", 3, "min_inliers must be >= 6"),
         ("max_turn_deg", 0.0, "max_turn_deg must be in"),
-        ("keep_ratio", -1.0, "keep_ratio must be >= 0"),
+        ("keep_margin", -1.0, "keep_margin must be >= 0"),
+        ("keep_margin", float("inf"), "keep_margin must be >= 0"),
         ("correspondences", "all", "correspondences must be one of"),
         ("global_ratio", 1.5, "global_ratio must be in"),
         ("merge_radius", -0.001, "merge_radius must be >= 0"),
@@ -316,6 +318,59 @@ def test_pnp_refiner_solves_from_few_keypoints():
     R10, t10 = PnPRefiner(min_inliers=10).refine(inp)
     np.testing.assert_array_equal(R10, nearest_view)
     assert t10 is None
+
+
+def _tilt_x(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+
+
+def test_pnp_answer_must_explain_more_than_its_own_inliers(monkeypatch):
+    """RANSAC PnP returns a pose 8 degrees off that fits its own 37 inliers exactly; the
+    homography answer (the true pose) reprojects those within 2.5 px and 18 more exactly. On
+    PnP's inliers alone PnP looks better; on every correspondence with the capped (MSAC) cost
+    the homography answer does, and it is kept. When every point follows the tilt, PnP's
+    answer is taken; a tilt too slight to pay for PnP's extra parameters (under
+    ``keep_margin``) keeps the homography answer, unless the margin is 0."""
+    from pose.camera import CameraModel
+    from pose.manifold import refinement
+    from pose.rotations import rot_z
+
+    rng = np.random.default_rng(5)
+    K = np.array([[300.0, 0.0, 160.0], [0.0, 300.0, 120.0], [0.0, 0.0, 1.0]])
+    camera = CameraModel(K=K, world_from_camera=np.eye(4), width=320, height=240)
+    xyz = rng.uniform(-0.05, 0.05, (80, 3))
+    R_true, R_tilted, t = rot_z(0.3), _tilt_x(8.0) @ rot_z(0.3), np.array([0.0, 0.0, 0.4])
+
+    def project(R):
+        cam = xyz @ R.T + t
+        return cam[:, :2] / cam[:, 2:] * 300.0 + [160.0, 120.0]
+
+    shift = np.linalg.norm(project(R_true) - project(R_tilted), axis=1)
+    on_both, true_only = (shift > 0.3) & (shift < 2.5), shift > 4.0
+    keep = on_both | true_only
+    xy = np.where(on_both[:, None], project(R_tilted), project(R_true))[keep]
+    assert on_both.sum() >= 30 and true_only.sum() >= 15
+    inp = refinement.RefinementInput(
+        R_coarse=R_true, R_ray=np.eye(3), angle=0.0, R_view=R_true, xy=xy,
+        db_rows=np.arange(keep.sum()), db_xyz=xyz[keep], camera=camera, n_inliers=keep.sum(),
+    )  # fmt: skip
+    monkeypatch.setattr(
+        refinement, "pnp", lambda obj, img, *a: (R_tilted, t.copy(), on_both[keep].copy())
+    )
+    for margin in (0.0, 10.0):
+        R, _ = refinement.PnPRefiner(keep_margin=margin).refine(inp)
+        assert rotation_error_deg(R, R_true, Symmetry()) < 0.01
+    monkeypatch.undo()
+    tilted_everywhere = dataclasses.replace(inp, xy=project(R_tilted)[keep])
+    R, _ = refinement.PnPRefiner().refine(tilted_everywhere)
+    assert rotation_error_deg(R, R_tilted, Symmetry()) < 0.5
+    R_slight = _tilt_x(0.4) @ R_true
+    slightly_tilted = dataclasses.replace(inp, xy=project(R_slight)[keep])
+    R, _ = refinement.PnPRefiner().refine(slightly_tilted)
+    assert rotation_error_deg(R, R_true, Symmetry()) < 0.01
+    R, _ = refinement.PnPRefiner(keep_margin=0.0).refine(slightly_tilted)
+    assert rotation_error_deg(R, R_slight, Symmetry()) < 0.05
 
 
 def test_global_matches_reach_training_views_the_matcher_missed():

@@ -12,7 +12,7 @@ object frame with the view's depth; at prediction the ratio-test pairs of the ma
 views give 2-D-3-D correspondences, and RANSAC PnP solves the full pose from them. An object
 leaning out of its resting pose, which no training view shows, is answered by geometry instead
 of by the nearest view; the homography answer is kept when PnP finds too few inliers or does not
-reproject them clearly better.
+explain the correspondences clearly better.
 
 ``refiner=None`` in the estimator keeps the pure manifold answer (``PoseEstimate.rotation_coarse``
 always holds it).
@@ -79,19 +79,23 @@ class PnPRefiner(BaseEstimator):
     """RANSAC PnP on the matched keypoints' 3-D points (rotation and translation).
 
     ``threshold``: reprojection error in pixels for a RANSAC inlier; below ``min_inliers``
-    inliers, or when PnP's rotation is more than ``max_turn_deg`` from the homography answer
-    (a degenerate solution: few points, one plane seen edge-on), the homography answer is kept.
-    It is also kept (with the translation that fits it best) when its reprojection error on
-    PnP's inliers is at most ``keep_ratio`` times PnP's (+0.1 px): a small object seen from
-    afar constrains its tilt weakly, and a training view's exact tilt is then the better
-    answer. ``keep_ratio=0`` always takes PnP's. ``correspondences="ratio"`` solves from every
-    ratio-test pair of the matched training views (RANSAC PnP removes the outliers);
-    ``"homography"`` only from the homography inliers, which drop true matches on curved or
-    many-sided objects; ``"ratio+global"`` adds the query's matches against *every* training
-    keypoint that pass a 3-D-aware ratio test (``global_ratio``, the second neighbour taken
-    over ``merge_radius`` away: the matches ``sift-pnp`` solves from), which reach the training
-    views around a pose that the few matched views miss, such as a tilt that no training view
-    shows. Training views must carry ``View.depth``.
+    inliers, or when PnP's rotation is more than ``max_turn_deg`` from the homography answer (a
+    degenerate solution: few points, one plane seen edge-on), the homography answer is kept. It
+    is also kept (with the translation that fits it best) unless PnP lowers the MSAC cost, the
+    sum over every correspondence of its squared reprojection distance capped at
+    ``threshold``, by more than ``keep_margin`` px²: PnP's three extra degrees of freedom always
+    fit a little better, a small object seen from afar constrains its tilt weakly, and a
+    training view's exact tilt is then the better answer. A larger margin suits objects that
+    rest on the table, a smaller one objects that lean; ``keep_margin=0`` keeps the training
+    view only where it fits at least as well as PnP.
+    ``correspondences="ratio"`` solves from every ratio-test pair of the matched training views
+    (RANSAC PnP removes the outliers); ``"homography"`` only from the homography inliers, which
+    drop true matches on curved or many-sided objects; ``"ratio+global"`` adds the query's
+    matches against *every* training keypoint that pass a 3-D-aware ratio test
+    (``global_ratio``, the second neighbour taken over ``merge_radius`` away: the matches
+    ``sift-pnp`` solves from), which reach the training views around a pose that the few matched
+    views miss, such as a tilt that no training view shows. Training views must carry
+    ``View.depth``.
     """
 
     needs_depth = True
@@ -101,7 +105,7 @@ class PnPRefiner(BaseEstimator):
         threshold: float = 3.0,
         min_inliers: int = 6,
         max_turn_deg: float = 45.0,
-        keep_ratio: float = 1.1,
+        keep_margin: float = 10.0,
         correspondences: str = "ratio",
         global_ratio: float = 0.8,
         merge_radius: float = 0.004,
@@ -109,7 +113,7 @@ class PnPRefiner(BaseEstimator):
         self.threshold = threshold
         self.min_inliers = min_inliers
         self.max_turn_deg = max_turn_deg
-        self.keep_ratio = keep_ratio
+        self.keep_margin = keep_margin
         self.correspondences = correspondences
         self.global_ratio = global_ratio
         self.merge_radius = merge_radius
@@ -121,8 +125,8 @@ class PnPRefiner(BaseEstimator):
             raise ValueError(f"min_inliers must be >= 6 (PnP), got {self.min_inliers}")
         if not 0 < self.max_turn_deg <= 180:
             raise ValueError(f"max_turn_deg must be in (0, 180], got {self.max_turn_deg}")
-        if not self.keep_ratio >= 0:
-            raise ValueError(f"keep_ratio must be >= 0, got {self.keep_ratio}")
+        if not 0 <= self.keep_margin < np.inf:
+            raise ValueError(f"keep_margin must be >= 0 squared pixels, got {self.keep_margin}")
         if self.correspondences not in _CORRESPONDENCES:
             raise ValueError(
                 f"correspondences must be one of {list(_CORRESPONDENCES)}, "
@@ -149,6 +153,7 @@ class PnPRefiner(BaseEstimator):
         if known.sum() < self.min_inliers:
             return fallback, None
         obj, img = obj[known], img[known]
+        all_obj, all_img = obj, img
         R, t, inliers = pnp(obj, img, inp.camera, self.threshold, inp.seed)
         if R is None or inliers.sum() < self.min_inliers:
             return fallback, None
@@ -164,11 +169,20 @@ class PnPRefiner(BaseEstimator):
         R, t = candidates[pick]
         if turns[pick] > self.max_turn_deg:
             return fallback, None
-        # Three more degrees of freedom always fit a little better: keep the homography's
-        # rotation (a training view's, whose tilt is exact) unless PnP explains the points
-        # clearly better than it does with its best translation.
+        # Score both on every correspondence, each with its own inliers (MSAC): on PnP's
+        # inliers alone the comparison is biased towards PnP, whose RANSAC chose them.
         t_fallback = _translation_for(obj, img, inp.camera, fallback, t)
-        if _rms(obj, img, inp.camera, fallback, t_fallback) <= self.keep_ratio * errs[pick] + 0.1:
+        for _ in range(2):
+            near = _distances(all_obj, all_img, inp.camera, fallback, t_fallback) < self.threshold
+            if near.sum() < self.min_inliers:
+                break
+            t_fallback = _translation_for(
+                all_obj[near], all_img[near], inp.camera, fallback, t_fallback
+            )
+        cost_fallback = _msac_cost(all_obj, all_img, inp.camera, fallback, t_fallback,
+                                   self.threshold)  # fmt: skip
+        cost_pnp = _msac_cost(all_obj, all_img, inp.camera, R, t, self.threshold)
+        if cost_fallback - cost_pnp <= self.keep_margin:
             return fallback, t_fallback
         return R, t
 
@@ -206,6 +220,22 @@ def _translation_for(obj, img, camera: CameraModel, R: np.ndarray, t0: np.ndarra
         if np.abs(step).max() < 1e-7:
             break
     return t
+
+
+def _distances(obj, img, camera: CameraModel, R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Reprojection distance of every point in pixels (inf behind the camera)."""
+    cam = obj @ R.T + t
+    uv = cam @ np.asarray(camera.K, float).T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = np.linalg.norm(uv[:, :2] / uv[:, 2:] - img, axis=1)
+    return np.where(cam[:, 2] > 0, d, np.inf)
+
+
+def _msac_cost(obj, img, camera: CameraModel, R, t, threshold: float) -> float:
+    """Sum of squared reprojection distances in px², each capped at ``threshold``: an outlier
+    costs the same to either pose, so each pose is judged on its own inliers."""
+    d = np.minimum(_distances(obj, img, camera, R, t), threshold)
+    return float(np.sum(d**2))
 
 
 def _rms(obj, img, camera: CameraModel, R: np.ndarray, t: np.ndarray) -> float:
