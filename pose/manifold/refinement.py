@@ -239,9 +239,5 @@ def _msac_cost(obj, img, camera: CameraModel, R, t, threshold: float) -> float:
 
 
 def _rms(obj, img, camera: CameraModel, R: np.ndarray, t: np.ndarray) -> float:
-    """Root-mean-square reprojection error in pixels."""
-    cam = obj @ R.T + t
-    if (cam[:, 2] <= 0).any():
-        return float("inf")
-    uv = cam @ np.asarray(camera.K, float).T
-    return float(np.sqrt(np.mean(np.sum((uv[:, :2] / uv[:, 2:] - img) ** 2, axis=1))))
+    """Root-mean-square reprojection error in pixels (inf when a point is behind the camera)."""
+    return float(np.sqrt(np.mean(_distances(obj, img, camera, R, t) ** 2)))
