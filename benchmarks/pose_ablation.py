@@ -17,6 +17,7 @@ worker, so ``median_ms`` is a single-core time.
 With ``--perturbations`` each protocol is run once per perturbation (test views only; the
 models are the unperturbed ones, from the model cache) and one combined
 ``pose_ablation_<protocol>_perturbations.json`` / ``.png`` is written instead.
+``--replot results/pose_ablation_*.json`` only redraws the PNGs from their JSON files.
 """
 
 from __future__ import annotations
@@ -112,6 +113,22 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     print(f"wrote {stem}.json / .png")
 
 
+def replot(json_path: Path) -> None:
+    """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone)."""
+    import json
+
+    try:
+        report = json.loads(json_path.read_text())
+        spec = report["spec"]
+        results, chance = report["results"], report["chance"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"{json_path}: not a readable sweep JSON ({exc})") from exc
+    if "perturbations" in report:
+        raise ValueError(f"{json_path}: a perturbation sweep; rerun it to redraw its bars")
+    write_report({"spec": spec, "results": results, "chance": chance}, None,
+                 json_path.with_suffix(".png"))  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--protocols", default=",".join(PROTOCOLS))
@@ -133,7 +150,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument("--out-dir", default=str(RESULTS))
     ap.add_argument("--suffix", default="", help="appended to the result file names")
+    ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
+                    help="only redraw each sweep JSON's PNG beside it (no sweep runs)")  # fmt: skip
     args = ap.parse_args(argv)
+    if args.replot:
+        for path in map(Path, args.replot):
+            try:
+                replot(path)
+            except ValueError as exc:
+                ap.error(str(exc))
+            print(f"wrote {path.with_suffix('.png')}")
+        return 0
 
     if args.estimators:
         estimators = split_estimators(args.estimators)

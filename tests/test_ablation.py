@@ -116,6 +116,42 @@ def test_local_sweep_records_and_figure(local_sweep):
     assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_legend_labels_wrap_long_specs_without_cutting_them():
+    from scorbot_gym.experiments.plot import legend_label
+
+    spec = ("manifold-pnp(keypoints__upscale=2, matcher__min_inliers=6, matcher__n_candidates=8, "
+            "refiner__correspondences='ratio+global', refiner__keep_margin=0.0)")  # fmt: skip
+    label = legend_label(spec)
+    assert label.replace("\n", " ") == spec  # every parameter is in the legend
+    assert len(label.splitlines()) > 1 and max(map(len, label.splitlines())) <= 64
+    assert legend_label("chance") == "chance"
+
+
+@pytest.mark.slow
+def test_replot_redraws_the_figure_from_the_json_alone(local_sweep, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "pose_ablation.py"
+    d = local_sweep[0]
+    shutil.copy(d / "a.json", tmp_path / "a.json")
+    (tmp_path / "p.json").write_text(json.dumps({"spec": {}, "results": [], "chance": {},
+                                                 "perturbations": ["none"]}))  # fmt: skip
+    (tmp_path / "bad.json").write_text("{")
+
+    def replot(name):
+        return subprocess.run([sys.executable, str(script), "--replot", str(tmp_path / name)],
+                              capture_output=True, text=True)  # fmt: skip
+
+    assert replot("a.json").returncode == 0
+    assert (tmp_path / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    for name, message in (("p.json", "a perturbation sweep"), ("bad.json", "not a readable")):
+        out = replot(name)
+        assert out.returncode == 2 and message in out.stderr
+        assert not (tmp_path / name).with_suffix(".png").exists()
+
+
 @pytest.mark.slow
 def test_second_run_resumes_from_the_trial_cache(local_sweep):
     _, first, second, out = local_sweep

@@ -138,10 +138,13 @@ def test_every_named_variant_fits_and_round_trips(name, cards, tmp_path):
     est.save(path)
     loaded = PoseManifoldEstimator.load(path)
     assert repr(loaded.get_params(deep=True)) == repr(est.get_params(deep=True))
-    for v in tviews[:2]:
+    # a loaded model answers exactly as the fitted one: a sweep resumed from the model cache
+    # scores what an uninterrupted one does (descriptors rounded to float16 once broke this)
+    for v in tviews:
         a, b = est.predict(v), loaded.predict(v)
-        assert a.valid and b.valid
-        assert rotation_error_deg(a.rotation, b.rotation) < 0.5  # descriptors stored as float16
+        assert a.valid == b.valid and (a.valid or name != "manifold")
+        np.testing.assert_array_equal(a.rotation, b.rotation)
+        np.testing.assert_array_equal(a.translation, b.translation)
 
 
 def test_variants_are_single_stage_swaps():

@@ -24,17 +24,19 @@ def ratio_match(query: np.ndarray, train: np.ndarray, ratio: float = 0.8) -> np.
     if len(query) == 0 or len(train) < 2:
         return np.zeros((0, 2), dtype=np.int64)
     # Squared distance between unit vectors is 2 - 2 cos; the largest dot products are nearest.
+    # Two arg-max passes find the two nearest (a partial sort costs more): where the two
+    # largest tie, the test fails whichever is called first, so ties cannot change the result.
     sim = query @ train.T
-    best2 = np.argpartition(-sim, 1, axis=1)[:, :2]
-    s = np.take_along_axis(sim, best2, axis=1)
-    order = np.argsort(-s, axis=1)
-    best2 = np.take_along_axis(best2, order, axis=1)
-    s = np.take_along_axis(s, order, axis=1)
-    d1 = np.sqrt(np.maximum(2 - 2 * s[:, 0], 0))
-    d2 = np.sqrt(np.maximum(2 - 2 * s[:, 1], 0))
+    rows = np.arange(len(query))
+    best = sim.argmax(axis=1)
+    s1 = sim[rows, best]
+    sim[rows, best] = -np.inf
+    s2 = sim.max(axis=1)
+    d1 = np.sqrt(np.maximum(2 - 2 * s1, 0))
+    d2 = np.sqrt(np.maximum(2 - 2 * s2, 0))
     ok = d1 < ratio * d2
     q = np.nonzero(ok)[0]
-    return np.c_[q, best2[ok, 0]]
+    return np.c_[q, best[ok]]
 
 
 def ransac_homography(
@@ -104,18 +106,16 @@ def ratio_test_3d(
     3-D place (over ``merge_radius`` away): the nearest several descriptors are often the same
     point seen from neighbouring training views, and comparing with those would reject it.
     A query whose nearest row has no 3-D point is skipped."""
-    q, m = [], []
-    for i, (row, d) in enumerate(zip(idx, dist, strict=True)):
-        if row[0] < 0 or not np.isfinite(points[row[0]]).all():
-            continue
-        others = points[row[row >= 0]]
-        # An unknown point is never "the same place": it can only make the test stricter.
-        far = ~(np.linalg.norm(others - points[row[0]], axis=1) <= merge_radius)
-        second = d[: len(far)][far]
-        if len(second) == 0 or d[0] < ratio * second[0]:
-            q.append(i)
-            m.append(row[0])
-    return np.array(q, int), np.array(m, int)
+    valid = idx >= 0  # FLANN's misses (-1) come last in each row
+    rows = np.where(valid, idx, 0)
+    nearest = points[rows[:, 0]]
+    known = valid[:, 0] & np.isfinite(nearest).all(axis=1)
+    # An unknown point is never "the same place": it can only make the test stricter.
+    far = valid & ~(np.linalg.norm(points[rows] - nearest[:, None, :], axis=2) <= merge_radius)
+    second = dist[np.arange(len(idx)), far.argmax(axis=1)]  # the first far neighbour's
+    ok = known & (~far.any(axis=1) | (dist[:, 0] < ratio * second))
+    q = np.nonzero(ok)[0]
+    return q.astype(int), idx[q, 0].astype(int)
 
 
 @dataclass

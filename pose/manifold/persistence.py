@@ -143,7 +143,7 @@ def estimator_to_arrays(est, prefix: str = "") -> dict[str, np.ndarray]:
     out[prefix + "words_"] = est.featurizer_.words_
     for k in _FITTED:
         v = getattr(est, k)
-        out[prefix + k] = v.astype(np.float16) if k == "db_desc_" else v
+        out[prefix + k] = v  # full precision: a loaded model answers exactly as the fitted one
     if hasattr(est, "db_xyz_"):  # a refiner that lifts keypoints to 3-D (NaN: no depth)
         out[prefix + "db_xyz_"] = est.db_xyz_
     for tag, reg in (("rot", est.regressor_), ("trans", est.translation_regressor_)):

@@ -6,9 +6,16 @@ from __future__ import annotations
 
 import io
 import os
+import textwrap
 from collections.abc import Sequence
 
 from pose.fileio import atomic_write_bytes
+
+
+def legend_label(spec: str, width: int = 64) -> str:
+    """A full estimator spec over several lines: two compositions that differ only in their
+    last parameters must stay distinguishable in the legend, so specs are wrapped, never cut."""
+    return "\n".join(textwrap.wrap(spec, width, break_on_hyphens=False)) or spec
 
 
 def plot_success_vs_occlusion(
@@ -24,13 +31,16 @@ def plot_success_vs_occlusion(
     many = len(labels) > 4  # legend beside the axes, colours from a 20-colour cycle
     fig, ax = plt.subplots(figsize=(10.5 if many else 7, 4.5), dpi=120)
     colours = plt.get_cmap("tab20" if many else "tab10").colors
+    if many:  # tab20 pairs a dark and a light shade of each hue: all ten hues first
+        colours = colours[0::2] + colours[1::2]
     for k, label in enumerate(labels):
         rows = sorted((r for r in results if r["estimator"] == label), key=lambda r: r["occlusion"])
         x = [100 * r["occlusion"] for r in rows]
         y = [100 * (r["success_5deg"] or 0.0) for r in rows]
         lo = [100 * r["success_5deg_ci95"][0] for r in rows]
         hi = [100 * r["success_5deg_ci95"][1] for r in rows]
-        (line,) = ax.plot(x, y, marker="o", ms=3, label=label, color=colours[k % len(colours)])
+        colour = colours[k % len(colours)]
+        (line,) = ax.plot(x, y, marker="o", ms=3, label=legend_label(label), color=colour)
         ax.fill_between(x, lo, hi, color=line.get_color(), alpha=0.06 if many else 0.15, lw=0)
         coarse = [
             (xi, r["coarse_success_5deg"], r["success_5deg"])
@@ -40,7 +50,7 @@ def plot_success_vs_occlusion(
         if any(c != s for _, c, s in coarse):
             ax.plot(
                 [c[0] for c in coarse], [100 * c[1] for c in coarse], ls=":",
-                color=line.get_color(), label=f"{label} [coarse: before refinement]",
+                color=line.get_color(), label=legend_label(f"{label} [coarse: before refinement]"),
             )  # fmt: skip
     pts = [c for c in chance["success_5deg"] if c["value"] is not None]
     if pts:
@@ -59,6 +69,6 @@ def plot_success_vs_occlusion(
         ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, format="png")
+    fig.savefig(buf, format="png", bbox_inches="tight")  # the legend beside the axes included
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
