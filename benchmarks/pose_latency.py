@@ -123,15 +123,15 @@ def main(argv: list[str] | None = None) -> int:
     for protocol, spec in specs.items():
         per_view: dict[str, list[np.ndarray]] = {n: [] for n in names}
         per_object, stages = [], {n: {} for n in names}
+        jobs = make_jobs(spec, cache)
         for obj in spec.object_names:
             models = {}
-            for job in make_jobs(spec, cache):
-                if job.object_name == obj:
-                    try:
-                        models[job.estimator] = fitted_model(job)
-                    except ValueError as exc:  # refused this object's views: no time to take
-                        skip = {"protocol": protocol, "object": obj, "error": str(exc)}
-                        report["skipped"].append({**skip, "estimator": job.estimator})
+            for job in (j for j in jobs if j.object_name == obj):
+                try:
+                    models[job.estimator] = fitted_model(job)
+                except ValueError as exc:  # refused this object's views: no time to take
+                    skip = {"protocol": protocol, "object": obj, "error": str(exc)}
+                    report["skipped"].append({**skip, "estimator": job.estimator})
             if len(models) < len(names):
                 continue  # paired ratios need every estimator on the same views
             ms = time_predictions(models, work[protocol, obj], args.repeats)
