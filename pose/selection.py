@@ -30,6 +30,7 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import check_training_set
 from pose.composition import Composition, fit_estimator, load_part
+from pose.features.keypoints import shared_keypoints
 from pose.metrics import rotation_error_deg, success_rate
 from pose.symmetry import Symmetry
 from pose.view import PoseEstimate, View, predict_each
@@ -116,6 +117,10 @@ class ValidationSelection(Composition, BaseEstimator):
         return errs
 
     def fit(self, views: Sequence[View], poses, symmetry: Symmetry | None = None):
+        with shared_keypoints():  # every fold's candidates see the same views' SIFT
+            return self._fit(views, poses, symmetry)
+
+    def _fit(self, views: Sequence[View], poses, symmetry: Symmetry | None):
         pairs = self._check_params()
         views, P = check_training_set(views, poses)
         if len(pairs) > 1 and len(views) < self.cv:

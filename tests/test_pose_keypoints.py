@@ -88,3 +88,27 @@ def test_upscale_below_one_is_refused_with_the_valid_range(scene):
         extract_sift(img, mask, upscale=0.5)
     with pytest.raises(ValueError, match="upscale must be >= 1"):
         SiftKeypoints(upscale=float("nan")).validate()
+
+
+def test_shared_block_detects_each_image_and_setting_once(scene, monkeypatch):
+    from pose.features import keypoints as kp
+
+    img, mask = scene
+    calls = []
+    detect = kp._detect_sift
+    monkeypatch.setattr(kp, "_detect_sift", lambda *a: calls.append(a[2:]) or detect(*a))
+    with kp.shared_keypoints():
+        first = extract_sift(img, mask, 0, 0.03)
+        with kp.shared_keypoints():  # a nested block shares the outer one's features
+            assert extract_sift(img.copy(), mask.copy(), 0, 0.03) is first
+        assert extract_sift(img, mask, 50, 0.03) is not first  # other settings: detected
+        assert extract_sift(img, None, 0, 0.03) is not first  # other mask: detected
+        assert not first.descriptors.flags.writeable  # shared: nobody may change them
+        with pytest.raises(ValueError, match="read-only"):
+            first.xy += 1
+    assert len(calls) == 3
+    outside = extract_sift(img, mask, 0, 0.03)  # after the block: detected afresh, same answer
+    assert outside is not first and len(calls) == 4 and outside.descriptors.flags.writeable
+    for a, b in zip((first.xy, first.descriptors, first.angles),
+                    (outside.xy, outside.descriptors, outside.angles), strict=True):  # fmt: skip
+        assert np.array_equal(a, b)

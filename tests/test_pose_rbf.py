@@ -47,3 +47,46 @@ def test_bad_input_is_explained():
         RBFNetwork().fit(np.zeros((3, 2)), np.zeros(2))
     with pytest.raises(ValueError, match="NaN"):
         RBFNetwork().fit(np.full((3, 2), np.nan), np.zeros(3))
+
+
+def _broadcast_fit(X, y, **params):
+    """The network fitted with the one-broadcast distances the blocked ones replaced: the
+    specification they must reproduce bit for bit (so saved models and sweep figures stay)."""
+    m = RBFNetwork(**params)
+    m.fit(X, y)
+    c = m.centers_
+    dc = np.linalg.norm(c[:, None] - c[None], axis=2)
+    np.fill_diagonal(dc, np.inf)
+    nn = np.sort(dc, axis=1)[:, : min(m.n_neighbors, len(c) - 1)]
+    widths = m.width_scale * nn.mean(axis=1)
+    Z = (X - m.x_mean_) / m.x_scale_
+    e = -((Z[:, None, :] - c[None]) ** 2).sum(axis=2) / (2 * widths**2)
+    if m.normalized:
+        e = np.exp(e - e.max(axis=1, keepdims=True))
+        P = np.c_[e / e.sum(axis=1, keepdims=True), np.ones(len(Z))]
+    else:
+        P = np.c_[np.exp(e), np.ones(len(Z))]
+    reg = m.alpha * np.eye(P.shape[1])
+    reg[-1, -1] = 0.0
+    return m, widths, np.linalg.solve(P.T @ P + reg, P.T @ y)
+
+
+@pytest.mark.parametrize("n, normalized", [(150, True), (150, False), (70, True)])
+def test_blocked_distances_give_the_broadcast_bits(n, normalized):
+    rng = np.random.default_rng(n)
+    X, y = rng.normal(size=(n, 9)), rng.normal(size=(n, 3))
+    # 150 rows > 100 centres: k-means centres; 70 rows: every sample a centre (the manifold's
+    # case); 150 rows span three blocks of 64
+    m, widths, weights = _broadcast_fit(X, y, n_centers=100, width_scale=0.1, alpha=1e-4,
+                                        standardize=False, normalized=normalized)  # fmt: skip
+    assert np.array_equal(m.widths_, widths) and np.array_equal(m.weights_, weights)
+    Xt = rng.normal(size=(130, 9))  # more rows than one block
+    Zt = (Xt - m.x_mean_) / m.x_scale_
+    d2 = ((Zt[:, None, :] - m.centers_[None]) ** 2).sum(axis=2)
+    e = -d2 / (2 * m.widths_**2)
+    if normalized:
+        e = np.exp(e - e.max(axis=1, keepdims=True))
+        expected = np.c_[e / e.sum(axis=1, keepdims=True), np.ones(len(Zt))] @ m.weights_
+    else:
+        expected = np.c_[np.exp(e), np.ones(len(Zt))] @ m.weights_
+    assert np.array_equal(m.predict(Xt), expected)

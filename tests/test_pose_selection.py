@@ -55,6 +55,36 @@ def test_picks_the_candidate_that_validates_better(fitted, can_views):
     assert fitted.score([lv.view for lv in test], [lv.camera_from_object for lv in test]) >= 0.5
 
 
+def test_folds_share_each_views_sift_and_answer_as_without_sharing(can_views, monkeypatch):
+    import contextlib
+
+    from pose.features import keypoints as kp
+
+    train, poses, test = can_views
+    spec = "select(estimators=('manifold-pnp', 'manifold-pnp(matcher__min_inliers=6)'))"
+    keys = []
+    detect = kp._detect_sift
+
+    def counted(image, mask, *settings):
+        keys.append((kp._digest(image, mask), settings))
+        return detect(image, mask, *settings)
+
+    monkeypatch.setattr(kp, "_detect_sift", counted)
+    shared = make_from_spec(spec).fit(train, poses)
+    # two candidates x (4 fold fits + 4 fold predictions) + the refit: each view's SIFT runs
+    # once as a training view and once as a query, not nine times
+    assert len(keys) == len(set(keys)) == 2 * len(train)
+    monkeypatch.setattr("pose.selection.shared_keypoints", contextlib.nullcontext)
+    alone = make_from_spec(spec).fit(train, poses)
+    assert len(keys) > 2 * len(train) * 4
+    a, b = shared.to_arrays(), alone.to_arrays()
+    assert a.keys() == b.keys()
+    for k in a:  # NaN: a keypoint without depth
+        assert np.array_equal(a[k], b[k], equal_nan=a[k].dtype.kind == "f"), k
+    view = test[0].view
+    assert np.array_equal(shared.predict(view).rotation, alone.predict(view).rotation)
+
+
 def test_split_is_seeded_and_symmetry_reaches_candidates(can_views):
     train, poses, _ = can_views
     _Recorder.calls = []

@@ -6,6 +6,10 @@ composes; :func:`extract_sift` is the function it wraps.
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
 
 import cv2
@@ -47,6 +51,41 @@ def to_gray(image: np.ndarray) -> np.ndarray:
     return img.reshape(img.shape[:2])
 
 
+_SHARED: ContextVar[dict | None] = ContextVar("shared_keypoints", default=None)
+
+
+@contextmanager
+def shared_keypoints() -> Iterator[None]:
+    """Within the block, SIFT asked again for the same pixels, mask and settings returns the
+    features it extracted the first time (read-only arrays), instead of detecting them again.
+
+    Model selection fits every candidate on every fold but one and predicts the remaining
+    fold: with two keypoint candidates and four folds each training view's SIFT would run nine
+    times, though it is a function of the pixels alone (a large part of a selection's
+    training time). The sharing is scoped to a block, not global, so that timing ``predict``
+    never reads features an earlier call computed, and the memory goes with the block. Nested
+    blocks share the outermost one's features.
+    """
+    token = _SHARED.set({}) if _SHARED.get() is None else None
+    try:
+        yield
+    finally:
+        if token is not None:
+            _SHARED.reset(token)
+
+
+def _digest(image: np.ndarray, mask: np.ndarray | None) -> bytes:
+    h = hashlib.blake2b(digest_size=16)
+    for a in (image, mask):
+        if a is None:
+            h.update(b"none")
+        else:
+            a = np.ascontiguousarray(a)
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.data)
+    return h.digest()
+
+
 def extract_sift(
     image: np.ndarray,
     mask: np.ndarray | None = None,
@@ -62,10 +101,33 @@ def extract_sift(
     ``CROP_MARGIN`` border) is processed: the cost follows the object's size, not the image's.
     ``upscale`` > 1 enlarges that crop (bicubic) before detection, for objects only a few dozen
     pixels across: SIFT's finest octave is then finer than the image's pixels, and the
-    locations are mapped back to image pixels.
+    locations are mapped back to image pixels. Inside a :func:`shared_keypoints` block a repeated
+    call returns the first one's features.
     """
     if not upscale >= 1.0:
         raise ValueError(f"upscale must be >= 1 (1: the image as it is), got {upscale}")
+    settings = (n_features, contrast_threshold, mask_dilation, upscale)
+    memo = _SHARED.get()
+    if memo is None:
+        return _detect_sift(image, mask, *settings)
+    key = (_digest(image, mask), settings)
+    found = memo.get(key)
+    if found is None:
+        found = _detect_sift(image, mask, *settings)
+        for a in (found.xy, found.descriptors, found.angles):
+            a.flags.writeable = False  # shared by every caller: nobody may change it
+        memo[key] = found
+    return found
+
+
+def _detect_sift(
+    image: np.ndarray,
+    mask: np.ndarray | None,
+    n_features: int,
+    contrast_threshold: float,
+    mask_dilation: int,
+    upscale: float,
+) -> Features:
     gray = to_gray(image)
     cv_mask = None
     x0 = y0 = 0

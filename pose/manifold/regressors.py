@@ -31,6 +31,19 @@ def _check_xy(X, y=None):
     return X, y.reshape(len(y), -1)
 
 
+def _squared_distances(A: np.ndarray, B: np.ndarray, block: int = 64) -> np.ndarray:
+    """``||A_i - B_j||^2`` for every pair, ``(len(A), len(B))``.
+
+    The same arithmetic as one broadcast ``((A[:, None] - B[None]) ** 2).sum(axis=2)``, so the
+    same bits, but ``block`` rows of ``A`` at a time: with a thousand centres the broadcast
+    makes a temporary of hundreds of MB, whose allocation costs more than the arithmetic.
+    """
+    out = np.empty((len(A), len(B)))
+    for i in range(0, len(A), block):
+        out[i : i + block] = ((A[i : i + block, None, :] - B[None]) ** 2).sum(axis=2)
+    return out
+
+
 def _standardizer(X: np.ndarray, on: bool) -> tuple[np.ndarray, np.ndarray]:
     if not on:
         return np.zeros(X.shape[1]), np.ones(X.shape[1])
@@ -80,7 +93,7 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
             km = KMeans(n_clusters=m, n_init=3, random_state=self.random_state).fit(Z)
             self.centers_ = km.cluster_centers_
         if m > 1:
-            dc = np.linalg.norm(self.centers_[:, None] - self.centers_[None], axis=2)
+            dc = np.sqrt(_squared_distances(self.centers_, self.centers_))
             np.fill_diagonal(dc, np.inf)
             nn = np.sort(dc, axis=1)[:, : min(self.n_neighbors, m - 1)]
             self.widths_ = self.width_scale * nn.mean(axis=1)
@@ -94,7 +107,7 @@ class RBFNetwork(RegressorMixin, BaseEstimator):
         return self
 
     def _design(self, Z: np.ndarray) -> np.ndarray:
-        d2 = ((Z[:, None, :] - self.centers_[None]) ** 2).sum(axis=2)
+        d2 = _squared_distances(Z, self.centers_)
         e = -d2 / (2 * self.widths_**2)
         if self.normalized:  # softmax: stable however far the point is from every centre
             e = np.exp(e - e.max(axis=1, keepdims=True))
