@@ -38,7 +38,11 @@ from pose.fileio import atomic_write_bytes, atomic_write_json  # noqa: E402
 from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
-from scorbot_gym.experiments.aggregate import format_results, format_stage_ablation  # noqa: E402
+from scorbot_gym.experiments.aggregate import (  # noqa: E402
+    format_results,
+    format_selections,
+    format_stage_ablation,
+)
 from scorbot_gym.experiments.spec import parse_occlusions, split_estimators  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -204,9 +208,10 @@ def main(argv: list[str] | None = None) -> int:
         stem = Path(args.out_dir) / f"pose_ablation_{protocol}{args.suffix}"
         write_report(report, stem.with_suffix(".json"), stem.with_suffix(".png"))
         print(f"\n== {protocol}\n" + format_results(report["results"], report["chance"]))
-        table = format_stage_ablation(report["stage_ablation"])
-        if table:
-            print(table)
+        for table in (format_stage_ablation(report["stage_ablation"]),
+                      format_selections(report["selections"])):  # fmt: skip
+            if table:
+                print(table)
         for t in report["targets"]:
             print(f"target {t}")
         for f in report["fit_errors"]:

@@ -3,7 +3,9 @@
 The cross-validated scores of every candidate: the table behind the README's *Choosing per
 object* section.
 
-Reads the fitted selections from the sweep's model cache (the ones ``pose_ablation.py`` fitted
+A sweep's JSON (``selections``) holds the same rows for the protocols it ran; this script
+collects them across protocols without running a trial: it reads the fitted selections from
+the sweep's model cache (the ones ``pose_ablation.py`` fitted
 with the same arguments), fitting and caching them where the cache has none.
 
     python benchmarks/selection_choices.py --estimator "select(estimators=(...))" \
@@ -18,14 +20,16 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import numpy as np  # noqa: E402
-
 from pose.fileio import atomic_write_json  # noqa: E402
 from scorbot_gym.data.protocols import protocol_names  # noqa: E402
 from scorbot_gym.experiments import sweep  # noqa: E402
 from scorbot_gym.experiments.runners import make_jobs  # noqa: E402
 from scorbot_gym.experiments.spec import EstimatorSpec  # noqa: E402
-from scorbot_gym.experiments.trial import default_cache_dir, fitted_model  # noqa: E402
+from scorbot_gym.experiments.trial import (  # noqa: E402
+    default_cache_dir,
+    fitted_model,
+    selection_record,
+)
 from scorbot_gym.objects import get_object  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -33,19 +37,13 @@ RESULTS = Path(__file__).resolve().parent / "results"
 
 def choices(protocol: str, estimator: str, seed: int, cache_dir: str) -> list[dict]:
     spec = sweep(protocol, [estimator], "0", seed=seed)
-    out = []
-    for job in make_jobs(spec, cache_dir):
-        sel = fitted_model(job)  # the sweep's cached fit, or fitted and cached here
-        out.append({
-            "protocol": protocol, "object": job.object_name,
-            "symmetry": get_object(job.object_name).symmetry.kind, "chosen": sel.best_name_,
-            "candidates": sel.candidate_names_,
-            "cv_success_5deg": [None if np.isnan(s) else s for s in sel.validation_success_],
-            "cv_median_rot_err_deg": [None if np.isnan(m) else m for m in
-                                      sel.validation_median_deg_],
-            "fit_errors": sel.fit_errors_,
-        })  # fmt: skip
-    return out
+    return [
+        {"protocol": protocol, "object": job.object_name,
+         "symmetry": get_object(job.object_name).symmetry.kind,
+         # the sweep's cached fit, or fitted and cached here
+         **selection_record(fitted_model(job))}
+        for job in make_jobs(spec, cache_dir)
+    ]  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -69,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     cache = str(args.cache_dir or default_cache_dir())
     rows = [r for p in protocols for r in choices(p, str(spec), args.seed, cache)]
     for r in rows:
-        print(f"{r['protocol']:16s} {r['object']:16s} {r['symmetry']:9s} {r['chosen'][:70]}")
+        print(f"{r['protocol']:16s} {r['object']:16s} {r['symmetry']:9s} {r['selected'][:70]}")
     atomic_write_json(Path(args.json), {"estimator": str(spec), "seed": args.seed,
                                         "choices": rows})  # fmt: skip
     return 0

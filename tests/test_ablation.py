@@ -112,6 +112,7 @@ def test_local_sweep_records_and_figure(local_sweep):
         assert 0 <= lo <= r["success_5deg"] <= hi <= 1
     assert rep["chance"]["source"].startswith("constant answer")
     assert {row["variant"] for row in rep["stage_ablation"]} >= {"manifold"}
+    assert rep["selections"] == []  # neither estimator selects among candidates
     assert rep["spec"]["test_views"] == 6 and rep["spec"]["objects"] == ["banana", "box"]
     assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

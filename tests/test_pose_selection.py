@@ -248,6 +248,33 @@ def test_sweep_job_fits_the_selection_with_the_objects_symmetry(tmp_path, monkey
     (trial,) = run_model_job(job)["trials"]
     assert seen == [get_object("golf_ball").symmetry]
     assert "fit_error" not in trial and all(trial["views"]["valid"])
+    choice = trial["selection"]  # the sweep records which candidate answered, and why
+    assert choice["selected"] == "chance" and choice["candidates"] == ["manifold", "chance"]
+    assert choice["cv_success_5deg"][0] is None and choice["cv_success_5deg"][1] == 1.0
+    assert "SIFT" in choice["fit_errors"]["manifold"]
     model = Path(tmp_path) / "experiments" / "models" / f"{model_key(job)}.npz"
     loaded = ValidationSelection.load(model)
     assert loaded.best_name_ == "chance" and "manifold" in loaded.fit_errors_
+
+
+def test_sweep_reports_one_choice_per_selecting_model():
+    """``selections`` keeps one row per (protocol, estimator, object), whatever the number of
+    occlusion levels, and none for estimators that select nothing; the printed table names
+    the chosen candidate with the cross-validated score that chose it."""
+    from scorbot_gym.experiments.aggregate import format_selections, selections
+
+    choice = {"selected": "b", "candidates": ["a", "b"], "cv_success_5deg": [None, 0.75],
+              "cv_median_rot_err_deg": [None, 1.5], "fit_errors": {"a": "too few"}}  # fmt: skip
+    trials = [
+        {"protocol": "p", "estimator": "select(x)", "object": o, "occlusion": occ,
+         "selection": choice}
+        for o in ("ball", "box") for occ in (0.0, 0.5)
+    ] + [{"protocol": "p", "estimator": "manifold", "object": "box", "occlusion": 0.0}]  # fmt: skip
+    rows = selections(trials)
+    assert [(r["estimator"], r["object"]) for r in rows] == [("select(x)", "ball"),
+                                                             ("select(x)", "box")]  # fmt: skip
+    assert rows[0]["selected"] == "b" and rows[0]["fit_errors"] == {"a": "too few"}
+    table = format_selections(rows).splitlines()
+    assert table[0].startswith("select(x) chose") and len(table) == 3
+    assert table[1].split() == ["ball", "75.0", "b"]
+    assert format_selections([]) == ""

@@ -107,7 +107,11 @@ def run_ablate(args: argparse.Namespace) -> int:
     from scorbot_gym.data.perturbations import Perturbation
     from scorbot_gym.evaluation.bop import export_ablation
     from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
-    from scorbot_gym.experiments.aggregate import format_results, format_stage_ablation
+    from scorbot_gym.experiments.aggregate import (
+        format_results,
+        format_selections,
+        format_stage_ablation,
+    )
 
     objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
     spec = SweepSpec(
@@ -120,9 +124,10 @@ def run_ablate(args: argparse.Namespace) -> int:
         runner = LocalRunner(args.jobs or 1)
     report = ablate(spec, runner, args.cache_dir)
     print(format_results(report["results"], report["chance"]))
-    table = format_stage_ablation(report["stage_ablation"])
-    if table:
-        print("\n" + table)
+    for table in (format_stage_ablation(report["stage_ablation"]),
+                  format_selections(report["selections"])):  # fmt: skip
+        if table:
+            print("\n" + table)
     st = report["stats"]
     print(
         f"\n{st['jobs']} models: {st['fits']} fitted, {st['model_cache_hits']} from cache;"

@@ -8,7 +8,13 @@ from __future__ import annotations
 import os
 
 from pose.fileio import atomic_write_json
-from scorbot_gym.experiments.aggregate import aggregate, chance_level, fit_errors, stage_ablation
+from scorbot_gym.experiments.aggregate import (
+    aggregate,
+    chance_level,
+    fit_errors,
+    selections,
+    stage_ablation,
+)
 from scorbot_gym.experiments.plot import plot_success_vs_occlusion
 from scorbot_gym.experiments.runners import Runner, run_sweep
 from scorbot_gym.experiments.spec import SweepSpec
@@ -27,6 +33,7 @@ def ablate(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None 
         "stage_ablation": stage_ablation(results),
         "stats": sweep["stats"],
         "fit_errors": fit_errors(sweep["trials"]),
+        "selections": selections(sweep["trials"]),
         "trials": sweep["trials"],
     }
 

@@ -112,6 +112,21 @@ def fit_errors(trials: Sequence[dict]) -> list[dict]:
     ]
 
 
+def selections(trials: Sequence[dict]) -> list[dict]:
+    """One row per (protocol, estimator, object) whose model selected a candidate
+    (:func:`scorbot_gym.experiments.trial.selection_record`): which one, with the
+    cross-validated scores it was chosen by."""
+    seen = {
+        (t["protocol"], t["estimator"], t["object"]): t["selection"]
+        for t in trials
+        if t.get("selection")
+    }
+    return [
+        {"protocol": p, "estimator": e, "object": o, **choice}
+        for (p, e, o), choice in sorted(seen.items())
+    ]
+
+
 def chance_level(results: Sequence[dict]) -> dict:
     """Chance success@5° per occlusion: the ``chance`` estimator's if swept, else the constant
     answer's (identical for every estimator: the same views)."""
@@ -226,4 +241,17 @@ def format_stage_ablation(rows: Sequence[dict]) -> str:
             text = _pct(r["success_5deg"]) + (f" ({100 * d:+.1f})" if d is not None else "")
             cells.append(f"{text:>16}")
         lines.append(f"{v[:43]:<44}" + "".join(cells))
+    return "\n".join(lines)
+
+
+def format_selections(rows: Sequence[dict]) -> str:
+    """Per model-selecting estimator, the candidate it chose for each object, with the
+    cross-validated success@5° that chose it."""
+    lines = []
+    for estimator in dict.fromkeys(r["estimator"] for r in rows):
+        lines.append(f"{estimator} chose (cross-validated ok@5 % on the training views):")
+        for r in rows:
+            if r["estimator"] == estimator:
+                cv = r["cv_success_5deg"][r["candidates"].index(r["selected"])]
+                lines.append(f"  {r['object']:<18}{_pct(cv):>6}  {r['selected']}")
     return "\n".join(lines)

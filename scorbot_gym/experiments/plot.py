@@ -72,3 +72,34 @@ def plot_success_vs_occlusion(
     fig.savefig(buf, format="png", bbox_inches="tight")  # the legend beside the axes included
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
+
+
+def plot_success_vs_parameter(
+    curves: dict[str, Sequence[dict]], param: str, path: str | os.PathLike, title: str = ""
+) -> None:
+    """success@5° against a parameter's value, one curve (with its 95 % Wilson band) per
+    entry of ``curves``: ``{label: [{"value", "success_5deg", "success_5deg_ci95"}, ...]}``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=120)
+    for label, rows in curves.items():
+        rows = sorted(rows, key=lambda r: r["value"])
+        x = [r["value"] for r in rows]
+        (line,) = ax.plot(x, [100 * r["success_5deg"] for r in rows], marker="o", ms=3,
+                          label=label)  # fmt: skip
+        ax.fill_between(x, [100 * r["success_5deg_ci95"][0] for r in rows],
+                        [100 * r["success_5deg_ci95"][1] for r in rows],
+                        color=line.get_color(), alpha=0.12, lw=0)  # fmt: skip
+    ax.set_xlabel(param)
+    ax.set_ylabel("success @ 5° (%)")
+    ax.grid(alpha=0.3)
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())

@@ -29,7 +29,7 @@ import numpy as np
 from pose.fileio import atomic_write_json
 from pose.metrics import rotation_error_deg
 
-TRIAL_FORMAT = 2
+TRIAL_FORMAT = 3  # 3: a model-selecting estimator's choice per trial (``selection``)
 
 
 @dataclass(frozen=True)
@@ -140,6 +140,30 @@ def fitted_model(job: ModelJob, stats: dict | None = None):
     return est
 
 
+def selection_record(est) -> dict | None:
+    """What a model-selecting estimator (``select(...)``) chose for this object and why: the
+    chosen candidate, every candidate's cross-validated success@5° and median error on the
+    training views (None where it could not be fitted), and the candidates' fit errors. A
+    per-object choice is half of such an estimator's result: a table of its success alone
+    cannot say whether the keypoint method or the image-blind prior answered. None for
+    estimators that select nothing."""
+    from pose.selection import ValidationSelection
+
+    if not isinstance(est, ValidationSelection):
+        return None
+
+    def finite(values) -> list[float | None]:
+        return [float(v) if np.isfinite(v) else None for v in np.asarray(values, float)]
+
+    return {
+        "selected": est.best_name_,
+        "candidates": list(est.candidate_names_),
+        "cv_success_5deg": finite(est.validation_success_),
+        "cv_median_rot_err_deg": finite(est.validation_median_deg_),
+        "fit_errors": dict(est.fit_errors_),
+    }
+
+
 class _Unfitted:
     """Stands in for an estimator whose ``fit`` rejected this object's training views (e.g.
     too few SIFT keypoints on a small object): every test view is an invalid answer, so the
@@ -201,16 +225,48 @@ def _jsonable(v):
     return v
 
 
+def trial_views(job: ModelJob, occlusion: float) -> list:
+    """The job's held-out views at one occlusion level (seeded apart from training: seed + 1)."""
+    from scorbot_gym.data.perturbations import Perturbation
+    from scorbot_gym.data.protocols import held_out_views
+
+    views = held_out_views(
+        job.protocol, job.object_name, occlusion, seed=job.seed + 1, width=job.width,
+        height=job.height, cache_dir=job.cache_dir,
+        perturbation=Perturbation(**dict(job.perturbation)),
+    )  # fmt: skip
+    return views[: job.test_views]
+
+
+def trial_record(job: ModelJob, occlusion: float, est, views, estimator: str | None = None) -> dict:
+    """One trial: ``est``'s answers to ``views`` scored against the ground truth, labelled
+    ``estimator`` (default: the job's spec)."""
+    from scorbot_gym.objects import get_object
+
+    obj = get_object(job.object_name)
+    rec = {
+        "format": TRIAL_FORMAT,
+        "protocol": job.protocol,
+        "estimator": job.estimator if estimator is None else estimator,
+        "object": job.object_name,
+        "seed": job.seed,
+        "occlusion": occlusion,
+        "symmetry": obj.symmetry.kind,
+        "views": _score(est, views, obj),
+    }
+    if isinstance(est, _Unfitted):
+        rec["fit_error"] = est.reason
+    if (choice := selection_record(est)) is not None:
+        rec["selection"] = choice
+    return rec
+
+
 def run_model_job(job: ModelJob) -> dict:
     """Run the job's trials, reading cached ones; returns ``{"trials": [...], "stats": {...}}``.
 
     The model is fitted (or loaded) only if some trial is not cached yet.
     """
     import cv2
-
-    from scorbot_gym.data.perturbations import Perturbation
-    from scorbot_gym.data.protocols import held_out_views
-    from scorbot_gym.objects import get_object
 
     cv2.setNumThreads(1)  # one worker per core: no nested thread pools
     stats = {"fits": 0, "fit_s": 0.0, "fit_errors": 0, "model_cache_hits": 0, "trials_cached": 0,
@@ -224,37 +280,24 @@ def run_model_job(job: ModelJob) -> dict:
             stats["trials_cached"] += 1
             trials.append(rec)
     if todo:
-        obj = get_object(job.object_name)
-        size = {"width": job.width, "height": job.height, "cache_dir": job.cache_dir}
-        fit_error = None
-        try:
-            est = fitted_model(job, stats)
-        except ValueError as exc:  # the estimator's one-line "cannot fit these views"
-            fit_error = str(exc)
-            stats["fit_errors"] += 1
-            est = _Unfitted(fit_error)
-        pert = Perturbation(**dict(job.perturbation))
+        est = fitted_or_unfitted(job, stats)
         for occ in todo:
-            views = held_out_views(
-                job.protocol, job.object_name, occ, seed=job.seed + 1, perturbation=pert, **size
-            )[: job.test_views]
-            rec = {
-                "format": TRIAL_FORMAT,
-                "protocol": job.protocol,
-                "estimator": job.estimator,
-                "object": job.object_name,
-                "seed": job.seed,
-                "occlusion": occ,
-                "symmetry": obj.symmetry.kind,
-                "views": _score(est, views, obj),
-            }
-            if fit_error is not None:
-                rec["fit_error"] = fit_error
+            rec = trial_record(job, occ, est, trial_views(job, occ))
             atomic_write_json(trial_path(job, occ), rec)
             stats["trials_run"] += 1
             trials.append(rec)
     trials.sort(key=lambda r: r["occlusion"])
     return {"trials": trials, "stats": stats, "job": asdict(job)}
+
+
+def fitted_or_unfitted(job: ModelJob, stats: dict):
+    """:func:`fitted_model`, or where the estimator's ``fit`` refuses the object's views (its
+    one-line ``ValueError``) a stand-in that answers every view as invalid."""
+    try:
+        return fitted_model(job, stats)
+    except ValueError as exc:
+        stats["fit_errors"] = stats.get("fit_errors", 0) + 1
+        return _Unfitted(str(exc))
 
 
 def default_cache_dir() -> str:
