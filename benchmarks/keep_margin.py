@@ -13,6 +13,7 @@ README's *The keep test* section.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -21,6 +22,7 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from pose.fileio import atomic_write_json  # noqa: E402
+from pose.manifold.refinement import PnPRefiner  # noqa: E402
 from scorbot_gym.data.protocols import protocol_names  # noqa: E402
 from scorbot_gym.experiments import aggregate, sweep  # noqa: E402
 from scorbot_gym.experiments.plot import plot_success_vs_parameter  # noqa: E402
@@ -74,7 +76,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument("--json", default=None, help="default results/keep_margin_seed{SEED}.json")
     ap.add_argument("--png", default=None, help="default: the JSON path with .png")
+    ap.add_argument(
+        "--replot",
+        default=None,
+        metavar="JSON",
+        help="redraw the PNG of a JSON this script wrote, running nothing",
+    )
     args = ap.parse_args(argv)
+    if args.replot:
+        d = json.loads(Path(args.replot).read_text())
+        png = Path(args.png) if args.png else Path(args.replot).with_suffix(".png")
+        plot(d["results"], d["seed"], d["estimator"], png)
+        print(f"wrote {png}")
+        return 0
     try:
         estimator = str(EstimatorSpec.parse(args.estimator))
         occlusions = parse_occlusions(args.occlusion)
@@ -105,15 +119,20 @@ def main(argv: list[str] | None = None) -> int:
                                     "python": sys.version.split()[0], "cpus": os.cpu_count(),
                                     "jobs": args.jobs},
     })  # fmt: skip
+    png = Path(args.png) if args.png else json_path.with_suffix(".png")
+    plot(rows, args.seed, estimator, png)
+    print(f"wrote {json_path} / {png}")
+    return 0
+
+
+def plot(rows: list[dict], seed: int, estimator: str, png: Path) -> None:
     curves: dict[str, list[dict]] = {}
     for r in rows:
         label = f"{r['protocol']}, {100 * r['occlusion']:.0f} % occlusion"
         curves.setdefault(label, []).append({"value": r["keep_margin"], **r})
-    png = Path(args.png) if args.png else json_path.with_suffix(".png")
+    default = PnPRefiner().keep_margin
     plot_success_vs_parameter(curves, f"{PARAM} (px²)", png,
-                              f"seed {args.seed}, 11 objects: {estimator}")  # fmt: skip
-    print(f"wrote {json_path} / {png}")
-    return 0
+                              f"seed {seed}, 11 objects: {estimator}", default)  # fmt: skip
 
 
 if __name__ == "__main__":

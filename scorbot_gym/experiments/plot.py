@@ -75,10 +75,15 @@ def plot_success_vs_occlusion(
 
 
 def plot_success_vs_parameter(
-    curves: dict[str, Sequence[dict]], param: str, path: str | os.PathLike, title: str = ""
+    curves: dict[str, Sequence[dict]],
+    param: str,
+    path: str | os.PathLike,
+    title: str = "",
+    default: float | None = None,
 ) -> None:
     """success@5° against a parameter's value, one curve (with its 95 % Wilson band) per
-    entry of ``curves``: ``{label: [{"value", "success_5deg", "success_5deg_ci95"}, ...]}``."""
+    entry of ``curves``: ``{label: [{"value", "success_5deg", "success_5deg_ci95"}, ...]}``;
+    ``default`` marks the parameter's default value."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -93,10 +98,12 @@ def plot_success_vs_parameter(
         ax.fill_between(x, [100 * r["success_5deg_ci95"][0] for r in rows],
                         [100 * r["success_5deg_ci95"][1] for r in rows],
                         color=line.get_color(), alpha=0.12, lw=0)  # fmt: skip
+    if default is not None:
+        ax.axvline(default, color="k", ls=":", lw=1, label=f"default ({default:g})")
     ax.set_xlabel(param)
     ax.set_ylabel("success @ 5° (%)")
     ax.grid(alpha=0.3)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(legend_label(title, 90), fontsize=8)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     buf = io.BytesIO()
