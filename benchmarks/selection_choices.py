@@ -5,8 +5,8 @@ object* section.
 
 A sweep's JSON (``selections``) holds the same rows for the protocols it ran; this script
 collects them across protocols without running a trial: it reads the fitted selections from
-the sweep's model cache (the ones ``pose_ablation.py`` fitted
-with the same arguments), fitting and caching them where the cache has none.
+the sweep's model cache (the ones ``pose_ablation.py`` fitted with the same arguments),
+fitting and caching them where the cache has none.
 
     python benchmarks/selection_choices.py --estimator "select(estimators=(...))" \
         --protocols overview,top-resting
