@@ -24,7 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from pose.fileio import atomic_write_json  # noqa: E402
 from pose.manifold.refinement import PnPRefiner  # noqa: E402
 from scorbot_gym.data.protocols import protocol_names  # noqa: E402
-from scorbot_gym.experiments import aggregate, sweep  # noqa: E402
+from scorbot_gym.experiments import LocalRunner, aggregate, sweep  # noqa: E402
 from scorbot_gym.experiments.plot import plot_success_vs_parameter  # noqa: E402
 from scorbot_gym.experiments.predict_params import sweep_predict_param, with_param  # noqa: E402
 from scorbot_gym.experiments.spec import EstimatorSpec, parse_occlusions  # noqa: E402
@@ -42,7 +42,7 @@ def margin_rows(protocol: str, estimator: str, margins: list[float], occlusions,
                 jobs: int, cache_dir: str | None) -> tuple[list[dict], dict]:  # fmt: skip
     """One record per (occlusion, margin) on ``protocol``, and the run's stats."""
     spec = sweep(protocol, [estimator], occlusions, seed=seed)
-    run = sweep_predict_param(spec, PARAM, margins, jobs=jobs, cache_dir=cache_dir)
+    run = sweep_predict_param(spec, PARAM, margins, LocalRunner(jobs), cache_dir)
     value_of = {with_param(estimator, PARAM, m): m for m in margins}
     rows = [
         {"protocol": protocol, "occlusion": r["occlusion"], "keep_margin": value_of[r["estimator"]],

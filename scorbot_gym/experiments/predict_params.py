@@ -15,14 +15,11 @@ comparing one value against a full sweep checks it. Nothing is written to the tr
 
 from __future__ import annotations
 
-import multiprocessing as mp
-import time
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from typing import Any
 
-from scorbot_gym.experiments.runners import make_jobs
+from scorbot_gym.experiments.runners import Runner, run_sweep
 from scorbot_gym.experiments.spec import EstimatorSpec, SweepSpec
 from scorbot_gym.experiments.trial import (
     ModelJob,
@@ -65,14 +62,12 @@ def sweep_predict_param(
     spec: SweepSpec,
     param: str,
     values: Sequence[Any],
-    jobs: int = 1,
+    runner: Runner | None = None,
     cache_dir: str | None = None,
 ) -> dict:
-    """Run :func:`run_param_job` for every (estimator, object) of ``spec`` in ``jobs`` spawned
-    worker processes; returns ``{"spec", "parameter", "values", "trials", "stats"}`` like
-    :func:`~scorbot_gym.experiments.runners.run_sweep`."""
-    if jobs < 1:
-        raise ValueError(f"jobs must be >= 1, got {jobs}")
+    """Run :func:`run_param_job` for every (estimator, object) of ``spec`` on ``runner``
+    (default: in this process); returns :func:`~scorbot_gym.experiments.runners.run_sweep`'s
+    ``{"spec", "trials", "stats"}`` with ``parameter`` and ``values``."""
     values = list(values)
     if not values:
         raise ValueError(f"give at least one value of {param!r}")
@@ -82,24 +77,5 @@ def sweep_predict_param(
             raise ValueError(
                 f"{est_spec} has no parameter {param!r}; it has: {', '.join(sorted(known))}"
             )
-    model_jobs = make_jobs(spec, cache_dir)
     work = partial(run_param_job, param=param, values=values)
-    t0 = time.perf_counter()
-    if jobs == 1 or len(model_jobs) <= 1:
-        results = [work(job) for job in model_jobs]
-    else:
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(jobs, len(model_jobs)), mp_context=ctx) as pool:
-            results = list(pool.map(work, model_jobs))
-    stats: dict = {"jobs": len(model_jobs), "wall_s": round(time.perf_counter() - t0, 2)}
-    for r in results:
-        for k, v in r["stats"].items():
-            stats[k] = stats.get(k, 0) + v
-    stats["fit_s"] = round(stats.get("fit_s", 0.0), 2)
-    return {
-        "spec": spec.to_dict(),
-        "parameter": param,
-        "values": values,
-        "trials": [t for r in results for t in r["trials"]],
-        "stats": stats,
-    }
+    return {**run_sweep(spec, runner, cache_dir, work), "parameter": param, "values": values}

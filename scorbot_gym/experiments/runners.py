@@ -19,9 +19,15 @@ from typing import Protocol
 from scorbot_gym.experiments.spec import SweepSpec
 from scorbot_gym.experiments.trial import ModelJob, default_cache_dir, run_model_job
 
+Work = Callable[[ModelJob], dict]
+
 
 class Runner(Protocol):
-    def map(self, jobs: Sequence[ModelJob]) -> list[dict]: ...
+    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]: ...
+
+
+def _apply(work: Work, job: ModelJob) -> dict:
+    return work(job)
 
 
 class LocalRunner:
@@ -33,17 +39,18 @@ class LocalRunner:
             raise ValueError(f"jobs must be >= 1, got {jobs}")
         self.jobs, self.progress = jobs, progress
 
-    def map(self, jobs: Sequence[ModelJob]) -> list[dict]:
+    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]:
+        """``work(job)`` for every job (a picklable top-level function or partial)."""
         out: list[dict] = []
         if self.jobs == 1 or len(jobs) <= 1:
             for i, job in enumerate(jobs):
-                out.append(run_model_job(job))
+                out.append(work(job))
                 if self.progress:
                     self.progress(i + 1, len(jobs))
             return out
         ctx = mp.get_context("spawn")
         with ProcessPoolExecutor(max_workers=min(self.jobs, len(jobs)), mp_context=ctx) as pool:
-            futures = [pool.submit(run_model_job, job) for job in jobs]
+            futures = [pool.submit(work, job) for job in jobs]
             for i, f in enumerate(futures):
                 out.append(f.result())
                 if self.progress:
@@ -63,7 +70,7 @@ class RayRunner:
             raise ImportError("the Ray runner needs Ray: pip install 'scorbot-gym[ray]'") from exc
         self.address, self.num_cpus = address, num_cpus
 
-    def map(self, jobs: Sequence[ModelJob]) -> list[dict]:
+    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]:
         import os
 
         import ray
@@ -77,8 +84,8 @@ class RayRunner:
             ray.init(address=self.address, log_to_driver=False, **kw)
             started = True
         try:
-            task = ray.remote(num_cpus=1)(run_model_job)
-            return ray.get([task.remote(job) for job in jobs])
+            task = ray.remote(num_cpus=1)(_apply)
+            return ray.get([task.remote(work, job) for job in jobs])
         finally:
             if started:
                 ray.shutdown()
@@ -107,15 +114,21 @@ def make_jobs(spec: SweepSpec, cache_dir: str | None = None) -> list[ModelJob]:
     ]
 
 
-def run_sweep(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None = None) -> dict:
+def run_sweep(
+    spec: SweepSpec,
+    runner: Runner | None = None,
+    cache_dir: str | None = None,
+    work: Work = run_model_job,
+) -> dict:
     """Run (or resume) ``spec``; returns the per-trial records and the run's statistics.
+    ``work`` runs one job (default: fit or load its model, run its trials, cached).
 
     Aggregate with :func:`scorbot_gym.experiments.aggregate.aggregate`.
     """
     runner = runner or LocalRunner()
     jobs = make_jobs(spec, cache_dir)
     t0 = time.perf_counter()
-    results = runner.map(jobs)
+    results = runner.map(jobs, work)
     stats: dict = {"jobs": len(jobs), "wall_s": round(time.perf_counter() - t0, 2)}
     for r in results:
         for k, v in r["stats"].items():
