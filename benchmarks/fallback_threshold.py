@@ -33,7 +33,7 @@ PROTOCOLS = "top-resting,side-turntable,tilted,sparse-headings,overview,cross-ca
 THRESHOLDS = (0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--main", default=MAIN, help="estimator spec to gate")
     ap.add_argument("--fallback", default="chance", help="estimator spec answering below it")
@@ -42,14 +42,18 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     try:
         main_spec, back_spec = (str(EstimatorSpec.parse(s)) for s in (args.main, args.fallback))
+        specs = [  # every protocol and occlusion level checked before anything runs
+            sweep(protocol, [main_spec, back_spec], args.occlusion, seed=args.seed)
+            for protocol in args.protocols.split(",")
+        ]
     except ValueError as err:
         ap.error(str(err))
     trials, stats = [], []
-    for protocol in args.protocols.split(","):
-        spec = sweep(protocol, [main_spec, back_spec], args.occlusion, seed=args.seed)
+    for spec in specs:
+        protocol = spec.protocol
         run = run_sweep(spec, LocalRunner(jobs=args.jobs))
         trials += run["trials"]
         stats.append({"protocol": protocol, **run["stats"]})
@@ -76,7 +80,8 @@ def main() -> None:
         },
     )
     print(f"wrote {out}")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

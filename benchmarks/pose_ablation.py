@@ -166,41 +166,37 @@ def main(argv: list[str] | None = None) -> int:
             print(f"wrote {path.with_suffix('.png')}")
         return 0
 
-    if args.estimators:
-        estimators = split_estimators(args.estimators)
-    else:  # every registered estimator (the manifold's coarse path comes with it)
-        estimators = list(estimator_names())
-    objects = tuple(o for o in (args.objects or "").split(",") if o)
+    try:  # every argument checked before anything runs
+        if args.estimators:
+            estimators = split_estimators(args.estimators)
+        else:  # every registered estimator (the manifold's coarse path comes with it)
+            estimators = list(estimator_names())
+        objects = tuple(o for o in (args.objects or "").split(",") if o)
+        labels = [t.strip() for t in (args.perturbations or "").split(";") if t.strip()]
+        perturbations = [Perturbation.parse(None if t == "none" else t) for t in labels] or [
+            Perturbation.parse(args.perturb)
+        ]
+        occlusions = parse_occlusions(args.occlusion)
+        plan = [
+            (protocol, [
+                SweepSpec(protocol, tuple(estimators), occlusions, objects, args.seed,
+                          args.width, args.height, args.test_views, args.train_stride, p)
+                for p in perturbations
+            ])
+            for protocol in args.protocols.split(",")
+        ]  # fmt: skip
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.ray is not None:
         runner = RayRunner(None if args.ray == "local" else args.ray, num_cpus=args.jobs)
     else:
         runner = LocalRunner(args.jobs)
-    for protocol in args.protocols.split(","):
-        if args.perturbations:
-            labels = [t.strip() for t in args.perturbations.split(";") if t.strip()]
-            specs = [
-                SweepSpec(
-                    protocol,
-                    tuple(estimators),
-                    parse_occlusions(args.occlusion),
-                    objects,
-                    args.seed,
-                    args.width,
-                    args.height,
-                    args.test_views,
-                    args.train_stride,
-                    Perturbation.parse(None if t == "none" else t),
-                )  # fmt: skip
-                for t in labels
-            ]
+    for protocol, specs in plan:
+        if labels:
             stem = Path(args.out_dir) / f"pose_ablation_{protocol}_perturbations{args.suffix}"
             perturbation_sweep(specs, labels, runner, args.cache_dir, stem)
             continue
-        spec = SweepSpec(
-            protocol, tuple(estimators), parse_occlusions(args.occlusion), objects, args.seed,
-            args.width, args.height, args.test_views, args.train_stride,
-            Perturbation.parse(args.perturb),
-        )  # fmt: skip
+        spec = specs[0]
         report = ablate(spec, runner, args.cache_dir)
         report["targets"] = targets_for(protocol, report["results"])
         report["machine"] = {"platform": platform.platform(), "python": sys.version.split()[0],

@@ -117,6 +117,31 @@ def test_local_sweep_records_and_figure(local_sweep):
     assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
+def test_the_json_keeps_every_views_error_and_they_give_the_cells_figures(local_sweep):
+    _, rep, _, _ = local_sweep
+    rows = rep["view_errors"]
+    assert {(r["estimator"], r["object"], r["occlusion"]) for r in rows} == {
+        (e, o, occ)
+        for e in ("manifold", "manifold(allocentric=True)")
+        for o in ("banana", "box")
+        for occ in (0.0, 0.5)
+    }
+    for cell in rep["results"]:
+        errs = [
+            e
+            for r in rows
+            if (r["estimator"], r["occlusion"]) == (cell["estimator"], cell["occlusion"])
+            for e in r["rot_err_deg"]
+        ]
+        assert len(errs) == cell["n"] == 12  # 6 views of each object, in the protocol's order
+        hits = sum(e is not None and e < 5.0 for e in errs)
+        assert round(hits / len(errs), 4) == cell["success_5deg"]
+        finite = [e for e in errs if e is not None]
+        median = float(np.median(finite)) if finite else None
+        assert cell["median_rot_err_deg"] == (pytest.approx(median, abs=1e-3) if finite else None)
+
+
 def test_legend_labels_wrap_long_specs_without_cutting_them():
     from scorbot_gym.experiments.plot import legend_label
 

@@ -14,6 +14,7 @@ from scorbot_gym.experiments.aggregate import (
     fit_errors,
     selections,
     stage_ablation,
+    view_errors,
 )
 from scorbot_gym.experiments.plot import plot_success_vs_occlusion
 from scorbot_gym.experiments.runners import Runner, run_sweep
@@ -34,6 +35,7 @@ def ablate(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None 
         "stats": sweep["stats"],
         "fit_errors": fit_errors(sweep["trials"]),
         "selections": selections(sweep["trials"]),
+        "view_errors": view_errors(sweep["trials"]),
         "trials": sweep["trials"],
     }
 

@@ -127,6 +127,29 @@ def selections(trials: Sequence[dict]) -> list[dict]:
     ]
 
 
+def view_errors(trials: Sequence[dict], decimals: int = 4) -> list[dict]:
+    """Every held-out view's rotation error (degrees, symmetry-aware; ``None`` where the
+    estimate was invalid: no rotation), one row per (protocol, estimator, object, occlusion),
+    the views in the protocol's order. The summary figures pool exactly these; kept per view,
+    they let a reader find the views behind a difference of a few views and compare two
+    estimators view by view (paired tests)."""
+
+    def rounded(v):
+        return None if v is None else round(float(v), decimals)
+
+    rows = [
+        {
+            "protocol": t["protocol"],
+            "estimator": t["estimator"],
+            "object": t["object"],
+            "occlusion": t["occlusion"],
+            "rot_err_deg": [rounded(e) for e in t["views"]["rot_err_deg"]],
+        }
+        for t in trials
+    ]
+    return sorted(rows, key=lambda r: (r["protocol"], r["estimator"], r["object"], r["occlusion"]))
+
+
 def chance_level(results: Sequence[dict]) -> dict:
     """Chance success@5° per occlusion: the ``chance`` estimator's if swept, else the constant
     answer's (identical for every estimator: the same views)."""

@@ -1,0 +1,114 @@
+"""The benchmark scripts stay runnable: the figures in the README come from them.
+
+Nothing here runs a benchmark (that takes minutes to hours); it checks what breaks silently
+when the package changes under a script: every script imports and parses ``--help``, bad
+arguments give a one-line usage error before any work starts, and the scripts that redraw their
+PNG from a committed JSON still can. Each script runs in its own interpreter, as a user runs it:
+the scripts set thread-count variables at import, which must not leak into the test process.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+RESULTS = BENCHMARKS / "results"
+SCRIPTS = sorted(p.relative_to(BENCHMARKS).as_posix() for p in BENCHMARKS.rglob("*.py"))
+
+HELP_ALL = """
+import json, runpy, sys
+out = {}
+for path in sys.argv[1:]:
+    try:
+        main = runpy.run_path(path, run_name="benchmark_under_test")["main"]
+        main(["--help"])
+        out[path] = "returned without exiting"
+    except SystemExit as exc:
+        out[path] = exc.code
+    except BaseException as exc:
+        out[path] = f"{type(exc).__name__}: {exc}"
+print(json.dumps(out))
+"""
+
+
+def _run(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+    """Run a script; a short timeout, so that arguments wrongly accepted fail fast instead of
+    running a whole benchmark."""
+    env = {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, *args], cwd=ROOT, env=env, capture_output=True, text=True,
+        timeout=timeout,
+    )  # fmt: skip
+
+
+def _usage_error(proc: subprocess.CompletedProcess) -> str:
+    """argparse's error line (exit status 2, last line of stderr, no traceback)."""
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    return proc.stderr.strip().splitlines()[-1]
+
+
+@pytest.mark.slow
+def test_every_benchmark_script_imports_and_parses_help():
+    assert len(SCRIPTS) >= 15, SCRIPTS  # the glob found the scripts
+    proc = _run("-c", HELP_ALL, *(str(BENCHMARKS / s) for s in SCRIPTS))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    codes = json.loads(proc.stdout.strip().splitlines()[-1])
+    failed = {Path(p).relative_to(BENCHMARKS).as_posix(): c for p, c in codes.items() if c != 0}
+    assert not failed, failed
+
+
+@pytest.mark.parametrize(
+    ("script", "args", "message"),
+    [
+        ("keep_margin.py", ["--margins=-1,5"], "--margins must be finite values >= 0"),
+        ("keep_margin.py", ["--margins", "a,b"], "could not convert"),
+        ("keep_margin.py", ["--protocols", "top-resting,upside-down"], "unknown protocols"),
+        ("keep_margin.py", ["--occlusion", "0,120"], "occlusion"),
+        ("keep_margin.py", ["--estimator", "manifold-pnp("], "manifold-pnp("),
+        ("fallback_threshold.py", ["--protocols", "upside-down"], "unknown protocol"),
+        ("fallback_threshold.py", ["--fallback", "no-such-estimator"], "unknown estimator"),
+        ("pose_ablation.py", ["--protocols", "top-resting,upside-down"], "unknown protocol"),
+        ("pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion"),
+        ("pose_ablation.py", ["--estimators", "chance,no-such-estimator"], "unknown estimator"),
+        ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
+    ],
+)
+def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path):
+    out = {  # were an argument wrongly accepted, nothing would be written into results/
+        "keep_margin.py": ["--json", str(tmp_path / "k.json")],
+        "fallback_threshold.py": ["--out", str(tmp_path / "f.json")],
+        "pose_ablation.py": ["--out-dir", str(tmp_path)],
+    }[script]
+    line = _usage_error(_run(str(BENCHMARKS / script), *args, *out))
+    assert "error:" in line, line
+    assert message in line, line
+
+
+def test_keep_margin_redraws_its_png_from_the_committed_json(tmp_path):
+    png = tmp_path / "keep_margin.png"
+    src = RESULTS / "keep_margin_seed1.json"
+    proc = _run(str(BENCHMARKS / "keep_margin.py"), "--replot", str(src), "--png", str(png))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
+    sweep = tmp_path / "pose_ablation_side-turntable_select.json"
+    shutil.copy(RESULTS / sweep.name, sweep)
+    proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sweep.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    foreign = tmp_path / "keep_margin_seed1.json"  # a JSON, but not a sweep's
+    shutil.copy(RESULTS / foreign.name, foreign)
+    line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(foreign)))
+    assert str(foreign) in line and not foreign.with_suffix(".png").exists(), line
