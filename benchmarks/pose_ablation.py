@@ -18,6 +18,9 @@ With ``--perturbations`` each protocol is run once per perturbation (test views 
 models are the unperturbed ones, from the model cache) and one combined
 ``pose_ablation_<protocol>_perturbations.json`` / ``.png`` is written instead.
 ``--replot results/pose_ablation_*.json`` only redraws the PNGs from their JSON files.
+``--paired ESTIMATOR`` compares that estimator view by view with every other one of the sweep
+(``paired`` in the JSON and printed); with ``--replot`` it is computed from each file's
+``view_errors`` and added to the file.
 """
 
 from __future__ import annotations
@@ -39,11 +42,17 @@ from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
 from scorbot_gym.experiments.aggregate import (  # noqa: E402
+    format_paired,
     format_results,
     format_selections,
     format_stage_ablation,
+    paired_differences,
 )
-from scorbot_gym.experiments.spec import parse_occlusions, split_estimators  # noqa: E402
+from scorbot_gym.experiments.spec import (  # noqa: E402
+    EstimatorSpec,
+    parse_occlusions,
+    split_estimators,
+)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 PROTOCOLS = ("side-turntable", "top-resting", "tilted", "sparse-headings")
@@ -117,8 +126,10 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     print(f"wrote {stem}.json / .png")
 
 
-def replot(json_path: Path) -> None:
-    """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone)."""
+def replot(json_path: Path, paired: str | None = None) -> None:
+    """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone); with
+    ``paired``, also compare that estimator view by view with the others, from the file's
+    ``view_errors``, and add the rows to the file as ``paired`` (nothing else in it changes)."""
     import json
 
     try:
@@ -129,6 +140,12 @@ def replot(json_path: Path) -> None:
         raise ValueError(f"{json_path}: not a readable sweep JSON ({exc})") from exc
     if "perturbations" in report:
         raise ValueError(f"{json_path}: a perturbation sweep; rerun it to redraw its bars")
+    if paired is not None:
+        if "view_errors" not in report:
+            raise ValueError(f"{json_path} has no view_errors (written before sweeps kept them)")
+        report["paired"] = paired_differences(report["view_errors"], paired)
+        print(format_paired(report["paired"]))
+        atomic_write_json(json_path, report)
     write_report({"spec": spec, "results": results, "chance": chance}, None,
                  json_path.with_suffix(".png"))  # fmt: skip
 
@@ -156,11 +173,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--suffix", default="", help="appended to the result file names")
     ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
                     help="only redraw each sweep JSON's PNG beside it (no sweep runs)")  # fmt: skip
+    ap.add_argument("--paired", default=None, metavar="ESTIMATOR",
+                    help="compare this estimator view by view with every other one (McNemar); "
+                         "with --replot, from each JSON's view_errors")  # fmt: skip
     args = ap.parse_args(argv)
+    paired = None
+    if args.paired:
+        try:
+            paired = str(EstimatorSpec.parse(args.paired))
+        except ValueError as exc:
+            ap.error(str(exc))
     if args.replot:
         for path in map(Path, args.replot):
             try:
-                replot(path)
+                replot(path, paired)
             except ValueError as exc:
                 ap.error(str(exc))
             print(f"wrote {path.with_suffix('.png')}")
@@ -177,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
             Perturbation.parse(args.perturb)
         ]
         occlusions = parse_occlusions(args.occlusion)
+        if paired is not None and paired not in [str(EstimatorSpec.parse(e)) for e in estimators]:
+            raise ValueError(f"--paired {paired!r} is not among --estimators")
         plan = [
             (protocol, [
                 SweepSpec(protocol, tuple(estimators), occlusions, objects, args.seed,
@@ -201,11 +229,14 @@ def main(argv: list[str] | None = None) -> int:
         report["targets"] = targets_for(protocol, report["results"])
         report["machine"] = {"platform": platform.platform(), "python": sys.version.split()[0],
                              "cpus": os.cpu_count(), "jobs": args.jobs}  # fmt: skip
+        if paired is not None:
+            report["paired"] = paired_differences(report["view_errors"], paired)
         stem = Path(args.out_dir) / f"pose_ablation_{protocol}{args.suffix}"
         write_report(report, stem.with_suffix(".json"), stem.with_suffix(".png"))
         print(f"\n== {protocol}\n" + format_results(report["results"], report["chance"]))
         for table in (format_stage_ablation(report["stage_ablation"]),
-                      format_selections(report["selections"])):  # fmt: skip
+                      format_selections(report["selections"]),
+                      format_paired(report.get("paired", []))):  # fmt: skip
             if table:
                 print(table)
         for t in report["targets"]:

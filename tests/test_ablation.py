@@ -326,3 +326,33 @@ def test_env_perturbation_is_seeded_and_off_by_default():
     assert np.array_equal(off.reset(seed=4)[0]["top_rgb"], o0["top_rgb"])
     for e in (env, plain, off):
         e.close()
+
+
+def test_paired_differences_count_the_views_only_one_estimator_got_right():
+    from scipy.stats import binomtest
+
+    from scorbot_gym.experiments.aggregate import format_paired, paired_differences
+
+    def row(est, obj, errs, occ=0.0):
+        return {"protocol": "p", "estimator": est, "object": obj, "occlusion": occ,
+                "rot_err_deg": errs}  # fmt: skip
+
+    rows = [
+        row("a", "box", [1.0, 2.0, 6.0, None, 4.99]),
+        row("a", "ball", [0.5, 9.0]),
+        row("b", "box", [7.0, 2.0, 1.0, 3.0, 5.0]),  # 5.0 is not within 5 degrees
+        row("b", "ball", [30.0, None]),
+    ]
+    (d,) = paired_differences(rows, "a")
+    # a right on box 0, 1, 4 and ball 0; b right on box 1, 2, 3
+    assert (d["versus"], d["n"], d["only_estimator"], d["only_versus"]) == ("b", 7, 3, 2)
+    assert d["diff"] == round((4 - 3) / 7, 4)
+    assert d["mcnemar_p"] == pytest.approx(binomtest(3, 5, 0.5).pvalue, rel=1e-2)
+    assert d["ci95"][0] < d["diff"] < d["ci95"][1]
+    (back,) = paired_differences(rows, "b")
+    assert (back["only_estimator"], back["only_versus"]) == (2, 3) and back["diff"] == -d["diff"]
+    assert "b" in format_paired([d])
+    with pytest.raises(ValueError, match="'c' is not in this sweep"):
+        paired_differences(rows, "c")
+    with pytest.raises(ValueError, match="not scored on the same views"):
+        paired_differences(rows + [row("e", "box", [1.0])], "a")

@@ -80,6 +80,8 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion"),
         ("pose_ablation.py", ["--estimators", "chance,no-such-estimator"], "unknown estimator"),
         ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
+        ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
+        ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path):
@@ -112,3 +114,26 @@ def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
     shutil.copy(RESULTS / foreign.name, foreign)
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(foreign)))
     assert str(foreign) in line and not foreign.with_suffix(".png").exists(), line
+
+
+def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_json(tmp_path):
+    sweep = tmp_path / "pose_ablation_side-turntable_select.json"
+    report = json.loads((RESULTS / sweep.name).read_text())
+    report.pop("paired", None)
+    sweep.write_text(json.dumps(report))
+    select = next(e for e in report["spec"]["estimators"] if e.startswith("select("))
+    proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep), "--paired", select)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    paired = json.loads(sweep.read_text())["paired"]
+    others = set(report["spec"]["estimators"]) - {select}
+    assert {(r["versus"], r["occlusion"]) for r in paired} == {
+        (e, o) for e in others for o in report["spec"]["occlusions"]
+    }
+    success = {(r["estimator"], r["occlusion"]): r["success_5deg"] for r in report["results"]}
+    for r in paired:  # the paired difference is the difference of the two cells' figures
+        gap = success[(select, r["occlusion"])] - success[(r["versus"], r["occlusion"])]
+        assert r["diff"] == pytest.approx(gap, abs=2e-4)
+        assert r["only_estimator"] - r["only_versus"] == round(gap * r["n"])
+    # the README's reading of the one cell a baseline wins: 1 view against 2, no evidence
+    (cell,) = [r for r in paired if r["versus"] == "sift-pnp(upscale=2)" and r["occlusion"] == 0]
+    assert (cell["only_estimator"], cell["only_versus"], cell["mcnemar_p"]) == (1, 2, 1.0)

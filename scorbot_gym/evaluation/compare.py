@@ -15,7 +15,6 @@ pose-manifold estimator from a ``scorbot-gym pose train`` model file).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,7 +23,7 @@ import numpy as np
 
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
-from scorbot_gym.evaluation.summary import summarize, wilson_interval
+from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
 
@@ -85,34 +84,6 @@ def _make_policy(name: str, learned: SB3Policy | None, env, seed: int):
     if name == "random":
         return RandomPolicy(env.action_space, seed)
     return learned.bind(env)
-
-
-def newcombe_paired_diff(a: list[bool], b: list[bool]) -> dict[str, Any]:
-    """Success-rate difference ``a - b`` over paired episodes, its 95 % interval (Newcombe
-    method 10) and McNemar's exact two-sided p-value on the discordant pairs."""
-    from scipy.stats import binomtest
-
-    x, y = np.asarray(a, bool), np.asarray(b, bool)
-    n = len(x)
-    both, only_a = int(np.sum(x & y)), int(np.sum(x & ~y))
-    only_b, neither = int(np.sum(~x & y)), int(np.sum(~x & ~y))
-    p1, p2 = (both + only_a) / n, (both + only_b) / n
-    l1, u1 = wilson_interval(both + only_a, n)
-    l2, u2 = wilson_interval(both + only_b, n)
-    den = (both + only_a) * (only_b + neither) * (both + only_b) * (only_a + neither)
-    phi = (both * neither - only_a * only_b) / math.sqrt(den) if den > 0 else 0.0
-    d = p1 - p2
-    lo = d - math.sqrt(max(0.0, (p1 - l1) ** 2 - 2 * phi * (p1 - l1) * (u2 - p2) + (u2 - p2) ** 2))
-    hi = d + math.sqrt(max(0.0, (u1 - p1) ** 2 - 2 * phi * (u1 - p1) * (p2 - l2) + (p2 - l2) ** 2))
-    disc = only_a + only_b
-    p = binomtest(only_a, disc, 0.5).pvalue if disc else 1.0
-    return {
-        "diff": d,
-        "ci95": [max(-1.0, lo), min(1.0, hi)],
-        "only_a": only_a,
-        "only_b": only_b,
-        "mcnemar_p": float(p),
-    }
 
 
 def _record(policy: str, cond: PoseCondition, results: list[EpisodeResult], learned) -> dict:

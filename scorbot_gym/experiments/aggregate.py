@@ -18,7 +18,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scorbot_gym.evaluation.summary import wilson_interval
+from scorbot_gym.evaluation.summary import newcombe_paired_diff, wilson_interval
 
 THRESHOLD_DEG = 5.0
 CHANCE_ESTIMATOR = "chance"
@@ -150,6 +150,47 @@ def view_errors(trials: Sequence[dict], decimals: int = 4) -> list[dict]:
     return sorted(rows, key=lambda r: (r["protocol"], r["estimator"], r["object"], r["occlusion"]))
 
 
+def paired_differences(rows: Sequence[dict], estimator: str) -> list[dict]:
+    """``estimator`` against every other estimator of a sweep on the same views, from the
+    report's ``view_errors`` rows: per (protocol, occlusion, other), the success@5deg
+    difference ``estimator - other`` with its 95 % interval (Newcombe, paired), how many views
+    only one of the two got right, and McNemar's exact p on those. Two estimators scored on the
+    same views differ by the views they disagree on, not by two independent intervals."""
+    cells: dict[tuple, dict[str, dict[str, list]]] = defaultdict(lambda: defaultdict(dict))
+    for r in rows:
+        cells[(r["protocol"], r["occlusion"])][r["estimator"]][r["object"]] = r["rot_err_deg"]
+    if not any(estimator in by_est for by_est in cells.values()):
+        known = sorted({r["estimator"] for r in rows})
+        raise ValueError(f"{estimator!r} is not in this sweep; its estimators: {known}")
+
+    def hits(by_object: dict[str, list], objects: list[str]) -> list[bool]:
+        return [e is not None and e < THRESHOLD_DEG for o in objects for e in by_object[o]]
+
+    out = []
+    for (protocol, occlusion), by_est in sorted(cells.items()):
+        if estimator not in by_est:
+            continue
+        mine = by_est[estimator]
+        objects = sorted(mine)
+        for other, theirs in sorted(by_est.items()):
+            if other == estimator:
+                continue
+            if sorted(theirs) != objects or any(len(theirs[o]) != len(mine[o]) for o in objects):
+                raise ValueError(
+                    f"{other!r} was not scored on the same views as {estimator!r} "
+                    f"({protocol}, occlusion {occlusion})"
+                )
+            d = newcombe_paired_diff(hits(mine, objects), hits(theirs, objects))
+            out.append({
+                "protocol": protocol, "occlusion": occlusion, "estimator": estimator,
+                "versus": other, "n": sum(len(mine[o]) for o in objects),
+                "diff": round(d["diff"], 4), "ci95": [round(v, 4) for v in d["ci95"]],
+                "only_estimator": d["only_a"], "only_versus": d["only_b"],
+                "mcnemar_p": float(f"{d['mcnemar_p']:.3g}"),
+            })  # fmt: skip
+    return out
+
+
 def chance_level(results: Sequence[dict]) -> dict:
     """Chance success@5° per occlusion: the ``chance`` estimator's if swept, else the constant
     answer's (identical for every estimator: the same views)."""
@@ -277,4 +318,21 @@ def format_selections(rows: Sequence[dict]) -> str:
             if r["estimator"] == estimator:
                 cv = r["cv_success_5deg"][r["candidates"].index(r["selected"])]
                 lines.append(f"  {r['object']:<18}{_pct(cv):>6}  {r['selected']}")
+    return "\n".join(lines)
+
+
+def format_paired(rows: Sequence[dict]) -> str:
+    """The paired comparison as a text table (empty string for no rows)."""
+    if not rows:
+        return ""
+    lines = [f"paired: {rows[0]['estimator']} against each estimator, on the same views",
+             f"{'protocol':16s} {'occ':>5s} {'diff':>7s} {'95 % CI':>17s} {'only it':>8s} "
+             f"{'only vs':>8s} {'McNemar p':>10s}  versus"]  # fmt: skip
+    for r in rows:
+        lo, hi = r["ci95"]
+        lines.append(
+            f"{r['protocol']:16s} {100 * r['occlusion']:4.0f}% {100 * r['diff']:+6.1f} "
+            f"({100 * lo:+6.1f}, {100 * hi:+6.1f}) {r['only_estimator']:8d} "
+            f"{r['only_versus']:8d} {r['mcnemar_p']:10.3g}  {r['versus']}"
+        )
     return "\n".join(lines)
