@@ -69,7 +69,8 @@ def local_sweep(tmp_path_factory):
 
     out = io.StringIO()
     with contextlib.redirect_stdout(out):
-        assert main(argv + ["--json", str(d / "b.json"), "--bop", str(d / "bop")]) == 0
+        assert main(argv + ["--json", str(d / "b.json"), "--bop", str(d / "bop"),
+                            "--paired", "manifold"]) == 0  # fmt: skip
     first, second = (json.loads((d / f).read_text()) for f in ("a.json", "b.json"))
     return d, first, second, out.getvalue()
 
@@ -115,6 +116,23 @@ def test_local_sweep_records_and_figure(local_sweep):
     assert rep["selections"] == []  # neither estimator selects among candidates
     assert rep["spec"]["test_views"] == 6 and rep["spec"]["objects"] == ["banana", "box"]
     assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_the_cli_pairs_one_estimator_with_the_others(local_sweep):
+    _, first, second, out = local_sweep
+    assert "paired" not in first
+    rows = second["paired"]
+    assert [(r["estimator"], r["versus"], r["occlusion"], r["n"]) for r in rows] == [
+        ("manifold", "manifold(allocentric=True)", occ, 12) for occ in (0.0, 0.5)
+    ]
+    assert "paired: manifold against each estimator" in out
+
+
+def test_cli_rejects_a_paired_estimator_outside_the_sweep(tmp_path, capsys):
+    argv = SWEEP + ["--cache-dir", str(tmp_path), "--paired", "pca-rbf"]
+    assert main(argv) == 2
+    assert "--paired 'pca-rbf' is not among --estimators" in capsys.readouterr().err
 
 
 @pytest.mark.slow

@@ -94,6 +94,13 @@ def _estimator_list(text: str) -> list[str]:
         raise argparse.ArgumentTypeError(str(exc)) from exc
 
 
+def _estimator_spec(text: str) -> str:
+    specs = _estimator_list(text)
+    if len(specs) != 1:
+        raise argparse.ArgumentTypeError(f"one estimator spec expected, got {text!r}")
+    return specs[0]
+
+
 def _occlusion_range(text: str) -> tuple[float, ...]:
     from scorbot_gym.experiments.spec import parse_occlusions
 
@@ -108,11 +115,15 @@ def run_ablate(args: argparse.Namespace) -> int:
     from scorbot_gym.evaluation.bop import export_ablation
     from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
     from scorbot_gym.experiments.aggregate import (
+        format_paired,
         format_results,
         format_selections,
         format_stage_ablation,
+        paired_differences,
     )
 
+    if args.paired is not None and args.paired not in args.estimators:
+        raise ValueError(f"--paired {args.paired!r} is not among --estimators {args.estimators}")
     objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
     spec = SweepSpec(
         args.protocol, tuple(args.estimators), args.occlusion, objects, args.seed, args.width,
@@ -123,9 +134,12 @@ def run_ablate(args: argparse.Namespace) -> int:
     else:
         runner = LocalRunner(args.jobs or 1)
     report = ablate(spec, runner, args.cache_dir)
+    if args.paired is not None:
+        report["paired"] = paired_differences(report["view_errors"], args.paired)
     print(format_results(report["results"], report["chance"]))
     for table in (format_stage_ablation(report["stage_ablation"]),
-                  format_selections(report["selections"])):  # fmt: skip
+                  format_selections(report["selections"]),
+                  format_paired(report.get("paired", []))):  # fmt: skip
         if table:
             print("\n" + table)
     st = report["stats"]
@@ -221,6 +235,10 @@ def add_parser(subparsers) -> None:
     a.add_argument(
         "--perturb", default=None, metavar="K=V,...",
         help="test-view perturbation, e.g. lighting=0.3,noise_sigma=4,camera_rot_deg=1,seed=0",
+    )  # fmt: skip
+    a.add_argument(
+        "--paired", type=_estimator_spec, default=None, metavar="ESTIMATOR",
+        help="compare this estimator view by view with every other one (paired interval, McNemar)",
     )  # fmt: skip
     a.add_argument("--json", default=None, help="write the per-level records here")
     a.add_argument("--png", default=None, help="write success@5deg vs occlusion here")
