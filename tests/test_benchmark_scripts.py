@@ -134,6 +134,11 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
         gap = success[(select, r["occlusion"])] - success[(r["versus"], r["occlusion"])]
         assert r["diff"] == pytest.approx(gap, abs=2e-4)
         assert r["only_estimator"] - r["only_versus"] == round(gap * r["n"])
+    old = tmp_path / "pose_ablation_side-turntable_all.json"  # written before view_errors
+    shutil.copy(RESULTS / old.name, old)
+    line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(old),
+                             "--paired", "chance"))  # fmt: skip
+    assert "has no view_errors" in line, line
     # the README's reading of the one cell a baseline wins: 1 view against 2, no evidence
     (cell,) = [r for r in paired if r["versus"] == "sift-pnp(upscale=2)" and r["occlusion"] == 0]
     assert (cell["only_estimator"], cell["only_versus"], cell["mcnemar_p"]) == (1, 2, 1.0)
