@@ -205,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         occlusions = parse_occlusions(args.occlusion)
         if paired is not None and paired not in [str(EstimatorSpec.parse(e)) for e in estimators]:
             raise ValueError(f"--paired {paired!r} is not among --estimators")
+        if paired is not None and labels:
+            raise ValueError("--paired compares estimators of one sweep; not with --perturbations")
         plan = [
             (protocol, [
                 SweepSpec(protocol, tuple(estimators), occlusions, objects, args.seed,

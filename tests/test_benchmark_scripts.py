@@ -82,6 +82,18 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
         ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
         ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
+        (
+            "pose_ablation.py",
+            [
+                "--estimators",
+                "chance",
+                "--paired",
+                "chance",
+                "--perturbations",
+                "none;lighting=0.5",
+            ],
+            "not with --perturbations",
+        ),
     ],
 )
 def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path):
