@@ -374,3 +374,61 @@ def test_paired_differences_count_the_views_only_one_estimator_got_right():
         paired_differences(rows, "c")
     with pytest.raises(ValueError, match="not scored on the same views"):
         paired_differences(rows + [row("e", "box", [1.0])], "a")
+
+
+def test_curve_summary_averages_each_curve_and_finds_where_it_meets_chance():
+    from scorbot_gym.experiments.aggregate import chance_level, curve_summary, format_curves
+
+    def cell(est, occ, s, asym=None):
+        return {"protocol": "p", "estimator": est, "occlusion": occ, "success_5deg": s,
+                "success_5deg_asymmetric": asym, "constant_answer_success_5deg": 0.4,
+                "constant_answer_success_5deg_asymmetric": 0.0}  # fmt: skip
+
+    results = [
+        cell("a", 0.5, 0.4, 0.1),  # equal to chance: the image no longer helps
+        cell("a", 0.0, 0.9, 0.8),
+        cell("a", 0.25, 0.6, 0.5),
+        cell("b", 0.0, 0.5),
+        cell("b", 0.25, 0.45),
+        cell("b", 0.5, None),  # no views: not averaged, and no better than chance
+    ]
+    chance = chance_level(results)  # no chance estimator: the constant answer, 0.4
+    rows = {r["estimator"]: r for r in curve_summary(results, chance)}
+    assert rows["a"]["levels"] == [0.0, 0.25, 0.5]
+    assert rows["a"]["mean_success_5deg"] == round((0.9 + 0.6 + 0.4) / 3, 4)
+    assert rows["a"]["mean_success_5deg_asymmetric"] == round((0.8 + 0.5 + 0.1) / 3, 4)
+    assert rows["a"]["first_at_or_below_chance"] == 0.5
+    assert rows["b"]["mean_success_5deg"] == round((0.5 + 0.45) / 2, 4)
+    assert rows["b"]["mean_success_5deg_asymmetric"] is None
+    assert rows["b"]["first_at_or_below_chance"] == 0.5
+    above = curve_summary([cell("c", 0.0, 0.9)], chance)
+    assert above[0]["first_at_or_below_chance"] is None
+    text = format_curves(list(rows.values()))
+    assert "3 levels, 0-50 %" in text and "50 %" in text.splitlines()[2]
+    assert format_curves([]) == ""
+
+
+@pytest.mark.slow
+def test_the_report_summarises_every_curve_of_the_sweep(local_sweep):
+    _, rep, _, out = local_sweep
+    curves = {r["estimator"]: r for r in rep["curves"]}
+    assert set(curves) == {"manifold", "manifold(allocentric=True)"}
+    for est, row in curves.items():
+        cells = [r for r in rep["results"] if r["estimator"] == est]
+        assert row["levels"] == [0.0, 0.5]
+        assert row["mean_success_5deg"] == pytest.approx(
+            np.mean([r["success_5deg"] for r in cells]), abs=1e-4
+        )
+    assert "curves over 2 levels, 0-50 % occlusion" in out
+
+
+def test_view_errors_keep_each_view_on_its_side_of_the_threshold():
+    from scorbot_gym.experiments.aggregate import view_errors
+
+    errs = [4.99996, 5.0, 5.00004, 0.123456, None]
+    trial = {"protocol": "p", "estimator": "e", "object": "box", "occlusion": 0.0,
+             "views": {"rot_err_deg": errs}}  # fmt: skip
+    (row,) = view_errors([trial])
+    assert row["rot_err_deg"] == [4.9999, 5.0, 5.0, 0.1234, None]
+    hits = [e is not None and e < 5.0 for e in errs]
+    assert [e is not None and e < 5.0 for e in row["rot_err_deg"]] == hits

@@ -154,3 +154,25 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
     # the README's reading of the one cell a baseline wins: 1 view against 2, no evidence
     (cell,) = [r for r in paired if r["versus"] == "sift-pnp(upscale=2)" and r["occlusion"] == 0]
     assert (cell["only_estimator"], cell["only_versus"], cell["mcnemar_p"]) == (1, 2, 1.0)
+
+
+@pytest.mark.parametrize(
+    "protocol",
+    ["top-resting", "side-turntable", "tilted", "sparse-headings", "overview", "cross-camera"],
+)
+def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(protocol):
+    """The README's Fig. 3 summary is read from ``curves`` and ``paired``: both must be what
+    the file's own cells and view errors give."""
+    from scorbot_gym.experiments.aggregate import curve_summary, paired_differences
+
+    report = json.loads((RESULTS / f"pose_ablation_{protocol}_fig3.json").read_text())
+    assert len(report["spec"]["occlusions"]) == 20  # 0-95 % in 5 % steps, as in the seed
+    assert report["curves"] == curve_summary(report["results"], report["chance"])
+    selection = next(e for e in report["spec"]["estimators"] if e.startswith("select("))
+    assert report["paired"] == paired_differences(report["view_errors"], selection)
+    cell = {(r["estimator"], r["occlusion"]): r["success_5deg"] for r in report["results"]}
+    for row in report["paired"]:
+        occ = row["occlusion"]
+        assert row["diff"] == pytest.approx(
+            cell[(selection, occ)] - cell[(row["versus"], occ)], abs=2e-4
+        )

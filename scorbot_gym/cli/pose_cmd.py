@@ -115,6 +115,7 @@ def run_ablate(args: argparse.Namespace) -> int:
     from scorbot_gym.evaluation.bop import export_ablation
     from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
     from scorbot_gym.experiments.aggregate import (
+        format_curves,
         format_paired,
         format_results,
         format_selections,
@@ -137,7 +138,8 @@ def run_ablate(args: argparse.Namespace) -> int:
     if args.paired is not None:
         report["paired"] = paired_differences(report["view_errors"], args.paired)
     print(format_results(report["results"], report["chance"]))
-    for table in (format_stage_ablation(report["stage_ablation"]),
+    for table in (format_curves(report["curves"]),
+                  format_stage_ablation(report["stage_ablation"]),
                   format_selections(report["selections"]),
                   format_paired(report.get("paired", []))):  # fmt: skip
         if table:

@@ -11,6 +11,7 @@ from pose.fileio import atomic_write_json
 from scorbot_gym.experiments.aggregate import (
     aggregate,
     chance_level,
+    curve_summary,
     fit_errors,
     selections,
     stage_ablation,
@@ -27,11 +28,13 @@ def ablate(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None 
     written by :func:`write_report` leaves them out (they stay in the trial cache)."""
     sweep = run_sweep(spec, runner, cache_dir)
     results = aggregate(sweep["trials"])
+    chance = chance_level(results)
     return {
         "spec": sweep["spec"],
         "results": results,
-        "chance": chance_level(results),
+        "chance": chance,
         "stage_ablation": stage_ablation(results),
+        "curves": curve_summary(results, chance),
         "stats": sweep["stats"],
         "fit_errors": fit_errors(sweep["trials"]),
         "selections": selections(sweep["trials"]),

@@ -1,5 +1,5 @@
-"""Sweep trials -> one record per (protocol, estimator, occlusion), the chance level, and the
-stage-ablation table.
+"""Sweep trials -> one record per (protocol, estimator, occlusion), the chance level, the
+stage-ablation table, and each estimator's curve over occlusion in a few numbers.
 
 Success@5° counts an invalid answer as a failure; medians are over valid answers. Errors are
 symmetry-aware (:func:`pose.metrics.rotation_error_deg`), so a can's heading is free; because
@@ -13,6 +13,7 @@ answer "resting face 0, heading 0" scored on the same views (every trial records
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from collections.abc import Sequence
 
@@ -135,14 +136,17 @@ def selections(trials: Sequence[dict]) -> list[dict]:
 def view_errors(trials: Sequence[dict], decimals: int = 4) -> list[dict]:
     """Every held-out view's rotation error (degrees, symmetry-aware; ``None`` where the
     estimate was invalid: no rotation), one row per (protocol, estimator, object, occlusion),
-    the views in the protocol's order. The summary figures pool these errors unrounded (a view
-    within ``0.5 * 10**-decimals`` degrees of the 5deg threshold could count differently here,
-    which no committed sweep has); kept per view,
-    they let a reader find the views behind a difference of a few views and compare two
-    estimators view by view (paired tests)."""
+    the views in the protocol's order. Kept per view, they let a reader find the views behind
+    a difference of a few views and compare two estimators view by view (paired tests).
+
+    Errors are truncated (rounded down) to ``decimals``, not rounded to the nearest: the 5deg
+    threshold lies on that grid, so every view stays on the side of it where the unrounded
+    error, which the summary figures pool, puts it (rounding to the nearest turned a 4.99996deg
+    view into a 5.0deg failure, one view off its cell)."""
+    scale = 10.0**decimals
 
     def rounded(v):
-        return None if v is None else round(float(v), decimals)
+        return None if v is None else math.floor(float(v) * scale) / scale
 
     rows = [
         {
@@ -215,6 +219,43 @@ def chance_level(results: Sequence[dict]) -> dict:
         "success_5deg": [{"occlusion": o, "value": v} for o, v in sorted(vals.items())],
         "success_5deg_asymmetric": [{"occlusion": o, "value": v} for o, v in sorted(asym.items())],
     }
+
+
+def curve_summary(results: Sequence[dict], chance: dict) -> list[dict]:
+    """Each estimator's success@5° curve over occlusion (the seed's Fig. 3) in a few numbers.
+
+    One row per (protocol, estimator): ``mean_success_5deg`` is the mean over the swept levels
+    (for equally spaced levels, the area under the curve divided by its width), also over the
+    asymmetric objects only; ``first_at_or_below_chance`` is the lowest swept occlusion at which
+    the estimator is no better than the image-blind answer of ``chance`` (``None``: better at
+    every level), the point past which the image stops helping. Two rows compare only over the
+    same levels, which one sweep guarantees; ``levels`` says which they were."""
+    floor = {c["occlusion"]: c["value"] for c in chance["success_5deg"]}
+    cells: dict[tuple, list[dict]] = defaultdict(list)
+    for r in results:
+        cells[(r["protocol"], r["estimator"])].append(r)
+    out = []
+    for (protocol, estimator), rows in cells.items():
+        rows = sorted(rows, key=lambda r: r["occlusion"])
+
+        def mean(key: str, rows=rows) -> float | None:
+            vals = [r[key] for r in rows if r.get(key) is not None]
+            return round(float(np.mean(vals)), 4) if vals else None
+
+        lost = [
+            r["occlusion"]
+            for r in rows
+            if floor.get(r["occlusion"]) is not None
+            and (r["success_5deg"] or 0.0) <= floor[r["occlusion"]]
+        ]
+        out.append({
+            "protocol": protocol, "estimator": estimator,
+            "levels": [r["occlusion"] for r in rows],
+            "mean_success_5deg": mean("success_5deg"),
+            "mean_success_5deg_asymmetric": mean("success_5deg_asymmetric"),
+            "first_at_or_below_chance": lost[0] if lost else None,
+        })  # fmt: skip
+    return out
 
 
 def _family(label: str) -> bool:
@@ -325,6 +366,24 @@ def format_selections(rows: Sequence[dict]) -> str:
             if r["estimator"] == estimator:
                 cv = r["cv_success_5deg"][r["candidates"].index(r["selected"])]
                 lines.append(f"  {r['object']:<18}{_pct(cv):>6}  {r['selected']}")
+    return "\n".join(lines)
+
+
+def format_curves(rows: Sequence[dict]) -> str:
+    """The curve summary as a text table (empty string for no rows)."""
+    if not rows:
+        return ""
+    lo, hi = min(rows[0]["levels"]), max(rows[0]["levels"])
+    lines = [f"curves over {len(rows[0]['levels'])} levels, {100 * lo:.0f}-{100 * hi:.0f} % "
+             "occlusion: mean ok@5 % (all / asymmetric), first level at or below chance",
+             f"{'estimator':<44}{'mean%':>7}{'asym%':>7}{'<=chance':>10}"]  # fmt: skip
+    for r in rows:
+        first = r["first_at_or_below_chance"]
+        at = "never" if first is None else f"{100 * first:.0f} %"
+        lines.append(
+            f"{r['estimator'][:43]:<44}{_pct(r['mean_success_5deg']):>7}"
+            f"{_pct(r['mean_success_5deg_asymmetric']):>7}{at:>10}"
+        )
     return "\n".join(lines)
 
 
