@@ -42,12 +42,10 @@ from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
 from scorbot_gym.experiments.aggregate import (  # noqa: E402
-    format_curves,
     format_paired,
     format_results,
-    format_selections,
-    format_stage_ablation,
     paired_differences,
+    report_tables,
 )
 from scorbot_gym.experiments.spec import (  # noqa: E402
     EstimatorSpec,
@@ -237,12 +235,8 @@ def main(argv: list[str] | None = None) -> int:
         stem = Path(args.out_dir) / f"pose_ablation_{protocol}{args.suffix}"
         write_report(report, stem.with_suffix(".json"), stem.with_suffix(".png"))
         print(f"\n== {protocol}\n" + format_results(report["results"], report["chance"]))
-        for table in (format_curves(report["curves"]),
-                      format_stage_ablation(report["stage_ablation"]),
-                      format_selections(report["selections"]),
-                      format_paired(report.get("paired", []))):  # fmt: skip
-            if table:
-                print(table)
+        for table in report_tables(report):
+            print(table)
         for t in report["targets"]:
             print(f"target {t}")
         for f in report["fit_errors"]:

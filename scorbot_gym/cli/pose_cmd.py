@@ -115,12 +115,9 @@ def run_ablate(args: argparse.Namespace) -> int:
     from scorbot_gym.evaluation.bop import export_ablation
     from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
     from scorbot_gym.experiments.aggregate import (
-        format_curves,
-        format_paired,
         format_results,
-        format_selections,
-        format_stage_ablation,
         paired_differences,
+        report_tables,
     )
 
     if args.paired is not None and args.paired not in args.estimators:
@@ -138,12 +135,8 @@ def run_ablate(args: argparse.Namespace) -> int:
     if args.paired is not None:
         report["paired"] = paired_differences(report["view_errors"], args.paired)
     print(format_results(report["results"], report["chance"]))
-    for table in (format_curves(report["curves"]),
-                  format_stage_ablation(report["stage_ablation"]),
-                  format_selections(report["selections"]),
-                  format_paired(report.get("paired", []))):  # fmt: skip
-        if table:
-            print("\n" + table)
+    for table in report_tables(report):
+        print("\n" + table)
     st = report["stats"]
     print(
         f"\n{st['jobs']} models: {st['fits']} fitted, {st['model_cache_hits']} from cache;"

@@ -387,6 +387,18 @@ def format_curves(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
+def report_tables(report: dict) -> list[str]:
+    """The text tables printed after a sweep's results (curves, stage ablation, selections,
+    paired comparison), the empty ones left out: the CLI and the benchmark print the same."""
+    tables = (
+        format_curves(report["curves"]),
+        format_stage_ablation(report["stage_ablation"]),
+        format_selections(report["selections"]),
+        format_paired(report.get("paired", [])),
+    )
+    return [t for t in tables if t]
+
+
 def format_paired(rows: Sequence[dict]) -> str:
     """The paired comparison as a text table (empty string for no rows)."""
     if not rows:
