@@ -367,13 +367,35 @@ def test_paired_differences_count_the_views_only_one_estimator_got_right():
     assert d["diff"] == round((4 - 3) / 7, 4)
     assert d["mcnemar_p"] == pytest.approx(binomtest(3, 5, 0.5).pvalue, rel=1e-2)
     assert d["ci95"][0] < d["diff"] < d["ci95"][1]
+    assert d["mcnemar_p_holm"] == d["mcnemar_p"]  # a family of one test
     (back,) = paired_differences(rows, "b")
     assert (back["only_estimator"], back["only_versus"]) == (2, 3) and back["diff"] == -d["diff"]
     assert "b" in format_paired([d])
+    # a second level of the same protocol makes a family of two; another protocol its own
+    more = [dict(r, occlusion=0.5) for r in rows] + [dict(r, protocol="q") for r in rows]
+    by_cell = {(r["protocol"], r["occlusion"]): r for r in paired_differences(rows + more, "a")}
+    assert by_cell["p", 0.0]["mcnemar_p_holm"] == pytest.approx(min(1.0, 2 * d["mcnemar_p"]))
+    assert by_cell["q", 0.0]["mcnemar_p_holm"] == d["mcnemar_p"]
     with pytest.raises(ValueError, match="'c' is not in this sweep"):
         paired_differences(rows, "c")
     with pytest.raises(ValueError, match="not scored on the same views"):
         paired_differences(rows + [row("e", "box", [1.0])], "a")
+
+
+def test_holm_adjustment_steps_down_and_stays_monotone():
+    from scorbot_gym.evaluation.summary import holm_adjusted
+
+    # sorted 0.005, 0.01, 0.03, 0.04 times 4, 3, 2, 1: 0.02, 0.03, 0.06, 0.04 -> 0.06 (monotone)
+    assert holm_adjusted([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])
+    assert holm_adjusted([0.5, 0.4, 1.0]) == [1.0, 1.0, 1.0]  # capped at 1
+    assert holm_adjusted([0.2]) == [0.2] and holm_adjusted([]) == []
+    rng = np.random.default_rng(0)
+    p = rng.uniform(0, 0.2, 50)
+    q = np.array(holm_adjusted(p))
+    assert np.all(q >= p) and np.all(q <= np.minimum(1.0, 50 * p) + 1e-12)
+    assert np.all(np.diff(q[np.argsort(p)]) >= 0)
+    with pytest.raises(ValueError, match=r"p-values must be in \[0, 1\]"):
+        holm_adjusted([0.1, 1.5])
 
 
 def test_curve_summary_averages_each_curve_and_finds_where_it_meets_chance():

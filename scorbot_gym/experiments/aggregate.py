@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scorbot_gym.evaluation.summary import newcombe_paired_diff, wilson_interval
+from scorbot_gym.evaluation.summary import holm_adjusted, newcombe_paired_diff, wilson_interval
 
 THRESHOLD_DEG = 5.0
 CHANCE_ESTIMATOR = "chance"
@@ -166,7 +166,10 @@ def paired_differences(rows: Sequence[dict], estimator: str) -> list[dict]:
     report's ``view_errors`` rows: per (protocol, occlusion, other), the success@5deg
     difference ``estimator - other`` with its 95 % interval (Newcombe, paired), how many views
     only one of the two got right, and McNemar's exact p on those. Two estimators scored on the
-    same views differ by the views they disagree on, not by two independent intervals."""
+    same views differ by the views they disagree on, not by two independent intervals.
+    ``mcnemar_p_holm`` is that p adjusted (Holm) over the family of one protocol's rows, every
+    level against every other estimator: the question "is it behind anything anywhere" asks
+    all of them at once."""
     cells: dict[tuple, dict[str, dict[str, list]]] = defaultdict(lambda: defaultdict(dict))
     for r in rows:
         cells[(r["protocol"], r["occlusion"])][r["estimator"]][r["object"]] = r["rot_err_deg"]
@@ -177,7 +180,7 @@ def paired_differences(rows: Sequence[dict], estimator: str) -> list[dict]:
     def hits(by_object: dict[str, list], objects: list[str]) -> np.ndarray:
         return _hits(np.concatenate([_arr(by_object[o]) for o in objects]))
 
-    out = []
+    out, raw_p = [], []
     for (protocol, occlusion), by_est in sorted(cells.items()):
         if estimator not in by_est:
             continue
@@ -192,6 +195,7 @@ def paired_differences(rows: Sequence[dict], estimator: str) -> list[dict]:
                     f"({protocol}, occlusion {occlusion})"
                 )
             d = newcombe_paired_diff(hits(mine, objects), hits(theirs, objects))
+            raw_p.append(d["mcnemar_p"])
             out.append({
                 "protocol": protocol, "occlusion": occlusion, "estimator": estimator,
                 "versus": other, "n": sum(len(mine[o]) for o in objects),
@@ -199,6 +203,10 @@ def paired_differences(rows: Sequence[dict], estimator: str) -> list[dict]:
                 "only_estimator": d["only_a"], "only_versus": d["only_b"],
                 "mcnemar_p": float(f"{d['mcnemar_p']:.3g}"),
             })  # fmt: skip
+    for protocol in {r["protocol"] for r in out}:
+        family = [i for i, r in enumerate(out) if r["protocol"] == protocol]
+        for i, q in zip(family, holm_adjusted([raw_p[i] for i in family]), strict=True):
+            out[i]["mcnemar_p_holm"] = float(f"{q:.3g}")
     return out
 
 
@@ -405,12 +413,13 @@ def format_paired(rows: Sequence[dict]) -> str:
         return ""
     lines = [f"paired: {rows[0]['estimator']} against each estimator, on the same views",
              f"{'protocol':16s} {'occ':>5s} {'diff':>7s} {'95 % CI':>17s} {'only it':>8s} "
-             f"{'only vs':>8s} {'McNemar p':>10s}  versus"]  # fmt: skip
+             f"{'only vs':>8s} {'McNemar p':>10s} {'Holm p':>7s}  versus"]  # fmt: skip
     for r in rows:
         lo, hi = r["ci95"]
+        holm = f"{r['mcnemar_p_holm']:.3g}" if "mcnemar_p_holm" in r else "-"
         lines.append(
             f"{r['protocol']:16s} {100 * r['occlusion']:4.0f}% {100 * r['diff']:+6.1f} "
             f"({100 * lo:+6.1f}, {100 * hi:+6.1f}) {r['only_estimator']:8d} "
-            f"{r['only_versus']:8d} {r['mcnemar_p']:10.3g}  {r['versus']}"
+            f"{r['only_versus']:8d} {r['mcnemar_p']:10.3g} {holm:>7s}  {r['versus']}"
         )
     return "\n".join(lines)
