@@ -166,7 +166,10 @@ FIG3 = [
         "overview",
         "cross-camera",
     )  # fmt: skip
-] + [f"{protocol}_fig3_fallback" for protocol in ("side-turntable", "sparse-headings", "overview")]
+] + [
+    f"{protocol}_fig3_fallback"
+    for protocol in ("side-turntable", "sparse-headings", "overview", "tilted")
+]
 
 
 @pytest.mark.parametrize("name", FIG3)
