@@ -12,10 +12,7 @@ import inspect
 import os
 from collections.abc import Sequence
 
-import numpy as np
-
-from pose.baselines._common import check_training_set
-from pose.metrics import rotation_error_deg, success_rate
+from pose.metrics import ScoredEstimator
 from pose.serialization import load_estimator_arrays, save_arrays
 from pose.symmetry import Symmetry
 from pose.view import View
@@ -51,18 +48,9 @@ def load_part(class_name: str, arrays: dict, prefix: str, format_version: int | 
     return part_cls.from_arrays(arrays, prefix)
 
 
-class Composition:
+class Composition(ScoredEstimator):
     """``score``, ``save`` and ``load`` for an estimator with ``predict``, ``to_arrays`` and
     ``from_arrays(arrays, prefix, format_version)``."""
-
-    def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
-        """Share of ``views`` within 5 degrees of ``poses`` (invalid answers fail)."""
-        views, P = check_training_set(views, poses)
-        errs = [
-            rotation_error_deg(e.rotation, p[:3, :3], symmetry) if e.valid else np.nan
-            for e, p in zip(self.predict(views), P, strict=True)
-        ]
-        return success_rate(errs, 5.0)
 
     def save(self, path: str | os.PathLike) -> None:
         """The fitted parts in one ``.npz`` (atomic, pickle-free, versioned)."""

@@ -5,10 +5,16 @@ Rotations ``(3, 3)`` map object to camera coordinates; translations are in metre
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from pose.rotations import geodesic_deg
 from pose.symmetry import Symmetry
+
+if TYPE_CHECKING:
+    from pose.view import View
 
 
 def rotation_error_deg(
@@ -89,3 +95,27 @@ def summarize(rot_err_deg, trans_err_m, coarse_err_deg=None, trans_reg_err_m=Non
             float(np.nanmedian(tr) * 100) if np.isfinite(tr).any() else None
         )
     return out
+
+
+class ScoredEstimator:
+    """``score``, the one way every pose estimator rates a set of views: the mixin for any
+    class whose ``predict`` takes a sequence of views (scikit-learn's ``score`` convention,
+    so ``GridSearchCV`` and ``cross_val_score`` can rate it)."""
+
+    def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
+        """Share of ``views`` whose rotation is within 5 degrees of ``poses`` (``(N, 4, 4)``
+        ``camera_from_object``), invalid answers counting as failures; with ``symmetry`` the
+        error is to the nearest symmetric equivalent (:func:`rotation_error_deg`)."""
+        views = list(views)
+        P = np.asarray(poses, float)
+        if P.shape != (len(views), 4, 4):
+            raise ValueError(
+                f"poses must be ({len(views)}, 4, 4) camera_from_object matrices, got {P.shape}"
+            )
+        if not views:
+            raise ValueError("score needs at least one view")
+        errs = [
+            rotation_error_deg(e.rotation, p[:3, :3], symmetry) if e.valid else np.nan
+            for e, p in zip(self.predict(views), P, strict=True)
+        ]
+        return success_rate(errs, 5.0)

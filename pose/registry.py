@@ -32,6 +32,9 @@ _ESTIMATORS["sift-pnp"] = baselines.SiftPnPEstimator
 _ESTIMATORS["nearest-view"] = baselines.NearestViewEstimator
 
 
+_INVALID_PARAM = re.compile(
+    r"Invalid parameter '([^']+)' for estimator (\w+)\(.*Valid parameters are: \[(.*)\]"
+)
 _SPEC = re.compile(r"^\s*([A-Za-z_][\w.\-]*)\s*(?:\((.*)\))?\s*$", re.DOTALL)
 
 
@@ -42,7 +45,7 @@ def parse_spec(text: str) -> tuple[str, dict[str, Any]]:
     if not m:
         raise ValueError(
             f"bad estimator spec {text!r}; expected NAME or NAME(param=value, ...), "
-            "e.g. manifold(refine=False)"
+            "e.g. manifold(refiner=None)"
         )
     name, args = m.group(1), (m.group(2) or "").strip()
     params: dict[str, Any] = {}
@@ -58,7 +61,7 @@ def parse_spec(text: str) -> tuple[str, dict[str, Any]]:
         except (SyntaxError, ValueError) as exc:
             raise ValueError(
                 f"bad parameters in estimator spec {text!r} ({exc}); "
-                "use keyword=literal pairs, e.g. manifold(n_bunches=4, refine=False)"
+                "use keyword=literal pairs, e.g. manifold(refiner=None, matcher__min_inliers=6)"
             ) from exc
     return name, params
 
@@ -66,9 +69,30 @@ def parse_spec(text: str) -> tuple[str, dict[str, Any]]:
 def make_with_params(name: str, params: dict[str, Any]) -> Any:
     """A new estimator: plain parameters go to the registered factory, nested ones
     (``stage__param``) through ``set_params`` afterwards."""
-    est = make_estimator(name, **{k: v for k, v in params.items() if "__" not in k})
-    nested = {k: v for k, v in params.items() if "__" in k}
-    return est.set_params(**nested) if nested else est
+    try:
+        est = make_estimator(name, **{k: v for k, v in params.items() if "__" not in k})
+        nested = {k: v for k, v in params.items() if "__" in k}
+        return est.set_params(**nested) if nested else est
+    except TypeError as exc:  # a keyword the factory does not take
+        m = re.search(r"unexpected keyword argument '([^']+)'", str(exc))
+        if not m:
+            raise
+        valid = sorted(make_estimator(name).get_params(deep=False))
+        raise ValueError(
+            f"estimator {name!r} has no parameter {m.group(1)!r}; valid: "
+            + ", ".join(repr(v) for v in valid)
+        ) from None
+    except ValueError as exc:
+        # scikit-learn's message carries the whole estimator's repr over many lines: say which
+        # parameter is wrong and which ones are valid, on one line
+        m = _INVALID_PARAM.search(" ".join(str(exc).split()))
+        if not m:
+            raise
+        raise ValueError(
+            f"estimator {name!r} has no parameter {m.group(1)!r}"
+            f"{'' if m.group(2) == 'PoseManifoldEstimator' else f' (in its {m.group(2)})'}; "
+            f"valid: {m.group(3)} (a stage's own as stage__param)"
+        ) from None
 
 
 def make_from_spec(spec: str) -> Any:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import re
 import shutil
 
 import numpy as np
@@ -40,6 +41,41 @@ def test_estimator_specs_parse_and_label():
     for bad in ("manifold(4)", "manifold(x=open('f'))", "1abc", "manifold(**k)"):
         with pytest.raises(ValueError, match="estimator spec"):
             EstimatorSpec.parse(bad)
+
+
+def test_spec_errors_name_the_bad_parameter_on_one_line_and_their_examples_build():
+    from pose.registry import make_from_spec
+
+    cases = {
+        "manifold(refine=False)": "estimator 'manifold' has no parameter 'refine'; valid: ",
+        "manifold(matcher__bogus=1)": "no parameter 'bogus' (in its RansacMatcher); valid: ",
+        "pca-nn(foo=1)": "estimator 'pca-nn' has no parameter 'foo'; valid: ",
+    }
+    for spec, message in cases.items():
+        with pytest.raises(ValueError, match=re.escape(message)) as err:
+            make_from_spec(spec)
+        assert "\n" not in str(err.value)
+    for bad in ("1abc", "manifold(4)"):  # the examples the syntax errors suggest are valid
+        with pytest.raises(ValueError, match="e.g. ") as err:
+            EstimatorSpec.parse(bad)
+        make_from_spec(str(err.value).split("e.g. ")[-1])
+
+
+def test_cli_names_a_bad_estimator_parameter(tmp_path, capsys):
+    argv = SWEEP[:5] + ["manifold(refine=False)", "--cache-dir", str(tmp_path)]
+    assert main(argv) == 2
+    assert "estimator 'manifold' has no parameter 'refine'" in capsys.readouterr().err
+
+
+def test_sweeps_run_in_a_process_pool_by_default():
+    import os
+
+    from scorbot_gym.cli.pose_cmd import sweep_runner
+    from scorbot_gym.experiments import LocalRunner
+
+    runner = sweep_runner(None, None)
+    assert isinstance(runner, LocalRunner) and runner.jobs == len(os.sched_getaffinity(0))
+    assert sweep_runner(1, None).jobs == 1  # in this process, when asked
 
 
 def test_occlusion_ranges():
@@ -257,6 +293,61 @@ def test_bop_export_uses_the_toolkit_field_names(local_sweep):
         for r in rows:
             assert len(r["R"].split()) == 9 and len(r["t"].split()) == 3
             assert float(r["time"]) > 0 and 0 <= int(r["im_id"]) < 6
+
+
+def test_bop_files_read_back_to_the_views_poses_and_estimates(tmp_path):
+    """Round trip: what a BOP reader (json + PNG, the toolkit's units) gets back from the
+    files is the rendered views, their ground truth and the estimates that were written."""
+    import cv2
+
+    from scorbot_gym.evaluation.bop import DEPTH_SCALE, write_results, write_scene
+
+    views = held_out_views("side-turntable", "box", 0.5, width=160, height=120, depth=True)[:3]
+    write_scene(tmp_path / "000001", views, obj_id=7)
+    cams = json.loads((tmp_path / "000001" / "scene_camera.json").read_text())
+    gts = json.loads((tmp_path / "000001" / "scene_gt.json").read_text())
+    for i, lv in enumerate(views):
+        cam, (gt,) = cams[str(i)], gts[str(i)]
+        np.testing.assert_allclose(np.reshape(cam["cam_K"], (3, 3)), lv.view.camera.K)
+        w2c = lv.view.camera.camera_from_world
+        np.testing.assert_allclose(np.reshape(cam["cam_R_w2c"], (3, 3)), w2c[:3, :3])
+        np.testing.assert_allclose(np.array(cam["cam_t_w2c"]) / 1000.0, w2c[:3, 3])
+        T = lv.camera_from_object
+        np.testing.assert_allclose(np.reshape(gt["cam_R_m2c"], (3, 3)), T[:3, :3])
+        np.testing.assert_allclose(np.array(gt["cam_t_m2c"]) / 1000.0, T[:3, 3])
+        assert gt["obj_id"] == 7
+        rgb = cv2.imread(str(tmp_path / "000001" / "rgb" / f"{i:06d}.png"), cv2.IMREAD_COLOR)
+        np.testing.assert_array_equal(cv2.cvtColor(rgb, cv2.COLOR_BGR2RGB), lv.view.image)
+        mask = cv2.imread(str(tmp_path / "000001" / "mask_visib" / f"{i:06d}_000000.png"), 0)
+        np.testing.assert_array_equal(mask > 0, lv.view.mask)
+        depth = cv2.imread(str(tmp_path / "000001" / "depth" / f"{i:06d}.png"), -1)
+        assert depth.dtype == np.uint16  # the toolkit's depth: value * depth_scale = mm
+        in_range = (lv.view.depth > 0) & (lv.view.depth * 1000 / DEPTH_SCALE <= 65535)
+        assert in_range[lv.view.mask].all()  # the object's depth always fits
+        np.testing.assert_allclose(
+            depth[in_range] * cam["depth_scale"] / 1000.0,
+            lv.view.depth[in_range],
+            atol=DEPTH_SCALE / 1000,
+        )
+        assert (depth[~in_range] == 0).all()  # beyond the PNG's range: unknown, not saturated
+    rng = np.random.default_rng(0)
+    rows = [
+        {"scene_id": 1, "im_id": i, "obj_id": 7, "score": 0.5, "R": lv.camera_from_object[:3, :3],
+         "t": lv.camera_from_object[:3, 3] * 1000.0 + rng.normal(0, 5, 3), "time": 0.02}
+        for i, lv in enumerate(views)
+    ]  # fmt: skip
+    rows[1] = dict(rows[1], R=np.full((3, 3), np.nan))  # an invalid answer is left out
+    write_results(tmp_path / "m_scorbot-test.csv", rows)
+    with open(tmp_path / "m_scorbot-test.csv", newline="") as f:
+        back = list(csv.DictReader(f))
+    assert [int(r["im_id"]) for r in back] == [0, 2]
+    for r in back:
+        src = rows[int(r["im_id"])]
+        np.testing.assert_allclose(np.reshape(np.fromstring(r["R"], sep=" "), (3, 3)), src["R"],
+                                   atol=1e-8)  # fmt: skip
+        np.testing.assert_allclose(np.fromstring(r["t"], sep=" "), src["t"], atol=1e-4)
+        assert (int(r["scene_id"]), int(r["obj_id"]), float(r["score"])) == (1, 7, 0.5)
+        assert float(r["time"]) == pytest.approx(0.02)
 
 
 # ----------------------------------------------------------------------------- protocols

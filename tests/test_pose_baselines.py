@@ -84,6 +84,32 @@ def test_held_out_views_get_a_pose(name, fitted, rendered):
         assert np.median(rot) < MAX_MEDIAN_DEG[name], rot
 
 
+@pytest.mark.parametrize("name", list(KINDS))
+def test_batch_predict_and_score_share_the_manifold_estimators_contract(name, fitted, rendered):
+    """A baseline is swapped for the manifold estimator in a comparison: ``predict`` of a
+    sequence answers each view as ``predict`` of that view does, and ``score`` is success@5°
+    over them (what ``GridSearchCV`` and the ablation use)."""
+    est = fitted[name]
+    held = rendered[2]
+    views = [lv.view for lv in held]
+    poses = np.stack([lv.camera_from_object for lv in held])
+    batch = est.predict(views)
+    assert isinstance(batch, list) and len(batch) == len(views)
+    symmetry = get_object(OBJECT).symmetry
+    hits = []
+    for e, one, lv in zip(batch, (est.predict(v) for v in views), held, strict=True):
+        assert e.valid == one.valid
+        np.testing.assert_allclose(e.rotation, one.rotation)
+        err = rotation_error_deg(e.rotation, lv.camera_from_object[:3, :3], symmetry)
+        hits.append(bool(e.valid and err < 5.0))
+    assert est.score(views, poses, symmetry) == pytest.approx(np.mean(hits))
+    assert est.score(views[:1], poses[:1], symmetry) in (0.0, 1.0)
+    with pytest.raises(ValueError, match=r"poses must be \(2, 4, 4\)"):
+        est.score(views[:2], poses[:1])
+    with pytest.raises(ValueError, match="a sequence of them"):
+        est.predict(np.zeros((H, W, 3), np.uint8))
+
+
 def test_chance_is_image_blind(fitted, rendered):
     answers = [fitted["chance"].predict(lv.view).rotation for lv in rendered[2]]
     for R in answers[1:]:

@@ -40,9 +40,10 @@ from pose.geometry import (  # noqa: F401  (MIN_MASK_PIXELS, lift_to_object, pnp
     world_point,
 )
 from pose.keypoints import to_gray
+from pose.metrics import ScoredEstimator
 from pose.rotations import geodesic_deg
 from pose.serialization import load_estimator_arrays, save_arrays
-from pose.view import PoseEstimate, View
+from pose.view import PoseEstimate, View, predict_each
 
 
 def check_training_set(views: Sequence[View], poses) -> tuple[list[View], np.ndarray]:
@@ -105,12 +106,15 @@ class Timer:
         return self.ms
 
 
-class BaselineEstimator(BaseEstimator):
-    """Shared position method and file format (the params as JSON plus the ``_FITTED`` arrays).
+class BaselineEstimator(ScoredEstimator, BaseEstimator):
+    """Shared position method, contract and file format (the params as JSON plus the
+    ``_FITTED`` arrays).
 
-    Subclasses set ``_FITTED`` (array attributes set by ``fit``, ending with ``TRANSLATION``),
-    call :meth:`_fit_translation` in ``fit`` and may override :meth:`_after_load` to rebuild
-    derived state (an index) from the arrays.
+    Subclasses implement ``_predict_one(view)``; ``predict`` takes one view or a sequence of
+    them (a list of answers), as the manifold estimator's does, and ``score`` rates a set.
+    They set ``_FITTED`` (array attributes set by ``fit``, ending with ``TRANSLATION``), call
+    :meth:`_fit_translation` in ``fit`` and may override :meth:`_after_load` to rebuild derived
+    state (an index) from the arrays.
     """
 
     _FITTED: tuple[str, ...] = ()
@@ -125,6 +129,13 @@ class BaselineEstimator(BaseEstimator):
         "tr_z_origin_",
         "tr_depth_",
     )
+
+    def predict(self, view: View | Sequence[View]) -> PoseEstimate | list[PoseEstimate]:
+        """The estimate for one view, or a list of them for a sequence of views."""
+        return predict_each(self._predict_one, view)
+
+    def _predict_one(self, view: View) -> PoseEstimate:
+        raise NotImplementedError
 
     def _fit_translation(self, views: Sequence[View], poses: np.ndarray) -> None:
         """Per training view: its rotation, mask centroid and size, the height of the point on

@@ -63,7 +63,7 @@ class ChanceEstimator(BaselineEstimator):
         self._fit_translation(views, P)
         return self
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "medoid_")
         check_view(view)
         timer = Timer()

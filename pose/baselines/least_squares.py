@@ -70,7 +70,7 @@ class LeastSquaresEstimator(BaselineEstimator):
         self._fit_translation(views, P)
         return self
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "weights_")
         timer, region, failed = appearance_input(view)
         if failed is not None:

@@ -131,7 +131,7 @@ class N3MEstimator(BaselineEstimator):
             self.descriptors_, self.descriptor_point_, len(self.points_), self.random_state
         )
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "points_")
         check_view(view)
         timer = Timer()

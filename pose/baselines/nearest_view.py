@@ -97,7 +97,7 @@ class NearestViewEstimator(BaselineEstimator):
         self._index = DescriptorIndex(self.db_desc_, self.db_view_, n, self.random_state)
         self._start = np.searchsorted(self.db_view_, np.arange(n + 1))
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "db_desc_")
         check_view(view)
         timer = Timer()

@@ -98,7 +98,7 @@ class PartBasedEstimator(BaselineEstimator):
         self._fit_translation(views, P)
         return self
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "parts_")
         timer, region, failed = appearance_input(view)
         if failed is not None:

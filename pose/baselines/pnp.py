@@ -122,7 +122,7 @@ class SiftPnPEstimator(BaselineEstimator):
             self.descriptors_, self.point_view_, len(self.tr_rotation_), self.random_state
         )
 
-    def predict(self, view: View) -> PoseEstimate:
+    def _predict_one(self, view: View) -> PoseEstimate:
         check_is_fitted(self, "points_")
         check_view(view)
         timer = Timer()

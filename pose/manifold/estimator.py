@@ -58,10 +58,9 @@ from pose.manifold.featurizer import ManifoldFeaturizer
 from pose.manifold.reference import KeypointHeading
 from pose.manifold.refinement import HomographyRefiner, RefinementInput
 from pose.manifold.regressors import RBFNetwork
-from pose.metrics import rotation_error_deg, success_rate
+from pose.metrics import ScoredEstimator
 from pose.orientation import hull_mask
 from pose.rotations import from_6d, ray_rotation, rot_z, to_6d
-from pose.symmetry import Symmetry
 from pose.view import PoseEstimate, View, predict_each
 
 
@@ -106,7 +105,7 @@ def _lifted(view: View, xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
     return out
 
 
-class PoseManifoldEstimator(BaseEstimator):
+class PoseManifoldEstimator(ScoredEstimator, BaseEstimator):
     """Estimate an object's pose in the camera frame from one view.
 
     ``fit(views, poses)`` takes :class:`~pose.view.View` objects of one object and its poses as
@@ -304,18 +303,6 @@ class PoseManifoldEstimator(BaseEstimator):
         view, or the stages give a non-finite pose."""
         check_is_fitted(self, "regressor_")
         return predict_each(self._predict_one, view)
-
-    def score(self, views: Sequence[View], poses, symmetry: Symmetry | None = None) -> float:
-        """Share of ``views`` whose rotation is within 5 degrees of ``poses`` (``(N, 4, 4)``
-        ``camera_from_object``), invalid estimates counting as failures; with ``symmetry``, the
-        error is to the nearest symmetric equivalent (as :mod:`pose.metrics` defines it)."""
-        views = list(views)
-        P = _check_poses(poses, len(views))
-        errs = [
-            rotation_error_deg(e.rotation, p[:3, :3], symmetry) if e.valid else np.nan
-            for e, p in zip(self.predict(views), P, strict=True)
-        ]
-        return success_rate(errs, 5.0)
 
     def _predict_one(self, view: View) -> PoseEstimate:
         tm: dict[str, float] = {}

@@ -85,6 +85,16 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def sweep_runner(jobs: int | None, ray: str | None):
+    """The runner of ``pose ablate``: Ray tasks with ``ray`` ("local" or an address), else a
+    local process pool with ``jobs`` workers, by default one per core this process may use."""
+    from scorbot_gym.experiments import LocalRunner, RayRunner
+
+    if ray is not None:
+        return RayRunner(None if ray == "local" else ray, num_cpus=jobs)
+    return LocalRunner(jobs or len(os.sched_getaffinity(0)))
+
+
 def _estimator_list(text: str) -> list[str]:
     from scorbot_gym.experiments.spec import EstimatorSpec, split_estimators
 
@@ -113,7 +123,7 @@ def _occlusion_range(text: str) -> tuple[float, ...]:
 def run_ablate(args: argparse.Namespace) -> int:
     from scorbot_gym.data.perturbations import Perturbation
     from scorbot_gym.evaluation.bop import export_ablation
-    from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report
+    from scorbot_gym.experiments import SweepSpec, ablate, write_report
     from scorbot_gym.experiments.aggregate import (
         format_results,
         paired_differences,
@@ -127,11 +137,7 @@ def run_ablate(args: argparse.Namespace) -> int:
         args.protocol, tuple(args.estimators), args.occlusion, objects, args.seed, args.width,
         args.height, args.test_views, args.train_stride, Perturbation.parse(args.perturb),
     )  # fmt: skip
-    if args.ray is not None:
-        runner = RayRunner(None if args.ray == "local" else args.ray, num_cpus=args.jobs)
-    else:
-        runner = LocalRunner(args.jobs or 1)
-    report = ablate(spec, runner, args.cache_dir)
+    report = ablate(spec, sweep_runner(args.jobs, args.ray), args.cache_dir)
     if args.paired is not None:
         report["paired"] = paired_differences(report["view_errors"], args.paired)
     print(format_results(report["results"], report["chance"]))
@@ -206,7 +212,7 @@ def add_parser(subparsers) -> None:
         parents=[common],
         help="success@5deg vs occlusion for several estimators on one protocol",
         description="Estimators are registered names, optionally with parameters: "
-        "manifold,manifold(refine=False),pca-nn. Results are cached per trial (a rerun resumes).",
+        "manifold,manifold(refiner=None),pca-nn. Results are cached per trial (a rerun resumes).",
     )
     a.add_argument("--protocol", required=True, choices=protocol_names())
     a.add_argument(
@@ -217,7 +223,11 @@ def add_parser(subparsers) -> None:
         "--occlusion", type=_occlusion_range, default=_occlusion_range("0:95:5"),
         help="percent levels START:STOP:STEP or a comma list (default 0:95:5)",
     )  # fmt: skip
-    a.add_argument("--jobs", type=int, default=None, help="parallel workers (default 1)")
+    a.add_argument(
+        "--jobs", type=_positive_int, default=None,
+        help="parallel worker processes (default: the usable cores, "
+        f"{len(os.sched_getaffinity(0))}; with --ray, Ray's CPUs); 1 runs in this process",
+    )  # fmt: skip
     a.add_argument(
         "--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
         help="run as Ray tasks: a local instance, or join ADDRESS (auto, ray://host:port)",

@@ -94,7 +94,10 @@ def write_scene(scene_dir: str | os.PathLike, views: Sequence, obj_id: int) -> N
         v = lv.view
         atomic_write_bytes(d / "rgb" / f"{i:06d}.png", _png(v.image))
         if v.depth is not None:
-            z = np.clip(np.round(np.asarray(v.depth) * 1000.0 / DEPTH_SCALE), 0, 65535)
+            z = np.round(np.asarray(v.depth, float) * 1000.0 / DEPTH_SCALE)
+            # beyond the PNG's range (the far plane behind the table) is unknown, 0 in BOP:
+            # a saturated value would be a wrong depth, not a missing one
+            z[~np.isfinite(z) | (z < 0) | (z > 65535)] = 0
             atomic_write_bytes(d / "depth" / f"{i:06d}.png", _png(z.astype(np.uint16)))
         mask = np.zeros(v.image.shape[:2], bool) if v.mask is None else np.asarray(v.mask, bool)
         atomic_write_bytes(

@@ -110,6 +110,7 @@ class SweepSpec:
             spec = EstimatorSpec.parse(e)
             if spec.name not in known:
                 raise ValueError(f"unknown estimator {spec.name!r}; registered: {', '.join(known)}")
+            spec.make()  # a parameter it does not have is an input error before any trial runs
         if not self.occlusions or any(not 0.0 <= o <= 0.95 for o in self.occlusions):
             raise ValueError(
                 f"occlusions must be fractions within [0, 0.95], got {self.occlusions}"
