@@ -67,6 +67,23 @@ def test_cli_names_a_bad_estimator_parameter(tmp_path, capsys):
     assert "estimator 'manifold' has no parameter 'refine'" in capsys.readouterr().err
 
 
+def test_cell_summary_counts_the_coarse_answer_over_asymmetric_objects_too():
+    from scorbot_gym.experiments.aggregate import summarize_trials
+
+    def trial(obj, symmetry, refined, coarse):
+        n = len(refined)
+        return {"object": obj, "symmetry": symmetry, "views": {
+            "rot_err_deg": refined, "coarse_rot_err_deg": coarse, "chance_rot_err_deg": [90.0] * n,
+            "valid": [True] * n, "ms": [1.0] * n, "occlusion": [0.0] * n}}  # fmt: skip
+
+    cell = summarize_trials([
+        trial("banana", "none", [1.0, 2.0, 9.0, 1.0], [1.0, 7.0, 9.0, None]),
+        trial("can", "axial", [1.0, 1.0], [1.0, 1.0]),
+    ])  # fmt: skip
+    assert cell["success_5deg_asymmetric"] == 0.75 and cell["coarse_success_5deg"] == 0.5
+    assert cell["coarse_success_5deg_asymmetric"] == 0.25
+
+
 def test_sweeps_run_in_a_process_pool_by_default():
     import os
 
@@ -149,6 +166,14 @@ def test_local_sweep_records_and_figure(local_sweep):
         assert 0 <= lo <= r["success_5deg"] <= hi <= 1
     assert rep["chance"]["source"].startswith("constant answer")
     assert {row["variant"] for row in rep["stage_ablation"]} >= {"manifold"}
+    by_label = {(r["estimator"], r["occlusion"]): r for r in res}
+    for row in rep["stage_ablation"]:  # each row also over the asymmetric object alone
+        src = by_label[(row["variant"].removesuffix(" [coarse]"), row["occlusion"])]
+        coarse = row["variant"].endswith(" [coarse]")
+        assert (
+            row["success_5deg_asymmetric"]
+            == src["coarse_success_5deg_asymmetric" if coarse else "success_5deg_asymmetric"]
+        )
     assert rep["selections"] == []  # neither estimator selects among candidates
     assert rep["spec"]["test_views"] == 6 and rep["spec"]["objects"] == ["banana", "box"]
     assert (d / "a.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -90,6 +90,8 @@ def summarize_trials(trials: Sequence[dict]) -> dict:
         kk, nn = _success(coarse)
         out["coarse_success_5deg"] = _rate(kk, nn)
         out["coarse_success_5deg_ci95"] = [round(v, 4) for v in wilson_interval(kk, nn)]
+        kka, nna = _success(_pool(trials, "coarse_rot_err_deg", ("none",)))
+        out["coarse_success_5deg_asymmetric"] = _rate(kka, nna)
     return out
 
 
@@ -272,9 +274,9 @@ def _family(label: str) -> bool:
 
 def stage_ablation(results: Sequence[dict]) -> list[dict]:
     """Manifold variants side by side: success@5° per occlusion and its change from the full
-    ``manifold`` estimator (or the first variant swept). Rows ``<variant> [coarse]`` are the
-    same models' answers before refinement ("refine off"), free from one run. Empty when the
-    sweep has no manifold variant."""
+    ``manifold`` estimator (or the first variant swept), and over the asymmetric objects only.
+    Rows ``<variant> [coarse]`` are the same models' answers before refinement ("refine off"),
+    free from one run. Empty when the sweep has no manifold variant."""
     fam = [r for r in results if _family(r["estimator"])]
     if not fam:
         return []
@@ -291,15 +293,17 @@ def stage_ablation(results: Sequence[dict]) -> list[dict]:
     }
     rows = []
     for r in fam:
-        variants = [(r["estimator"], r["success_5deg"])]
+        variants = [(r["estimator"], r["success_5deg"], r.get("success_5deg_asymmetric"))]
         if r["estimator"] in refined:
-            variants.append((f"{r['estimator']} [coarse]", r.get("coarse_success_5deg")))
-        for label, s in variants:
+            variants.append((f"{r['estimator']} [coarse]", r.get("coarse_success_5deg"),
+                             r.get("coarse_success_5deg_asymmetric")))  # fmt: skip
+        for label, s, asym in variants:
             b = base.get((r["protocol"], r["occlusion"]))
             rows.append({
                 "protocol": r["protocol"], "variant": label, "reference": ref,
                 "occlusion": r["occlusion"], "success_5deg": s,
                 "delta_vs_reference": None if b is None or s is None else round(s - b, 4),
+                "success_5deg_asymmetric": asym,
             })  # fmt: skip
     return rows
 
