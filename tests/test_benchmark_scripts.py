@@ -172,6 +172,25 @@ FIG3 = [
 ]
 
 
+@pytest.mark.parametrize(
+    "protocol",
+    ["top-resting", "side-turntable", "tilted", "sparse-headings", "overview", "cross-camera"],
+)
+def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
+    """The README's stage table on every protocol is read from ``stage_ablation``: it must be
+    what the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
+    from scorbot_gym.experiments.aggregate import stage_ablation
+
+    report = json.loads((RESULTS / f"pose_ablation_{protocol}_stages.json").read_text())
+    assert len(report["spec"]["occlusions"]) == 20
+    assert set(report["spec"]["estimators"]) == {
+        "manifold", "manifold-no-bunches", "manifold-no-shape", "manifold-no-words",
+        "manifold-no-anchor", "manifold-knn", "manifold-scipy", "manifold-silhouette-reference",
+    }  # fmt: skip
+    assert report["stage_ablation"] == stage_ablation(report["results"])
+    assert all("success_5deg_asymmetric" in row for row in report["stage_ablation"])
+
+
 @pytest.mark.parametrize("name", FIG3)
 def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name):
     """The README's Fig. 3 summary is read from ``curves`` and ``paired``: both must be what
