@@ -170,9 +170,8 @@ def test_local_sweep_records_and_figure(local_sweep):
     for row in rep["stage_ablation"]:  # each row also over the asymmetric object alone
         src = by_label[(row["variant"].removesuffix(" [coarse]"), row["occlusion"])]
         coarse = row["variant"].endswith(" [coarse]")
-        assert (
-            row["success_5deg_asymmetric"]
-            == src.get("coarse_success_5deg_asymmetric" if coarse else "success_5deg_asymmetric")
+        assert row["success_5deg_asymmetric"] == src.get(
+            "coarse_success_5deg_asymmetric" if coarse else "success_5deg_asymmetric"
         )
     assert rep["selections"] == []  # neither estimator selects among candidates
     assert rep["spec"]["test_views"] == 6 and rep["spec"]["objects"] == ["banana", "box"]
