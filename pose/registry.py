@@ -73,11 +73,21 @@ def make_with_params(name: str, params: dict[str, Any]) -> Any:
         est = make_estimator(name, **{k: v for k, v in params.items() if "__" not in k})
         nested = {k: v for k, v in params.items() if "__" in k}
         return est.set_params(**nested) if nested else est
+    except AttributeError:  # set_params into a parameter that is a value, not a stage
+        shallow = est.get_params(deep=False)
+        bad = next(
+            k for k in params
+            if "__" in k and not hasattr(shallow.get(k.split("__")[0]), "set_params")
+        )  # fmt: skip
+        raise ValueError(
+            f"estimator {name!r}: {bad!r} addresses a parameter of "
+            f"{bad.split('__')[0]!r}, which is a value, not a stage with parameters"
+        ) from None
     except TypeError as exc:  # a keyword the factory does not take
         m = re.search(r"unexpected keyword argument '([^']+)'", str(exc))
         if not m:
             raise
-        valid = sorted(make_estimator(name).get_params(deep=False))
+        valid = sorted(make_estimator(name).get_params(deep=False))  # the defaults build
         raise ValueError(
             f"estimator {name!r} has no parameter {m.group(1)!r}; valid: "
             + ", ".join(repr(v) for v in valid)
@@ -88,9 +98,10 @@ def make_with_params(name: str, params: dict[str, Any]) -> Any:
         m = _INVALID_PARAM.search(" ".join(str(exc).split()))
         if not m:
             raise
+        owner = m.group(2)  # the estimator itself, or the stage the nested name points into
+        where = "" if owner == type(make_estimator(name)).__name__ else f" (in its {owner})"
         raise ValueError(
-            f"estimator {name!r} has no parameter {m.group(1)!r}"
-            f"{'' if m.group(2) == 'PoseManifoldEstimator' else f' (in its {m.group(2)})'}; "
+            f"estimator {name!r} has no parameter {m.group(1)!r}{where}; "
             f"valid: {m.group(3)} (a stage's own as stage__param)"
         ) from None
 

@@ -50,6 +50,7 @@ def test_spec_errors_name_the_bad_parameter_on_one_line_and_their_examples_build
         "manifold(refine=False)": "estimator 'manifold' has no parameter 'refine'; valid: ",
         "manifold(matcher__bogus=1)": "no parameter 'bogus' (in its RansacMatcher); valid: ",
         "pca-nn(foo=1)": "estimator 'pca-nn' has no parameter 'foo'; valid: ",
+        "select(random_state=1, cv__x=1)": "'cv__x' addresses a parameter of 'cv', which is",
     }
     for spec, message in cases.items():
         with pytest.raises(ValueError, match=re.escape(message)) as err:
