@@ -25,7 +25,7 @@ def test_names_and_occlusion_axis():
         get_protocol("nope")
 
 
-@pytest.mark.parametrize("name", ["top-resting", "tilted", "sparse-headings", "cross-camera"])
+@pytest.mark.parametrize("name", protocol_names())
 def test_samplers_are_deterministic(name):
     p = get_protocol(name)
     assert p.train_samples(2, 0) == p.train_samples(2, 0)
