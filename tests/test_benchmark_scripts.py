@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 
+from scorbot_gym.data.protocols import protocol_names
+
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
 RESULTS = BENCHMARKS / "results"
@@ -156,26 +158,13 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
     assert (cell["only_estimator"], cell["only_versus"], cell["mcnemar_p"]) == (1, 2, 1.0)
 
 
-FIG3 = [
-    f"{protocol}_fig3"
-    for protocol in (
-        "top-resting",
-        "side-turntable",
-        "tilted",
-        "sparse-headings",
-        "overview",
-        "cross-camera",
-    )  # fmt: skip
-] + [
+FIG3 = [f"{protocol}_fig3" for protocol in protocol_names()] + [
     f"{protocol}_fig3_fallback"
     for protocol in ("side-turntable", "sparse-headings", "overview", "tilted")
 ]
 
 
-@pytest.mark.parametrize(
-    "protocol",
-    ["top-resting", "side-turntable", "tilted", "sparse-headings", "overview", "cross-camera"],
-)
+@pytest.mark.parametrize("protocol", protocol_names())
 def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
     """The README's stage table on every protocol is read from ``stage_ablation``: it must be
     what the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
