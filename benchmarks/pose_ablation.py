@@ -35,6 +35,7 @@ import argparse  # noqa: E402
 import io  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
+import textwrap  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from pose.fileio import atomic_write_bytes, atomic_write_json  # noqa: E402
@@ -80,20 +81,25 @@ def targets_for(protocol: str, results: list[dict]) -> list[dict]:
     return out
 
 
+def _cell_key(record: dict) -> tuple:
+    return record["perturbation"], record["occlusion"], record["estimator"]
+
+
 def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_dir, stem: Path):
     """One protocol under several perturbations: combined records, and success@5° per
-    perturbation and occlusion as grouped bars."""
-    rows, chance = [], {}
+    perturbation and occlusion as grouped bars, one panel per estimator."""
+    rows, chance, stats, machine = [], {}, {}, None
     for spec, label in zip(specs, labels, strict=True):
         report = ablate(spec, runner, cache_dir)
         rows += [{**r, "perturbation": label} for r in report["results"]]
         chance[label] = report["chance"]
+        stats[label], machine = report.get("stats"), report.get("machine")
         print(f"\n== {spec.protocol}, perturbation {label}")
         print(format_results(report["results"], report["chance"]))
     atomic_write_json(
         stem.with_suffix(".json"),
         {"spec": {**specs[0].to_dict(), "perturbation": None}, "perturbations": labels,
-         "results": rows, "chance": chance},
+         "results": rows, "chance": chance, "stats": stats, "machine": machine},
     )  # fmt: skip
     import matplotlib
 
@@ -101,22 +107,31 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     import matplotlib.pyplot as plt
 
     levels = sorted({r["occlusion"] for r in rows})
-    fig, ax = plt.subplots(figsize=(7, 4), dpi=120)
+    estimators = specs[0].estimators
+    fig, axes = plt.subplots(
+        1, len(estimators), figsize=(1 + 6 * len(estimators), 4), dpi=120, sharey=True,
+        squeeze=False,
+    )  # fmt: skip
     width = 0.8 / max(len(levels), 1)
-    for j, occ in enumerate(levels):
-        for i, label in enumerate(labels):
-            cell = [r for r in rows if r["perturbation"] == label and r["occlusion"] == occ]
-            for r in cell[:1]:  # the first estimator
-                lo, hi = r["success_5deg_ci95"]
-                y = 100 * (r["success_5deg"] or 0.0)
-                ax.bar(i + j * width, y, width, color=f"C{j}",
-                       yerr=[[y - 100 * lo], [100 * hi - y]], capsize=2,
-                       label=f"{100 * occ:.0f} % occlusion" if i == 0 else None)  # fmt: skip
-    ax.set_xticks([i + width * (len(levels) - 1) / 2 for i in range(len(labels))])
-    ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
-    ax.set_ylabel("success @ 5° (%)")
-    ax.set_title(f"{specs[0].protocol}: {specs[0].estimators[0]} under perturbations", fontsize=9)
-    ax.legend(fontsize=7)
+    for ax, est in zip(axes[0], estimators, strict=True):
+        for j, occ in enumerate(levels):
+            for i, label in enumerate(labels):
+                key = (label, occ, est)
+                for r in (r for r in rows if _cell_key(r) == key):
+                    lo, hi = r["success_5deg_ci95"]
+                    y = 100 * (r["success_5deg"] or 0.0)
+                    ax.bar(i + j * width, y, width, color=f"C{j}",
+                           yerr=[[y - 100 * lo], [100 * hi - y]], capsize=2,
+                           label=f"{100 * occ:.0f} % occlusion" if i == 0 else None)  # fmt: skip
+        blind = [c["value"] for c in chance[labels[0]].get("success_5deg", [])]
+        if blind:  # the constant answer does not look at the image: one line for every bar
+            ax.axhline(100 * blind[0], color="grey", ls=":", lw=1, label="image-blind")
+        ax.set_xticks([i + width * (len(levels) - 1) / 2 for i in range(len(labels))])
+        ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
+        ax.set_title("\n".join(textwrap.wrap(est, 60)), fontsize=7)
+    axes[0][0].set_ylabel("success @ 5° (%)")
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(f"{specs[0].protocol} under perturbations", fontsize=9)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png")

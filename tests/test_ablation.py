@@ -427,6 +427,38 @@ def test_each_axis_draws_from_its_own_stream():
     sim.close()
 
 
+def test_surfaces_put_a_photograph_on_the_table_and_restore_the_nominal_texture():
+    import cv2
+
+    from scorbot_gym.sim import Simulation
+
+    def top(sim):
+        sim.forward()
+        return sim.render("top")
+
+    sim = Simulation("banana", render_width=96, render_height=72)
+    pt = ScenePerturber(sim)
+    clean = top(sim)
+    table = pt._textures[0]
+    nominal = pt._tex_pixels(table).copy()
+    pt.apply(Perturbation(surfaces=1.0, seed=3), 7)
+    photo, shown = pt._tex_pixels(table).copy(), top(sim)
+    assert np.abs(photo.astype(int) - nominal).mean() > 20  # the image itself is replaced
+    sift = cv2.SIFT_create()
+    n_clean = len(sift.detect(cv2.cvtColor(clean, cv2.COLOR_RGB2GRAY), None))
+    n_photo = len(sift.detect(cv2.cvtColor(shown, cv2.COLOR_RGB2GRAY), None))
+    assert n_photo > 1.5 * n_clean  # clutter SIFT fires on: what the axis is for
+    pt.apply(Perturbation(surfaces=1.0, seed=3), 8)
+    assert not np.array_equal(pt._tex_pixels(table), photo)  # a fresh draw per frame
+    pt.apply(Perturbation(surfaces=1.0, seed=3), 7)
+    assert np.array_equal(pt._tex_pixels(table), photo)  # seeded
+    assert np.array_equal(top(sim), shown)  # the renderer shows the edited texture again
+    pt.restore()
+    assert np.array_equal(pt._tex_pixels(table), nominal)
+    assert np.array_equal(top(sim), clean)  # ... and the nominal one after a restore
+    sim.close()
+
+
 def test_perturbation_validation():
     assert not Perturbation().active
     assert Perturbation.parse("lighting=0.3,noise_sigma=4,seed=2") == Perturbation(
@@ -444,7 +476,7 @@ def test_env_perturbation_is_seeded_and_off_by_default():
     from scorbot_gym.envs.grasp import ScorbotGraspEnv
 
     kw = {"object_name": "banana", "cameras": ("top",), "image_width": 96, "image_height": 72}
-    p = Perturbation(lighting=0.5, camera_pos_m=0.01, noise_sigma=5)
+    p = Perturbation(lighting=0.5, surfaces=0.5, camera_pos_m=0.01, noise_sigma=5)
     env, plain = ScorbotGraspEnv(**kw, perturbation=p), ScorbotGraspEnv(**kw)
     (o1, i1), (o2, _), (o0, i0) = env.reset(seed=4), env.reset(seed=4), plain.reset(seed=4)
     assert np.array_equal(o1["top_rgb"], o2["top_rgb"])

@@ -9,9 +9,12 @@ Axes:
 
 - ``lighting``: every light's diffuse intensity scaled by ``U[1 - a, 1 + a]``, its direction
   turned by up to ``30 a`` degrees, the headlight's ambient term scaled likewise.
-- ``surfaces``: table and floor recoloured (material tint ``U[1 - a, 1]`` per channel) and their
-  texture repeat scaled by ``2^U[-a, a]``: a different-looking table and background. The texture
-  images themselves are not replaced (MuJoCo uploads them once per renderer).
+- ``surfaces``: a different-looking table and background. The table's and the floor's texture
+  images are blended, with weight ``a``, toward a random crop of a real photograph
+  (:data:`SURFACE_PHOTOGRAPHS`, shipped with scikit-image, so nothing is downloaded), then
+  recoloured (material tint ``U[1 - a, 1]`` per channel) and their texture repeat scaled by
+  ``2^U[-a, a]``. A photograph puts real clutter under and behind the object: edges and corners
+  on which SIFT fires, which a procedural texture does not have.
 - ``camera_pos_m`` / ``camera_rot_deg``: extrinsics error of the fixed (eye-to-hand) cameras, a
   miscalibration: the image comes from a camera moved by ``N(0, pos)`` metres per axis and turned
   by ``N(0, rot)`` degrees about a random axis, while the estimator is given the *nominal*
@@ -22,6 +25,7 @@ Axes:
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 
@@ -33,6 +37,9 @@ from pose.camera import CameraModel
 
 _AXES = ("lighting", "surfaces", "camera", "image")
 _SURFACE_MATERIALS = ("table_mat", "floor_mat")
+#: the ``skimage.data`` photographs a ``surfaces`` perturbation draws from: surfaces (brick,
+#: grass, gravel) and cluttered scenes (the rest)
+SURFACE_PHOTOGRAPHS = ("brick", "grass", "gravel", "coffee", "chelsea", "astronaut", "rocket")
 
 
 @dataclass(frozen=True)
@@ -108,6 +115,34 @@ class Perturbation:
         return out
 
 
+@functools.cache
+def surface_photographs() -> tuple[np.ndarray, ...]:
+    """The :data:`SURFACE_PHOTOGRAPHS` as RGB ``uint8`` images (grey ones repeated per channel)."""
+    try:
+        import skimage.data
+    except ImportError as exc:  # a core dependency; only a broken install lands here
+        raise ImportError(
+            "the surfaces perturbation needs scikit-image: pip install scikit-image"
+        ) from exc
+    out = []
+    for name in SURFACE_PHOTOGRAPHS:
+        img = np.asarray(getattr(skimage.data, name)(), np.uint8)
+        out.append(np.repeat(img[..., None], 3, axis=2) if img.ndim == 2 else img[..., :3])
+    return tuple(out)
+
+
+def _photo_crop(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
+    """A random square crop (30-100 % of the shorter side) of a random photograph, resized to
+    ``height x width``."""
+    photos = surface_photographs()
+    img = photos[rng.integers(len(photos))]
+    side = int(min(img.shape[:2]) * rng.uniform(0.3, 1.0))
+    y0 = rng.integers(img.shape[0] - side + 1)
+    x0 = rng.integers(img.shape[1] - side + 1)
+    crop = img[y0 : y0 + side, x0 : x0 + side]
+    return cv2.resize(crop, (width, height), interpolation=cv2.INTER_AREA)
+
+
 def _turn(rng: np.random.Generator, angle_deg: float) -> np.ndarray:
     """Quaternion of a turn by ``angle_deg`` about a uniformly random axis."""
     axis = rng.normal(size=3)
@@ -132,6 +167,13 @@ class ScenePerturber:
             i for i in (mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_MATERIAL, n)
                         for n in _SURFACE_MATERIALS) if i >= 0
         ]  # fmt: skip
+        rgb = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
+        self._textures = sorted(
+            {int(m.mat_texid[i, rgb]) for i in self._mats if m.mat_texid[i, rgb] >= 0}
+            & {t for t in range(m.ntex) if m.tex_type[t] == mujoco.mjtTexture.mjTEXTURE_2D}
+        )  # the 2-D RGB textures of the surface materials
+        self._nominal_tex = {t: self._tex_pixels(t).copy() for t in self._textures}
+        self._tex_changed = False
         self._nominal = {
             "light_diffuse": m.light_diffuse.copy(),
             "light_dir": m.light_dir.copy(),
@@ -148,6 +190,21 @@ class ScenePerturber:
         m.vis.headlight.ambient[:] = n["ambient"]
         m.mat_rgba[:], m.mat_texrepeat[:] = n["mat_rgba"], n["mat_texrepeat"]
         m.cam_pos[:], m.cam_quat[:] = n["cam_pos"], n["cam_quat"]
+        if self._tex_changed:
+            for t, pixels in self._nominal_tex.items():
+                self._tex_pixels(t)[:] = pixels
+            self._textures_edited()
+            self._tex_changed = False
+
+    def _tex_pixels(self, t: int) -> np.ndarray:
+        """Texture ``t``'s pixels, a writable ``(height, width, channels)`` view of ``tex_data``."""
+        m = self.sim.model
+        w, h, c = int(m.tex_width[t]), int(m.tex_height[t]), int(m.tex_nchannel[t])
+        return m.tex_data[m.tex_adr[t] : m.tex_adr[t] + w * h * c].reshape(h, w, c)
+
+    def _textures_edited(self) -> None:
+        """The renderer uploaded the textures once; it must digest (and upload) them again."""
+        self.sim.renderer.textures_changed(self.sim.model)
 
     def apply(self, p: Perturbation, index: int | Sequence[int]) -> None:
         self.restore()
@@ -167,6 +224,14 @@ class ScenePerturber:
             for i in self._mats:
                 m.mat_rgba[i, :3] = self._nominal["mat_rgba"][i, :3] * rng.uniform(1 - a, 1.0, 3)
                 m.mat_texrepeat[i] = self._nominal["mat_texrepeat"][i] * 2.0 ** rng.uniform(-a, a)
+            for t, nominal in self._nominal_tex.items():
+                h, w, c = nominal.shape
+                photo = _photo_crop(rng, w, h)[..., :c].astype(np.float32)
+                blend = (1.0 - a) * nominal.astype(np.float32) + a * photo
+                self._tex_pixels(t)[:] = np.clip(np.rint(blend), 0, 255).astype(np.uint8)
+            if self._nominal_tex:
+                self._tex_changed = True
+                self._textures_edited()
         if p.camera_pos_m or p.camera_rot_deg:
             rng = p.rng(index, "camera")
             for c in self._fixed:

@@ -282,6 +282,12 @@ class SceneRenderer:
         if model is self._model:
             self._model = None
 
+    def textures_changed(self, model: mujoco.MjModel) -> None:
+        """``model.tex_data`` was edited in place (a texture perturbation): its textures are
+        digested again at the next render and the new images uploaded; the old ones stay cached
+        (the nominal scene shows them again) until evicted."""
+        self.release(model)
+
     # --- rendering -------------------------------------------------------------------------
     def render(
         self,
