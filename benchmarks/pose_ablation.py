@@ -109,7 +109,7 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     levels = sorted({r["occlusion"] for r in rows})
     estimators = specs[0].estimators
     fig, axes = plt.subplots(
-        1, len(estimators), figsize=(1 + 6 * len(estimators), 4), dpi=120, sharey=True,
+        1, len(estimators), figsize=(1 + 4.5 * len(estimators), 4.5), dpi=120, sharey=True,
         squeeze=False,
     )  # fmt: skip
     width = 0.8 / max(len(levels), 1)
@@ -128,7 +128,7 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
             ax.axhline(100 * blind[0], color="grey", ls=":", lw=1, label="image-blind")
         ax.set_xticks([i + width * (len(levels) - 1) / 2 for i in range(len(labels))])
         ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
-        ax.set_title("\n".join(textwrap.wrap(est, 60)), fontsize=7)
+        ax.set_title("\n".join(textwrap.wrap(est, 55)), fontsize=6)
     axes[0][0].set_ylabel("success @ 5° (%)")
     axes[0][0].legend(fontsize=7)
     fig.suptitle(f"{specs[0].protocol} under perturbations", fontsize=9)

@@ -201,3 +201,20 @@ def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name)
         assert row["diff"] == pytest.approx(
             cell[(selection, occ)] - cell[(row["versus"], occ)], abs=2e-4
         )
+
+
+def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
+    """The perturbation table's first row is read as the unperturbed baseline of every other
+    row: its cells must be the Fig. 3 file's (same protocol, models, views and estimators)."""
+    report = json.loads((RESULTS / "pose_ablation_side-turntable_perturbations.json").read_text())
+    fig3 = json.loads((RESULTS / "pose_ablation_side-turntable_fig3.json").read_text())
+    assert report["perturbations"][0] == "none" and len(report["perturbations"]) == 5
+    keys = ("n", "success_5deg", "success_5deg_asymmetric", "median_rot_err_deg", "valid_rate")
+    cells = {(r["estimator"], r["occlusion"]): r for r in fig3["results"]}
+    unperturbed = [r for r in report["results"] if r["perturbation"] == "none"]
+    assert len(unperturbed) == 2 * len(report["spec"]["estimators"]) == 6
+    for r in unperturbed:
+        assert {k: r[k] for k in keys} == {
+            k: cells[(r["estimator"], r["occlusion"])][k] for k in keys
+        }
+    assert all(s["fit_errors"] == 0 for s in report["stats"].values())
