@@ -226,9 +226,12 @@ class ScenePerturber:
                 m.mat_texrepeat[i] = self._nominal["mat_texrepeat"][i] * 2.0 ** rng.uniform(-a, a)
             for t, nominal in self._nominal_tex.items():
                 h, w, c = nominal.shape
-                photo = _photo_crop(rng, w, h)[..., :c].astype(np.float32)
-                blend = (1.0 - a) * nominal.astype(np.float32) + a * photo
-                self._tex_pixels(t)[:] = np.clip(np.rint(blend), 0, 255).astype(np.uint8)
+                rgb = min(c, 3)  # an alpha channel, if any, stays nominal
+                photo = _photo_crop(rng, w, h).astype(np.float32)
+                if rgb == 1:
+                    photo = photo.mean(axis=2, keepdims=True)
+                blend = (1.0 - a) * nominal[..., :rgb].astype(np.float32) + a * photo[..., :rgb]
+                self._tex_pixels(t)[..., :rgb] = np.clip(np.rint(blend), 0, 255).astype(np.uint8)
             if self._nominal_tex:
                 self._tex_changed = True
                 self._textures_edited()
