@@ -459,6 +459,23 @@ def test_surfaces_put_a_photograph_on_the_table_and_restore_the_nominal_texture(
     sim.close()
 
 
+def test_editing_the_perturbation_code_invalidates_perturbed_trials_only(monkeypatch):
+    """A trial on perturbed views is keyed by the perturbation code, as the views are: an edit
+    of what an axis does must not serve stale figures; clean trials keep their keys."""
+    from scorbot_gym.data import perturbations
+    from scorbot_gym.experiments.trial import ModelJob, trial_key
+
+    def job(p):
+        items = tuple(p.to_dict().items())
+        return ModelJob("side-turntable", "manifold", "banana", 0, (0.0,), 96, 72, 3, 1, items, "")
+
+    clean, perturbed = job(Perturbation()), job(Perturbation(surfaces=1.0))
+    before = trial_key(clean, 0.0), trial_key(perturbed, 0.0)
+    monkeypatch.setattr(perturbations, "code_fingerprint", lambda: "edited")
+    assert trial_key(clean, 0.0) == before[0]
+    assert trial_key(perturbed, 0.0) != before[1]
+
+
 def test_perturbation_validation():
     assert not Perturbation().active
     assert Perturbation.parse("lighting=0.3,noise_sigma=4,seed=2") == Perturbation(

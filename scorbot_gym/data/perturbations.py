@@ -26,8 +26,10 @@ Axes:
 from __future__ import annotations
 
 import functools
+import hashlib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
+from pathlib import Path
 
 import cv2
 import mujoco
@@ -113,6 +115,14 @@ class Perturbation:
             noise = self.rng(index, "image").normal(0.0, self.noise_sigma, out.shape)
             out = np.clip(out.astype(np.float32) + noise, 0, 255).astype(np.uint8)
         return out
+
+
+@functools.cache
+def code_fingerprint() -> str:
+    """Hash of this module's source. What a perturbed frame looks like is decided here, so the
+    cache keys of perturbed views and of the trials on them include it (unperturbed ones do
+    not: editing a perturbation leaves every clean cache entry valid)."""
+    return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
 
 
 @functools.cache

@@ -29,6 +29,7 @@ from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_or
 from pose.view import View
 from scorbot_gym.data import default_cache_dir
 from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
+from scorbot_gym.data.perturbations import code_fingerprint as perturbation_code_fingerprint
 
 CACHE_VERSION = 1
 MAX_OCCLUSION = 0.95
@@ -237,9 +238,8 @@ def render_views(
         "depth": bool(depth),
     }
     if perturbation is not None and perturbation.active:  # keys of unperturbed views unchanged
-        code = (Path(__file__).parent / "perturbations.py").read_bytes()
         payload["perturbation"] = perturbation.to_dict()
-        payload["perturbation_code"] = hashlib.sha256(code).hexdigest()[:16]
+        payload["perturbation_code"] = perturbation_code_fingerprint()
     folder = Path(cache_dir or default_cache_dir()) / "views"
     if folder.is_dir():
         remove_orphaned_tmp(folder)

@@ -77,10 +77,15 @@ def model_key(job: ModelJob) -> str:
 
 
 def trial_key(job: ModelJob, occlusion: float) -> str:
-    return _key({
+    from scorbot_gym.data import perturbations
+
+    payload = {
         "model": model_key(job), "occlusion": occlusion, "test_views": job.test_views,
         "perturbation": dict(job.perturbation), "format": TRIAL_FORMAT,
-    })  # fmt: skip
+    }  # fmt: skip
+    if perturbations.Perturbation(**dict(job.perturbation)).active:  # as the views' key does
+        payload["perturbation_code"] = perturbations.code_fingerprint()
+    return _key(payload)
 
 
 def trial_path(job: ModelJob, occlusion: float) -> Path:
