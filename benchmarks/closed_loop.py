@@ -20,6 +20,11 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 ``--jobs N`` runs the arms in N processes; the in-loop timing runs afterwards, alone.
 Writes ``benchmarks/results/closed_loop.json`` and ``closed_loop.png``.
 
+``--perturbations "none;lighting=0.5;..."`` runs instead the ``manifold`` arm once per env
+perturbation (``scorbot_gym.data.perturbations``, redrawn every episode; the pose models are the
+unperturbed ones): the perturbation axes in the loop. Writes ``closed_loop_perturbations.json``
+and ``.png``.
+
     python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 2] [--quick]
 """
 
@@ -123,13 +128,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-recognize", action="store_true", help="give the identity instead")
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--quick", action="store_true", help="a few episodes, to check it runs")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/closed_loop.json"))
+    parser.add_argument(
+        "--out", type=Path, default=None, help="default: benchmarks/results/closed_loop.json"
+    )
     parser.add_argument("--progress", action="store_true")
     parser.add_argument("--jobs", type=int, default=1, help="arms run in this many processes")
     parser.add_argument(
         "--arms", default=None, help="semicolon-separated arm labels to run (default: all + curves)"
     )
+    parser.add_argument(
+        "--perturbations",
+        default=None,
+        help='";"-separated env perturbations ("none": unperturbed), the manifold arm under each',
+    )
     args = parser.parse_args(argv)
+    labels = _perturbation_labels(parser, args)
+    if args.out is None:
+        stem = "closed_loop_perturbations" if labels else "closed_loop"
+        args.out = Path("benchmarks/results") / f"{stem}.json"
     if args.quick:
         args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
         args.eye_in_hand_episodes = 2
@@ -144,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
     cv2.setNumThreads(1)  # the estimator's figures are for one core
     t0 = time.perf_counter()
     default_pose_models("top", 320, 240, progress=args.progress)
+    if labels:
+        return _perturbation_arms(args, labels, time.perf_counter() - t0)
     default_pose_models("side", 320, 240, progress=args.progress)  # for the side fallback
     if args.arms is None or "eye-in-hand" in args.arms:
         default_pose_models("eye_in_hand", *EYE_IN_HAND_SIZE, progress=args.progress)
@@ -243,6 +261,91 @@ def main(argv: list[str] | None = None) -> int:
     else:
         print(f"written {args.out}")
     return 0
+
+
+def _perturbation_labels(parser: argparse.ArgumentParser, args) -> list[str]:
+    """The ``--perturbations`` list, each checked (a usage error names the bad one)."""
+    if args.perturbations is None:
+        return []
+    from scorbot_gym.data.perturbations import Perturbation
+
+    if args.arms is not None:
+        parser.error("--arms does not apply with --perturbations (it runs the manifold arm)")
+    labels = [t.strip() for t in args.perturbations.split(";") if t.strip()]
+    if not labels:
+        parser.error("--perturbations needs at least one perturbation (or none)")
+    for label in labels:
+        if label != "none":
+            try:
+                Perturbation.parse(label)
+            except ValueError as exc:
+                parser.error(f"--perturbations {label!r}: {exc}")
+    return labels
+
+
+def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
+    """The ``manifold`` arm of the main run under each env perturbation, on the same episodes."""
+    import scorbot_gym
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    runs = [
+        (label, RolloutConfig(
+            **manifold, perturbation=None if label == "none" else label,
+            episodes=args.episodes, seed=args.seed,
+        ))
+        for label in labels
+    ]  # fmt: skip
+    t0 = time.perf_counter()
+    done = _run_arms(runs, args.jobs, args.progress)
+    report = {
+        "benchmark": "closed_loop_perturbations",
+        "arm": "manifold",
+        "episodes_per_arm": args.episodes,
+        "seed": args.seed,
+        "pose_model_ready_s": train_s,
+        "wall_s": time.perf_counter() - t0,
+        "perturbations": labels,
+        "arms": {label: done[label] for label in labels},
+        "machine": {
+            "platform": platform.platform(),
+            "cpu_count": os.cpu_count(),
+            "load_avg": os.getloadavg(),
+            "scorbot_gym": scorbot_gym.__version__,
+        },
+    }
+    atomic_write_json(args.out, report)
+    _plot_perturbations(report, args.out.with_suffix(".png"))
+    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+def _plot_perturbations(report: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = report["perturbations"]
+    arms = [report["arms"][k] for k in labels]
+    fig, ax = plt.subplots(figsize=(7, 4))
+    xs = range(len(labels))
+    rates = [a["success_rate"] for a in arms]
+    lo = [r - a["success_rate_ci95"][0] for r, a in zip(rates, arms, strict=True)]
+    hi = [a["success_rate_ci95"][1] - r for r, a in zip(rates, arms, strict=True)]
+    ax.bar(xs, rates, yerr=[lo, hi], capsize=3, color="tab:blue", alpha=0.8, label="grasp success")
+    valid = [(a.get("perception") or {}).get("valid_rate") for a in arms]
+    ax.plot(xs, [v if v is not None else float("nan") for v in valid], "o", color="tab:red",
+            label="pose estimates valid")  # fmt: skip
+    ax.set_xticks(list(xs))
+    ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
+    ax.set_ylim(0, 1.02)
+    n = report["episodes_per_arm"]
+    ax.set_title(f"closed loop, manifold pose source, {n} episodes per bar")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def _loop_timing(config, episodes: int) -> dict:

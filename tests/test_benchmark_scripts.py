@@ -82,6 +82,8 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion"),
         ("pose_ablation.py", ["--estimators", "chance,no-such-estimator"], "unknown estimator"),
         ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
+        ("closed_loop.py", ["--perturbations", "none;glare=2"], "glare"),
+        ("closed_loop.py", ["--perturbations", "none", "--arms", "oracle"], "--arms does not"),
         ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
         ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
         (
@@ -103,6 +105,7 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
         "keep_margin.py": ["--json", str(tmp_path / "k.json")],
         "fallback_threshold.py": ["--out", str(tmp_path / "f.json")],
         "pose_ablation.py": ["--out-dir", str(tmp_path)],
+        "closed_loop.py": ["--out", str(tmp_path / "c.json")],
     }[script]
     line = _usage_error(_run(str(BENCHMARKS / script), *args, *out))
     assert "error:" in line, line

@@ -65,6 +65,29 @@ def test_rollout_rejects_bad_input_before_running(tmp_path, capsys):
     assert "only apply to pose 'manifold'" in capsys.readouterr().err
     assert main(["rollout", "--pose", "manifold", "--fallback-camera", "top"]) == 2
     assert "must differ from the pose camera" in capsys.readouterr().err
+    assert main(["rollout", "--perturb", "glare=1", "--no-progress"]) == 2
+    assert "bad perturbation 'glare=1'" in capsys.readouterr().err
+
+
+def test_rollout_perturbation_reaches_the_env_and_the_summary():
+    """``--perturb`` is the env's perturbation (the in-loop use of the axes), recorded in the
+    summary and its configuration."""
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.rollout import config_from_args
+    from scorbot_gym.data.perturbations import Perturbation
+    from scorbot_gym.evaluation.rollout import run_rollout
+
+    args = build_parser().parse_args(
+        ["rollout", "--perturb", "surfaces=1.0,noise_sigma=4", "--objects", "box",
+         "--episodes", "1", "--seed", "3"]
+    )  # fmt: skip
+    config = config_from_args(args)
+    env = config.make_env()
+    assert env.unwrapped.perturbation == Perturbation(surfaces=1.0, noise_sigma=4.0)
+    env.close()
+    summary, _ = run_rollout(config)
+    assert summary["perturbation"] == "surfaces=1.0,noise_sigma=4"
+    assert summary["config"]["perturbation"] == "surfaces=1.0,noise_sigma=4"
 
 
 def test_rollout_help_lists_objects_and_cameras(capsys):

@@ -120,6 +120,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--yaw-sigma-deg", type=non_negative_float, default=None, help="noisy: heading noise, deg"
     )
     p.add_argument("--dropout", type=probability, default=None, help="noisy: P(estimate lost)")
+    p.add_argument(
+        "--perturb",
+        default=None,
+        metavar="K=V,...",
+        help="perturb the env, redrawn every episode: lighting, surfaces, camera_pos_m, "
+        "camera_rot_deg, blur_sigma, noise_sigma, seed (e.g. surfaces=1.0,noise_sigma=4)",
+    )
     p.add_argument("--episodes", type=positive_int, default=20)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
@@ -175,6 +182,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         objects=tuple(args.objects) if args.objects else None,
         episodes=args.episodes,
         seed=args.seed,
+        perturbation=args.perturb or None,
     )
 
 

@@ -9,6 +9,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
@@ -33,7 +34,10 @@ class RolloutConfig:
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
     ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy) or
     the directory of a policy exported by ``scorbot-gym train``; ``action_type=None`` takes
-    the learned policy's action type (joint for the others).
+    the learned policy's action type (joint for the others). ``perturbation`` is the env's
+    perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
+    :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
+    pose models stay the unperturbed ones.
     """
 
     policy: str = "scripted"
@@ -53,9 +57,12 @@ class RolloutConfig:
     objects: tuple[str, ...] | None = None
     episodes: int = 20
     seed: int = 0
+    perturbation: str | None = None
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
+        if self.perturbation is not None:
+            Perturbation.parse(self.perturbation)  # a bad one fails here, before any episode
         if self.policy not in POLICIES and not Path(self.policy).is_dir():
             raise ValueError(
                 f"policy must be one of {POLICIES} or a policy directory from `scorbot-gym "
@@ -126,6 +133,8 @@ class RolloutConfig:
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""
         if self.objects:
             env_kwargs.setdefault("objects", list(self.objects))
+        if self.perturbation:
+            env_kwargs.setdefault("perturbation", Perturbation.parse(self.perturbation))
         return make_env(
             self.env_id,
             pose=self.pose,
@@ -174,6 +183,7 @@ def run_rollout(
         pose_source=config.pose,
         estimate_every=config.estimate_every,
         disturbance=config.disturbance,
+        perturbation=config.perturbation,
         action_type=config.action_type,
         seed=config.seed,
         config=config.to_dict(),
