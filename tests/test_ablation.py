@@ -507,7 +507,12 @@ def test_env_perturbation_is_seeded_and_off_by_default():
     assert not np.array_equal(s1["top_rgb"], o1["top_rgb"])  # fresh noise every frame
     off = ScorbotGraspEnv(**kw, perturbation=Perturbation())
     assert np.array_equal(off.reset(seed=4)[0]["top_rgb"], o0["top_rgb"])
-    for e in (env, plain, off):
+    # the reference frame of the empty workspace comes from the same noisy camera
+    noisy = ScorbotGraspEnv(**kw, perturbation=Perturbation(noise_sigma=5), capture_background=True)
+    clean = ScorbotGraspEnv(**kw, capture_background=True)
+    bg = [e.reset(seed=4)[1]["camera_background"]["top"]["rgb"] for e in (noisy, clean)]
+    assert 2 < np.abs(bg[0].astype(int) - bg[1]).mean() < 6  # noise alone, σ 5 levels
+    for e in (env, plain, off, noisy, clean):
         e.close()
 
 

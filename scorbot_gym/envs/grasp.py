@@ -310,14 +310,24 @@ class ScorbotGraspEnv(gym.Env):
         return obs
 
     def _background_frames(self) -> dict[str, dict[str, Any]]:
-        """Each camera's view with the object taken out of the scene (then put back)."""
+        """Each camera's view with the object taken out of the scene (then put back), taken by
+        the same camera as the observations: under a blur/noise perturbation it is blurred
+        too and has noise of its own (frame 0 of the episode's stream)."""
         pos, quat = self.sim.object_pose()
         self.sim.set_object_pose(pos + np.array([50.0, 50.0, -50.0]), quat)
         self.sim.forward()
         try:
             arm = {"joint_pos": self.robot.joint_pos}
             arm["gripper_opening"] = np.array([self.robot.gripper_opening])
-            frames = {cam: {"rgb": self.sim.render(cam, "rgb"), **arm} for cam in self.cameras}
+            frames = {
+                cam: {
+                    "rgb": self.perturbation.apply_image(
+                        self.sim.render(cam, "rgb"), (self._episode, 0, i)
+                    ),
+                    **arm,
+                }
+                for i, cam in enumerate(self.cameras)
+            }
         finally:
             self.sim.set_object_pose(pos, quat)
             self.sim.forward()
