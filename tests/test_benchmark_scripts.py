@@ -221,3 +221,16 @@ def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
             k: cells[(r["estimator"], r["occlusion"])][k] for k in keys
         }
     assert all(s["fit_errors"] == 0 for s in report["stats"].values())
+
+
+def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm():
+    """The in-loop perturbation table reads every row against its unperturbed one: that row
+    must be the main closed-loop run's ``manifold`` arm, episode for episode."""
+    report = json.loads((RESULTS / "closed_loop_perturbations.json").read_text())
+    main_run = json.loads((RESULTS / "closed_loop.json").read_text())
+    assert report["perturbations"][0] == "none" and report["seed"] == main_run["seed"]
+    keys = ("episodes", "successes", "failure_causes", "per_object")
+    unperturbed, manifold = report["arms"]["none"], main_run["arms"]["manifold"]
+    assert {k: unperturbed[k] for k in keys} == {k: manifold[k] for k in keys}
+    for label in report["perturbations"][1:]:
+        assert report["arms"][label]["config"]["perturbation"] == label
