@@ -128,12 +128,8 @@ def code_fingerprint() -> str:
 @functools.cache
 def surface_photographs() -> tuple[np.ndarray, ...]:
     """The :data:`SURFACE_PHOTOGRAPHS` as RGB ``uint8`` images (grey ones repeated per channel)."""
-    try:
-        import skimage.data
-    except ImportError as exc:  # a core dependency; only a broken install lands here
-        raise ImportError(
-            "the surfaces perturbation needs scikit-image: pip install scikit-image"
-        ) from exc
+    import skimage.data
+
     out = []
     for name in SURFACE_PHOTOGRAPHS:
         img = np.asarray(getattr(skimage.data, name)(), np.uint8)
@@ -180,8 +176,9 @@ class ScenePerturber:
         rgb = int(mujoco.mjtTextureRole.mjTEXROLE_RGB)
         self._textures = sorted(
             {int(m.mat_texid[i, rgb]) for i in self._mats if m.mat_texid[i, rgb] >= 0}
-            & {t for t in range(m.ntex) if m.tex_type[t] == mujoco.mjtTexture.mjTEXTURE_2D}
-        )  # the 2-D RGB textures of the surface materials
+            & {t for t in range(m.ntex)
+               if m.tex_type[t] == mujoco.mjtTexture.mjTEXTURE_2D and m.tex_nchannel[t] == 3}
+        )  # the 2-D RGB textures of the surface materials (the arena's are)  # fmt: skip
         self._nominal_tex = {t: self._tex_pixels(t).copy() for t in self._textures}
         self._tex_changed = False
         self._nominal = {
@@ -235,13 +232,10 @@ class ScenePerturber:
                 m.mat_rgba[i, :3] = self._nominal["mat_rgba"][i, :3] * rng.uniform(1 - a, 1.0, 3)
                 m.mat_texrepeat[i] = self._nominal["mat_texrepeat"][i] * 2.0 ** rng.uniform(-a, a)
             for t, nominal in self._nominal_tex.items():
-                h, w, c = nominal.shape
-                rgb = min(c, 3)  # an alpha channel, if any, stays nominal
+                h, w, _ = nominal.shape
                 photo = _photo_crop(rng, w, h).astype(np.float32)
-                if rgb == 1:
-                    photo = photo.mean(axis=2, keepdims=True)
-                blend = (1.0 - a) * nominal[..., :rgb].astype(np.float32) + a * photo[..., :rgb]
-                self._tex_pixels(t)[..., :rgb] = np.clip(np.rint(blend), 0, 255).astype(np.uint8)
+                blend = (1.0 - a) * nominal.astype(np.float32) + a * photo
+                self._tex_pixels(t)[:] = np.clip(np.rint(blend), 0, 255).astype(np.uint8)
             if self._nominal_tex:
                 self._tex_changed = True
                 self._textures_edited()
