@@ -271,15 +271,12 @@ def _perturbation_labels(parser: argparse.ArgumentParser, args) -> list[str]:
 
     if args.arms is not None:
         parser.error("--arms does not apply with --perturbations (it runs the manifold arm)")
-    labels = [t.strip() for t in args.perturbations.split(";") if t.strip()]
+    try:
+        labels = [label for label, _ in Perturbation.parse_list(args.perturbations)]
+    except ValueError as exc:
+        parser.error(f"--perturbations: {exc}")
     if not labels:
         parser.error("--perturbations needs at least one perturbation (or none)")
-    for label in labels:
-        if label != "none":
-            try:
-                Perturbation.parse(label)
-            except ValueError as exc:
-                parser.error(f"--perturbations {label!r}: {exc}")
     return labels
 
 

@@ -212,10 +212,9 @@ def main(argv: list[str] | None = None) -> int:
         else:  # every registered estimator (the manifold's coarse path comes with it)
             estimators = list(estimator_names())
         objects = tuple(o for o in (args.objects or "").split(",") if o)
-        labels = [t.strip() for t in (args.perturbations or "").split(";") if t.strip()]
-        perturbations = [Perturbation.parse(None if t == "none" else t) for t in labels] or [
-            Perturbation.parse(args.perturb)
-        ]
+        pairs = Perturbation.parse_list(args.perturbations)
+        labels = [label for label, _ in pairs]
+        perturbations = [p for _, p in pairs] or [Perturbation.parse(args.perturb)]
         occlusions = parse_occlusions(args.occlusion)
         if paired is not None and paired not in [str(EstimatorSpec.parse(e)) for e in estimators]:
             raise ValueError(f"--paired {paired!r} is not among --estimators")

@@ -478,6 +478,12 @@ def test_editing_the_perturbation_code_invalidates_perturbed_trials_only(monkeyp
 
 def test_perturbation_validation():
     assert not Perturbation().active
+    assert Perturbation.parse_list(" none; lighting=0.5 ;") == [
+        ("none", Perturbation()), ("lighting=0.5", Perturbation(lighting=0.5))
+    ]  # fmt: skip
+    assert Perturbation.parse_list(None) == []
+    with pytest.raises(ValueError, match="glare"):
+        Perturbation.parse_list("none;glare=1")
     assert Perturbation.parse("lighting=0.3,noise_sigma=4,seed=2") == Perturbation(
         lighting=0.3, noise_sigma=4.0, seed=2
     )

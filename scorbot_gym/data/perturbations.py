@@ -98,6 +98,13 @@ class Perturbation:
                 raise ValueError(f"perturbation {key} needs a number, got {value!r}") from exc
         return cls(**kw)
 
+    @classmethod
+    def parse_list(cls, text: str | None) -> list[tuple[str, Perturbation]]:
+        """From ``"none;lighting=0.5;noise_sigma=8"`` (the benchmarks' ``--perturbations``):
+        ``(label, perturbation)`` pairs, ``"none"`` the unperturbed one; empty means none."""
+        labels = [t.strip() for t in (text or "").split(";") if t.strip()]
+        return [(t, cls.parse(None if t == "none" else t)) for t in labels]
+
     def rng(self, index: int | Sequence[int], axis: str) -> np.random.Generator:
         """The random stream of one axis for frame ``index`` (an int or a tuple of ints, e.g.
         ``(episode, step, camera)``), independent of the other axes' streams."""
