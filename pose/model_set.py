@@ -13,7 +13,7 @@ import os
 
 import numpy as np
 
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.serialization import load_arrays, save_arrays
 from pose.view import PoseEstimate, View
 

@@ -20,7 +20,7 @@ from pose.shape.descriptors import shape_descriptor
 
 
 class ViewPredictor(Protocol):
-    """Anything with ``predict(view)``, e.g. ``pose.estimator.PoseManifoldEstimator``."""
+    """Anything with ``predict(view)``, e.g. ``pose.manifold.estimator.PoseManifoldEstimator``."""
 
     def predict(self, view: Any) -> Any: ...
 

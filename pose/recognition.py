@@ -30,8 +30,8 @@ import cv2
 import numpy as np
 from sklearn.base import BaseEstimator, clone
 
-from pose.keypoints import extract_sift
-from pose.matching import DescriptorIndex
+from pose.features.keypoints import extract_sift
+from pose.features.matching import DescriptorIndex
 from pose.shape.descriptors import shape_descriptor
 from pose.shape.flr import FLRClassifier
 
@@ -213,7 +213,7 @@ class AppearanceRecognizer:
     """The class whose pose model explains the most keypoints of the view (RANSAC inliers).
 
     ``estimators`` maps class -> a fitted estimator with ``predict(view)`` returning an object
-    with ``valid`` and ``n_inliers`` (e.g. :class:`pose.estimator.PoseManifoldEstimator`).
+    with ``valid`` and ``n_inliers`` (e.g. :class:`pose.manifold.estimator.PoseManifoldEstimator`).
     The cost of a class is ``-n_inliers`` (``inf`` when its estimate is invalid); the winning
     class's estimate comes back in :attr:`Recognition.estimates`, so it need not be re-run.
     When no class gives a valid estimate (too few keypoints left, e.g. a small object half

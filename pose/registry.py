@@ -19,7 +19,7 @@ from functools import partial
 from typing import Any
 
 from pose import baselines
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 
 _ESTIMATORS: dict[str, Callable[..., Any]] = {"manifold": PoseManifoldEstimator}
 _ESTIMATORS["chance"] = baselines.ChanceEstimator

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pose.bunches import kmeans_locations, make_bunches
 from pose.manifold import anchor_index, manifold_coordinates
+from pose.manifold.bunches import kmeans_locations, make_bunches
 
 CENTRES = np.array([[10.0, 10.0], [60.0, 10.0], [35.0, 50.0]])
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from sklearn.base import clone
 
-from pose.estimator import PoseManifoldEstimator
 from pose.manifold import ScipyRBF, SilhouetteDirection
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.metrics import rotation_error_deg, translation_error
 from pose.model_set import PoseModelSet
 from pose.synthetic import card_views, top_camera

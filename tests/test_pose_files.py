@@ -10,8 +10,8 @@ import warnings
 import numpy as np
 import pytest
 
-from pose.estimator import PoseManifoldEstimator
 from pose.fileio import atomic_savez
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.model_set import PoseModelSet
 from pose.serialization import FORMAT
 from pose.synthetic import card_views

@@ -4,10 +4,10 @@ import cv2
 import numpy as np
 import pytest
 
-from pose.estimator import occlude_features
-from pose.keypoints import extract_sift
+from pose.features.keypoints import extract_sift
+from pose.manifold.augment import occlude_features
+from pose.manifold.regressors import RBFNetwork
 from pose.orientation import keypoint_heading
-from pose.rbf import RBFNetwork
 from pose.rotations import geodesic_deg, inplane_heading, rot_z
 from pose.synthetic import card_texture
 from pose.vocabulary import learn_vocabulary, word_histogram

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pose.keypoints import extract_sift
+from pose.features.keypoints import extract_sift
 from pose.synthetic import card_texture
 
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pose.matching import (
+from pose.features.matching import (
     DescriptorIndex,
     apply_homography,
     local_similarity,

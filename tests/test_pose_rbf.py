@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from sklearn.base import clone
 
-from pose.rbf import RBFNetwork, ScipyRBF
+from pose.manifold.regressors import RBFNetwork, ScipyRBF
 
 
 def _data(n=300, seed=0):

@@ -1,6 +1,6 @@
 import pytest
 
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.registry import estimator_names, make_estimator, register_estimator
 
 

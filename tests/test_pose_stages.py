@@ -8,7 +8,6 @@ import pytest
 from sklearn.base import clone
 from sklearn.model_selection import GridSearchCV, KFold
 
-from pose.estimator import PoseManifoldEstimator
 from pose.manifold import (
     VARIANTS,
     KMeansBunches,
@@ -17,6 +16,7 @@ from pose.manifold import (
     default_regressor,
     make_variant,
 )
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.metrics import rotation_error_deg
 from pose.registry import estimator_names, make_estimator
 from pose.symmetry import Symmetry

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.metrics import rotation_error_deg
 from scorbot_gym.data.views import PoseSample, grid_poses, occlude, random_poses, render_views
 from scorbot_gym.objects import get_object

@@ -112,7 +112,7 @@ def _sim_views(name: str, yaws_deg, xy=(0.28, 0.0)):
 
 @pytest.mark.slow
 def test_recognize_then_estimate_with_real_pose_estimators():
-    from pose.estimator import PoseManifoldEstimator
+    from pose.manifold.estimator import PoseManifoldEstimator
     from pose.metrics import rotation_error_deg
 
     objects = ("banana", "box")

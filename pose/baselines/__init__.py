@@ -1,6 +1,6 @@
 """Pose-estimation baselines with the manifold estimator's contract.
 
-Every class here follows :class:`pose.estimator.PoseManifoldEstimator`'s contract:
+Every class here follows :class:`pose.manifold.estimator.PoseManifoldEstimator`'s contract:
 ``fit(views, poses)`` with ``camera_from_object`` poses ``(N, 4, 4)``, ``predict(view) ->
 PoseEstimate`` (``valid=False``, never an exception, for a view without the object), and
 pickle-free ``save``/``load``. They are registered by name in :mod:`pose.registry`:

@@ -29,6 +29,7 @@ from sklearn.base import BaseEstimator
 from sklearn.utils.validation import check_is_fitted
 
 from pose.camera import CameraModel
+from pose.features.keypoints import to_gray
 from pose.geometry import (  # noqa: F401  (MIN_MASK_PIXELS, lift_to_object, pnp: re-exported)
     MIN_MASK_PIXELS,
     camera_point,
@@ -39,7 +40,6 @@ from pose.geometry import (  # noqa: F401  (MIN_MASK_PIXELS, lift_to_object, pnp
     pnp,
     world_point,
 )
-from pose.keypoints import to_gray
 from pose.metrics import ScoredEstimator
 from pose.rotations import geodesic_deg
 from pose.serialization import load_estimator_arrays, save_arrays

@@ -28,8 +28,8 @@ from sklearn.utils.validation import check_is_fitted
 
 from pose.baselines._common import BaselineEstimator, Timer, check_training_set, check_view, invalid
 from pose.baselines.pnp import lifted_features, match_3d
-from pose.keypoints import extract_sift
-from pose.matching import DescriptorIndex
+from pose.features.keypoints import extract_sift
+from pose.features.matching import DescriptorIndex
 from pose.view import PoseEstimate, View
 
 

@@ -4,7 +4,7 @@ A FLANN index over all training descriptors votes for the training views sharing
 appearance with the new view; the ``n_candidates`` best-voted are matched exhaustively (ratio
 test) and fitted a RANSAC homography; the one with the most inliers wins. Its known rotation,
 turned about the optical axis by the homography's in-plane angle at the object centre
-(:func:`pose.matching.local_similarity`), is the answer; the training view's mask centroid
+(:func:`pose.features.matching.local_similarity`), is the answer; the training view's mask centroid
 carried through the homography gives the position (the shared silhouette method,
 :class:`pose.baselines._common.BaselineEstimator`, with that view as reference).
 
@@ -30,15 +30,15 @@ from pose.baselines._common import (
     invalid,
     object_region,
 )
-from pose.geometry import centre_and_size
-from pose.keypoints import extract_sift
-from pose.matching import (
+from pose.features.keypoints import extract_sift
+from pose.features.matching import (
     DescriptorIndex,
     apply_homography,
     local_similarity,
     ransac_homography,
     ratio_match,
 )
+from pose.geometry import centre_and_size
 from pose.rotations import rot_z
 from pose.view import PoseEstimate, View
 

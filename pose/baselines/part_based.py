@@ -31,8 +31,8 @@ from pose.baselines._common import (
     object_region,
     require_masks,
 )
+from pose.features.keypoints import to_gray
 from pose.geometry import centre_and_size
-from pose.keypoints import to_gray
 from pose.view import PoseEstimate, View
 
 

@@ -35,7 +35,7 @@ from pose.baselines._common import (
     require_masks,
 )
 from pose.geometry import centre_and_size
-from pose.rbf import RBFNetwork
+from pose.manifold.regressors import RBFNetwork
 from pose.rotations import from_6d, to_6d
 from pose.view import PoseEstimate, View
 

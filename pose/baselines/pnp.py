@@ -31,8 +31,8 @@ from pose.baselines._common import (
     object_region,
     pnp,
 )
+from pose.features.keypoints import extract_sift
 from pose.features.matching import DescriptorIndex, ratio_test_3d
-from pose.keypoints import extract_sift
 from pose.view import PoseEstimate, View
 
 

@@ -2,8 +2,9 @@
 them, and run ablation sweeps.
 
 ``train`` renders (or reads from the cache) a grid of resting faces x headings, each at random
-table positions, for every object, fits one :class:`pose.estimator.PoseManifoldEstimator` per
-object and writes them to one model file. ``eval`` renders held-out random poses with synthetic
+table positions, for every object, fits one
+:class:`~pose.manifold.estimator.PoseManifoldEstimator` per object and writes them to one model
+file. ``eval`` renders held-out random poses with synthetic
 occlusion and prints, per occlusion level, a table of the BOP-style errors (``--json`` writes
 the same numbers). ``ablate`` runs a protocol x estimators x occlusion sweep
 (:mod:`scorbot_gym.experiments`) and writes the seed's Fig. 3 (``--png``), the per-level

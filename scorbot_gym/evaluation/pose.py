@@ -6,7 +6,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.metrics import add, add_s, rotation_error_deg, summarize, translation_error
 from pose.model_set import PoseModelSet
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pose.estimator import PoseManifoldEstimator
+from pose.manifold.estimator import PoseManifoldEstimator
 from pose.model_set import PoseModelSet
 
 N_POSITIONS = 2  # random table positions per (resting face, heading) of the training grid
