@@ -3,7 +3,8 @@
 For each protocol, every registered estimator (or ``--estimators``) is fitted per object on the
 protocol's training views and scored on its held-out views at each occlusion level, through
 :func:`scorbot_gym.experiments.ablate` (the code behind ``scorbot-gym pose ablate``). Writes
-``benchmarks/results/pose_ablation_<protocol>.json`` and ``.png`` per protocol, with the
+``benchmarks/results/pose_ablation_<protocol>.json.gz`` (gzip-compressed: it keeps every view's
+error) and ``.png`` per protocol, with the
 chance level, the asymmetric-only figures, the stage-ablation table and the issue's targets
 (met or not). Trials are cached, so an interrupted run resumes. Threads are pinned to one per
 worker, so ``median_ms`` is a single-core time.
@@ -16,8 +17,8 @@ worker, so ``median_ms`` is a single-core time.
 
 With ``--perturbations`` each protocol is run once per perturbation (test views only; the
 models are the unperturbed ones, from the model cache) and one combined
-``pose_ablation_<protocol>_perturbations.json`` / ``.png`` is written instead.
-``--replot results/pose_ablation_*.json`` only redraws the PNGs from their JSON files.
+``pose_ablation_<protocol>_perturbations.json.gz`` / ``.png`` is written instead.
+``--replot results/pose_ablation_*.json.gz`` only redraws the PNGs from their JSON files.
 ``--paired ESTIMATOR`` compares that estimator view by view with every other one of the sweep
 (``paired`` in the JSON and printed); with ``--replot`` it is computed from each file's
 ``view_errors`` and added to the file.
@@ -38,7 +39,7 @@ import sys  # noqa: E402
 import textwrap  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from pose.fileio import atomic_write_bytes, atomic_write_json  # noqa: E402
+from pose.fileio import atomic_write_bytes, atomic_write_json, read_json  # noqa: E402
 from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
@@ -97,7 +98,7 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
         print(f"\n== {spec.protocol}, perturbation {label}")
         print(format_results(report["results"], report["chance"]))
     atomic_write_json(
-        stem.with_suffix(".json"),
+        Path(f"{stem}.json.gz"),
         {"spec": {**specs[0].to_dict(), "perturbation": None}, "perturbations": labels,
          "results": rows, "chance": chance, "stats": stats, "machine": machine},
     )  # fmt: skip
@@ -137,20 +138,18 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     fig.savefig(buf, format="png")
     plt.close(fig)
     atomic_write_bytes(stem.with_suffix(".png"), buf.getvalue())
-    print(f"wrote {stem}.json / .png")
+    print(f"wrote {stem}.json.gz / .png")
 
 
 def replot(json_path: Path, paired: str | None = None) -> None:
     """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone); with
     ``paired``, also compare that estimator view by view with the others, from the file's
     ``view_errors``, and add the rows to the file as ``paired`` (nothing else in it changes)."""
-    import json
-
     try:
-        report = json.loads(json_path.read_text())
+        report = read_json(json_path)
         spec = report["spec"]
         results, chance = report["results"], report["chance"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (OSError, EOFError, ValueError, KeyError, TypeError) as exc:
         raise ValueError(f"{json_path}: not a readable sweep JSON ({exc})") from exc
     if "perturbations" in report:
         raise ValueError(f"{json_path}: a perturbation sweep; rerun it to redraw its bars")
@@ -161,7 +160,13 @@ def replot(json_path: Path, paired: str | None = None) -> None:
         print(format_paired(report["paired"]))
         atomic_write_json(json_path, report)
     write_report({"spec": spec, "results": results, "chance": chance}, None,
-                 json_path.with_suffix(".png"))  # fmt: skip
+                 png_path(json_path))  # fmt: skip
+
+
+def png_path(json_path: Path) -> Path:
+    """The PNG beside a sweep record: ``x.json.gz`` and ``x.json`` both draw ``x.png``."""
+    name = json_path.name.removesuffix(".gz").removesuffix(".json")
+    return json_path.with_name(f"{name}.png")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -203,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                 replot(path, paired)
             except ValueError as exc:
                 ap.error(str(exc))
-            print(f"wrote {path.with_suffix('.png')}")
+            print(f"wrote {png_path(path)}")
         return 0
 
     try:  # every argument checked before anything runs
@@ -247,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
         if paired is not None:
             report["paired"] = paired_differences(report["view_errors"], paired)
         stem = Path(args.out_dir) / f"pose_ablation_{protocol}{args.suffix}"
-        write_report(report, stem.with_suffix(".json"), stem.with_suffix(".png"))
+        write_report(report, Path(f"{stem}.json.gz"), Path(f"{stem}.png"))
         print(f"\n== {protocol}\n" + format_results(report["results"], report["chance"]))
         for table in report_tables(report):
             print(table)
@@ -255,7 +260,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"target {t}")
         for f in report["fit_errors"]:
             print(f"not fitted: {f['estimator']} on {f['object']}: {f['error']}")
-        print(f"stats {report['stats']}\nwrote {stem}.json / .png")
+        print(f"stats {report['stats']}\nwrote {stem}.json.gz / .png")
     return 0
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 
+from pose.fileio import atomic_write_json, read_json
 from scorbot_gym.data.protocols import protocol_names
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -71,13 +72,6 @@ def test_every_benchmark_script_imports_and_parses_help():
 @pytest.mark.parametrize(
     ("script", "args", "message"),
     [
-        ("keep_margin.py", ["--margins=-1,5"], "--margins must be finite values >= 0"),
-        ("keep_margin.py", ["--margins", "a,b"], "could not convert"),
-        ("keep_margin.py", ["--protocols", "top-resting,upside-down"], "unknown protocols"),
-        ("keep_margin.py", ["--occlusion", "0,120"], "occlusion"),
-        ("keep_margin.py", ["--estimator", "manifold-pnp("], "manifold-pnp("),
-        ("fallback_threshold.py", ["--protocols", "upside-down"], "unknown protocol"),
-        ("fallback_threshold.py", ["--fallback", "no-such-estimator"], "unknown estimator"),
         ("pose_ablation.py", ["--protocols", "top-resting,upside-down"], "unknown protocol"),
         ("pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion"),
         ("pose_ablation.py", ["--estimators", "chance,no-such-estimator"], "unknown estimator"),
@@ -102,8 +96,6 @@ def test_every_benchmark_script_imports_and_parses_help():
 )
 def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path):
     out = {  # were an argument wrongly accepted, nothing would be written into results/
-        "keep_margin.py": ["--json", str(tmp_path / "k.json")],
-        "fallback_threshold.py": ["--out", str(tmp_path / "f.json")],
         "pose_ablation.py": ["--out-dir", str(tmp_path)],
         "closed_loop.py": ["--out", str(tmp_path / "c.json")],
     }[script]
@@ -112,36 +104,33 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
     assert message in line, line
 
 
-def test_keep_margin_redraws_its_png_from_the_committed_json(tmp_path):
-    png = tmp_path / "keep_margin.png"
-    src = RESULTS / "keep_margin_seed1.json"
-    proc = _run(str(BENCHMARKS / "keep_margin.py"), "--replot", str(src), "--png", str(png))
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
 def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
-    sweep = tmp_path / "pose_ablation_side-turntable_select.json"
+    sweep = tmp_path / "pose_ablation_side-turntable_select.json.gz"
     shutil.copy(RESULTS / sweep.name, sweep)
     proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep))
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert sweep.with_suffix(".png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    png = tmp_path / "pose_ablation_side-turntable_select.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     foreign = tmp_path / "keep_margin_seed1.json"  # a JSON, but not a sweep's
     shutil.copy(RESULTS / foreign.name, foreign)
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(foreign)))
     assert str(foreign) in line and not foreign.with_suffix(".png").exists(), line
+    truncated = tmp_path / "truncated.json.gz"  # a compressed record cut short
+    truncated.write_bytes(sweep.read_bytes()[:999])
+    line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(truncated)))
+    assert "not a readable sweep JSON" in line, line
 
 
 def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_json(tmp_path):
-    sweep = tmp_path / "pose_ablation_side-turntable_select.json"
-    report = json.loads((RESULTS / sweep.name).read_text())
+    sweep = tmp_path / "pose_ablation_side-turntable_select.json.gz"
+    report = read_json(RESULTS / sweep.name)
     report.pop("paired", None)
-    sweep.write_text(json.dumps(report))
+    atomic_write_json(sweep, report)
     select = next(e for e in report["spec"]["estimators"] if e.startswith("select("))
     proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep), "--paired", select)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    paired = json.loads(sweep.read_text())["paired"]
+    paired = read_json(sweep)["paired"]
     others = set(report["spec"]["estimators"]) - {select}
     assert {(r["versus"], r["occlusion"]) for r in paired} == {
         (e, o) for e in others for o in report["spec"]["occlusions"]
@@ -151,7 +140,7 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
         gap = success[(select, r["occlusion"])] - success[(r["versus"], r["occlusion"])]
         assert r["diff"] == pytest.approx(gap, abs=2e-4)
         assert r["only_estimator"] - r["only_versus"] == round(gap * r["n"])
-    old = tmp_path / "pose_ablation_side-turntable_all.json"  # written before view_errors
+    old = tmp_path / "pose_ablation_side-turntable_all.json.gz"  # written before view_errors
     shutil.copy(RESULTS / old.name, old)
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(old),
                              "--paired", "chance"))  # fmt: skip
@@ -173,7 +162,7 @@ def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
     what the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
     from scorbot_gym.experiments.aggregate import stage_ablation
 
-    report = json.loads((RESULTS / f"pose_ablation_{protocol}_stages.json").read_text())
+    report = read_json(RESULTS / f"pose_ablation_{protocol}_stages.json.gz")
     assert len(report["spec"]["occlusions"]) == 20
     assert set(report["spec"]["estimators"]) == {
         "manifold", "manifold-no-bunches", "manifold-no-shape", "manifold-no-words",
@@ -189,7 +178,7 @@ def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name)
     the file's own cells and view errors give."""
     from scorbot_gym.experiments.aggregate import curve_summary, paired_differences
 
-    report = json.loads((RESULTS / f"pose_ablation_{name}.json").read_text())
+    report = read_json(RESULTS / f"pose_ablation_{name}.json.gz")
     assert len(report["spec"]["occlusions"]) == 20  # 0-95 % in 5 % steps, as in the seed
     assert report["curves"] == curve_summary(report["results"], report["chance"])
     selection = report["paired"][0]["estimator"]
@@ -209,8 +198,8 @@ def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name)
 def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
     """The perturbation table's first row is read as the unperturbed baseline of every other
     row: its cells must be the Fig. 3 file's (same protocol, models, views and estimators)."""
-    report = json.loads((RESULTS / "pose_ablation_side-turntable_perturbations.json").read_text())
-    fig3 = json.loads((RESULTS / "pose_ablation_side-turntable_fig3.json").read_text())
+    report = read_json(RESULTS / "pose_ablation_side-turntable_perturbations.json.gz")
+    fig3 = read_json(RESULTS / "pose_ablation_side-turntable_fig3.json.gz")
     assert report["perturbations"][0] == "none" and len(report["perturbations"]) == 5
     keys = ("n", "success_5deg", "success_5deg_asymmetric", "median_rot_err_deg", "valid_rate")
     cells = {(r["estimator"], r["occlusion"]): r for r in fig3["results"]}
