@@ -262,10 +262,15 @@ def _cell(r: dict, with_ci: bool) -> str:
 
 
 def sweep_table(
-    suffix: str, protocols: tuple[str, ...] = PROTOCOLS, names: dict[str, str] | None = None
+    suffix: str,
+    protocols: tuple[str, ...] = PROTOCOLS,
+    names: dict[str, str] | None = None,
+    cost: bool = False,
 ) -> Callable[[], str]:
     """success@5° [asymmetric banana] per (protocol, estimator) and occlusion, from
-    ``pose_ablation_{protocol}{suffix}.json.gz``; the 95 % CI in the first column."""
+    ``pose_ablation_{protocol}{suffix}.json.gz``; the 95 % CI in the first column. ``cost``
+    adds the share of views answered and the median ``predict`` wall time at the first level
+    (two workers sharing two cores: not a single-core figure)."""
     names = names or {}
 
     def render() -> str:
@@ -275,11 +280,17 @@ def sweep_table(
             levels = d["spec"]["occlusions"]
             cells = {(r["estimator"], r["occlusion"]): r for r in d["results"]}
             for est in d["spec"]["estimators"]:
+                first = cells[(est, levels[0])]
+                extra = [pct(first["valid_rate"], 0), f"{first['median_ms']:.1f}"] if cost else []
                 rows.append(
                     [f"`{protocol}`", short(est, names)]
                     + [_cell(cells[(est, o)], i == 0) for i, o in enumerate(levels)]
+                    + extra
                 )
-        return table(["protocol", "estimator"] + [f"{100 * o:.0f} %" for o in levels], rows)
+        head = ["protocol", "estimator"] + [f"{100 * o:.0f} %" for o in levels]
+        if cost:
+            head += [f"valid at {100 * levels[0]:.0f} %", f"median ms at {100 * levels[0]:.0f} %"]
+        return table(head, rows)
 
     return render
 
@@ -428,9 +439,9 @@ TABLES: dict[str, Callable[[], str]] = {
     "view-perturbations": view_perturbations,
     "all-estimators": sweep_table("_all", protocols=PROTOCOLS),
     "pnp": sweep_table("_pnp", protocols=PROTOCOLS[:4]),
-    "upscale": sweep_table("_upscale"),
-    "fallback": sweep_table("_fallback"),
-    "global": sweep_table("_global"),
+    "upscale": sweep_table("_upscale", cost=True),
+    "fallback": sweep_table("_fallback", cost=True),
+    "global": sweep_table("_global", cost=True),
     "keep-margin": keep_margin,
 }
 

@@ -1,11 +1,13 @@
-"""Every README code block runs as written.
+"""Every README example runs as a user runs it.
 
-Python blocks are executed, each in a fresh interpreter in an empty working directory (so they
-cannot lean on each other or on files lying around). Shell blocks are checked command by
-command: ``scorbot-gym`` commands must parse with the real argument parser (running them all
-would take the benchmarks' time) and ``python <script>`` must name a script that exists; other
-commands (``pip``, ``pytest``) are left to CI, which runs the install and test commands itself.
-``text`` blocks are synopses, not commands.
+Each ``python`` block is saved as a script in an empty temporary folder and run there by a fresh
+interpreter (``python example.py``, not ``python -c``: a script that starts worker processes
+with ``context="spawn"`` needs its ``if __name__ == "__main__":`` guard, and only a saved file
+shows whether it has one). Each ``bash`` block is run command by command in such a folder too,
+``scorbot-gym`` through this interpreter. ``shell`` blocks are the commands too long for a test
+(installing, the test suite, full benchmark runs): their ``scorbot-gym`` commands must parse
+with the real argument parser and their ``python <script>`` must name a script that exists.
+Nothing an example writes may land in the repository.
 """
 
 from __future__ import annotations
@@ -23,7 +25,9 @@ ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
 BLOCKS = re.findall(r"^```(\w*)\n(.*?)^```", README, flags=re.S | re.M)
 PYTHON = [code for lang, code in BLOCKS if lang == "python"]
-SHELL = [code for lang, code in BLOCKS if lang in ("bash", "sh", "shell", "console")]
+BASH = [code for lang, code in BLOCKS if lang == "bash"]
+SHELL = [code for lang, code in BLOCKS if lang == "shell"]
+MAX_LINES = 400  # the README is what a user reads; results live in benchmarks/README.md
 
 
 def _commands(block: str) -> list[list[str]]:
@@ -39,31 +43,48 @@ def _commands(block: str) -> list[list[str]]:
     return commands
 
 
-def test_readme_has_code_blocks():
-    assert len(PYTHON) >= 3 and len(SHELL) >= 2
-    assert all(lang in ("python", "bash", "text", "json") for lang, _ in BLOCKS), [
+def _env() -> dict[str, str]:
+    """The test's environment, with the repository importable and the shared model cache (the
+    examples' pose models are trained once per machine, as for a user)."""
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+    env.setdefault("SCORBOT_GYM_CACHE", str(Path.home() / ".cache" / "scorbot-gym"))
+    return env
+
+
+def _run(argv: list[str], cwd: Path, what: str) -> None:
+    before = set(ROOT.iterdir())
+    proc = subprocess.run(
+        argv, cwd=cwd, env=_env(), capture_output=True, text=True, timeout=900
+    )  # fmt: skip
+    assert proc.returncode == 0, f"README {what} failed:\n{proc.stderr[-3000:]}"
+    assert set(ROOT.iterdir()) == before, f"README {what} wrote into the repository"
+
+
+def test_readme_is_short_and_has_runnable_blocks():
+    assert len(README.splitlines()) <= MAX_LINES
+    assert len(PYTHON) >= 5 and len(BASH) >= 3 and len(SHELL) >= 2
+    assert all(lang in ("python", "bash", "shell") for lang, _ in BLOCKS), [
         lang for lang, _ in BLOCKS
     ]
+    # the CI runs exactly this test command; the README must give it verbatim
+    assert 'pip install -e ".[test]" && pytest' in "".join(SHELL)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("index", range(len(PYTHON)))
-def test_python_block_runs(index, tmp_path):
-    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
-    env["SCORBOT_GYM_CACHE"] = os.environ.get(
-        "SCORBOT_GYM_CACHE", str(Path.home() / ".cache" / "scorbot-gym")
-    )
-    proc = subprocess.run(
-        [sys.executable, "-c", PYTHON[index]],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert proc.returncode == 0, (
-        f"README python block {index} failed:\n{PYTHON[index]}\n{proc.stderr[-3000:]}"
-    )
+def test_python_block_runs_as_a_saved_script(index, tmp_path):
+    script = tmp_path / "example.py"
+    script.write_text(PYTHON[index])
+    _run([sys.executable, script.name], tmp_path, f"python block {index}:\n{PYTHON[index]}")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", range(len(BASH)))
+def test_bash_block_runs(index, tmp_path):
+    for argv in _commands(BASH[index]):
+        assert argv[0] == "scorbot-gym", f"a bash block runs scorbot-gym only, got {argv}"
+        _run([sys.executable, "-m", "scorbot_gym.cli", *argv[1:]], tmp_path, shlex.join(argv))
 
 
 @pytest.mark.parametrize("index", range(len(SHELL)))
@@ -77,6 +98,4 @@ def test_shell_block_commands_are_valid(index):
         elif argv[0] == "python" and len(argv) > 1 and argv[1] != "-m":
             assert (ROOT / argv[1]).is_file(), f"README runs {argv[1]}, which does not exist"
         else:
-            assert argv[0] in ("pip", "pytest", "MUJOCO_GL=egl", "export", "cd", "tensorboard"), (
-                argv
-            )
+            assert argv[0] in ("pip", "pytest"), argv
