@@ -1,4 +1,4 @@
-"""The benchmark scripts stay runnable: the figures in the README come from them.
+"""The benchmark scripts stay runnable: the figures in benchmarks/README.md come from them.
 
 Nothing here runs a benchmark (that takes minutes to hours); it checks what breaks silently
 when the package changes under a script: every script imports and parses ``--help``, bad
@@ -145,7 +145,7 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(old),
                              "--paired", "chance"))  # fmt: skip
     assert "has no view_errors" in line, line
-    # the README's reading of the one cell a baseline wins: 1 view against 2, no evidence
+    # benchmarks/README.md's reading of the one cell a baseline wins: 1 view against 2, no evidence
     (cell,) = [r for r in paired if r["versus"] == "sift-pnp(upscale=2)" and r["occlusion"] == 0]
     assert (cell["only_estimator"], cell["only_versus"], cell["mcnemar_p"]) == (1, 2, 1.0)
 
@@ -158,8 +158,8 @@ FIG3 = [f"{protocol}_fig3" for protocol in protocol_names()] + [
 
 @pytest.mark.parametrize("protocol", protocol_names())
 def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
-    """The README's stage table on every protocol is read from ``stage_ablation``: it must be
-    what the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
+    """The stage table of benchmarks/README.md is read from ``stage_ablation``: it must be what
+    the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
     from scorbot_gym.experiments.aggregate import stage_ablation
 
     report = read_json(RESULTS / f"pose_ablation_{protocol}_stages.json.gz")
@@ -174,8 +174,8 @@ def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
 
 @pytest.mark.parametrize("name", FIG3)
 def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name):
-    """The README's Fig. 3 summary is read from ``curves`` and ``paired``: both must be what
-    the file's own cells and view errors give."""
+    """The Fig. 3 summary of benchmarks/README.md is read from ``curves`` and ``paired``: both
+    must be what the file's own cells and view errors give."""
     from scorbot_gym.experiments.aggregate import curve_summary, paired_differences
 
     report = read_json(RESULTS / f"pose_ablation_{name}.json.gz")
