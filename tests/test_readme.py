@@ -98,4 +98,4 @@ def test_shell_block_commands_are_valid(index):
         elif argv[0] == "python" and len(argv) > 1 and argv[1] != "-m":
             assert (ROOT / argv[1]).is_file(), f"README runs {argv[1]}, which does not exist"
         else:
-            assert argv[0] in ("pip", "pytest"), argv
+            assert argv[0] in ("pip", "pytest", "pdoc"), argv
