@@ -296,6 +296,21 @@ def test_resume_refuses_damaged_files_naming_them(one_run, tmp_path, damage, mes
         resume(run, timesteps=240)
 
 
+def test_resume_continues_appends_to_the_monitor_csv_and_clears_killed_writes(one_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(one_run, run)
+    csv = run / "monitor" / "env_0.monitor.csv"
+    before = csv.read_text().splitlines()
+    orphan = run / "checkpoint" / ".model.tmp999.zip"  # what a write killed mid-way leaves
+    orphan.write_bytes(b"half a zip")
+    state = resume(run, timesteps=320)
+    assert state["timesteps"] == 320 and [e["timesteps"] for e in state["eval"]][-1] == 320
+    after = csv.read_text().splitlines()
+    assert after[: len(before)] == before and len(after) > len(before)
+    assert after.count("r,l,t,is_success") == 1, "appended without a second header"
+    assert not orphan.exists()
+
+
 def test_a_policy_without_its_normalisation_is_refused(one_run, tmp_path):
     policy = tmp_path / "policy"
     shutil.copytree(one_run / "policy", policy)

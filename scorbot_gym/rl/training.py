@@ -617,6 +617,18 @@ def _check_compatible(config: dict[str, Any], state: dict[str, Any], out: Path) 
         )
 
 
+def _remove_orphaned_writes(out: Path) -> int:
+    """Delete the temporary files of atomic writes killed mid-way (``.model.tmp<pid>.zip``,
+    ``.state.json.tmp``): a run folder is written by its own run only, so none is in use."""
+    removed = 0
+    for folder in (out, out / runs.CHECKPOINT, out / runs.POLICY, out / runs.BEST):
+        for tmp in folder.glob(".*.tmp*"):
+            if tmp.is_file():
+                tmp.unlink()
+                removed += 1
+    return removed
+
+
 def _load_checkpoint_file(path: Path, what: str, load):
     """``load(path)`` with any failure turned into a one-line error naming the file."""
     try:
@@ -671,6 +683,7 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
         raise FileNotFoundError(
             f"cannot resume {out}: vecnormalize.pkl is missing (the run normalises observations)"
         )
+    _remove_orphaned_writes(out)
     _limit_threads(config.torch_threads)
     venv = make_vec_env(config, out / runs.MONITOR)
     try:
