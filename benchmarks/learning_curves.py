@@ -76,6 +76,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"--train: arms {unknown} are not presets ({', '.join(PRESETS)})")
         if any(len(d) != 1 for d in arms.values()):
             parser.error("--train: give one folder per arm (its seeds go into seed_<S>/)")
+    else:
+        missing = [str(d) for dirs in arms.values() for d in dirs if not d.is_dir()]
+        if missing:
+            parser.error(f"no run folder at {', '.join(missing)} (--train trains preset arms)")
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
@@ -101,13 +105,17 @@ def main(argv: list[str] | None = None) -> int:
                 train_seeds(config, folder, args.seeds)
             trained[label] = {"preset": PRESETS[label], "seeds": args.seeds}
 
+    try:
+        curves = learning_curves(arms)
+    except (ValueError, FileNotFoundError) as exc:
+        parser.error(str(exc))
     report = {
         "benchmark": "learning_curves",
         "what": "success rate on held-out seeds (each run's own evaluations); mean over seeds "
         "and the Student-t 95 % interval of the mean, against env steps and training wall "
         "time (evaluation excluded)",
         "trained_here": trained,
-        "arms": learning_curves(arms),
+        "arms": curves,
         "machine": {
             "platform": platform.platform(),
             "cpu_count": os.cpu_count(),

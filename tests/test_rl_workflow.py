@@ -135,6 +135,22 @@ def test_learning_curves_over_seeds(two_seeds, tmp_path):
     assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_learning_curves_benchmark_reads_run_folders(two_seeds, tmp_path, capsys):
+    import runpy
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
+    bench = runpy.run_path(str(script), run_name="benchmark_under_test")["main"]
+    out = tmp_path / "curves.json"
+    assert bench(["--arm", f"sac={two_seeds}", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["arms"]["sac"]["seeds"] == [0, 1]
+    assert out.with_suffix(".png").is_file()
+    with pytest.raises(SystemExit) as exc:
+        bench(["--arm", f"sac={tmp_path / 'none'}", "--out", str(out)])
+    assert exc.value.code == 2 and "no run folder" in capsys.readouterr().err
+
+
 def test_updates_per_env_step_do_not_depend_on_n_envs():
     one, two = (tiny(n_envs=n).schedule() for n in (1, 2))
     assert one["updates_per_env_step"] == two["updates_per_env_step"] == 1.0
