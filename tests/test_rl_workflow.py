@@ -86,6 +86,18 @@ def test_seeds_give_one_run_each_with_the_overrides_recorded(two_seeds):
     assert not np.array_equal(pa, pb), "the two seeds trained differently"
 
 
+def test_resuming_a_seeds_folder_continues_every_seed(two_seeds, tmp_path, capsys):
+    out = tmp_path / "runs"
+    shutil.copytree(two_seeds, out)
+    shutil.rmtree(out / "seed_1")  # killed before the second seed started
+    argv = ["train", "--resume", str(out), "--timesteps", "240", "--no-progress"]
+    assert main(argv) == 0
+    assert capsys.readouterr().out.count("240 env steps") == 2
+    for seed in (0, 1):
+        state = json.loads((out / f"seed_{seed}" / "checkpoint" / "state.json").read_text())
+        assert state["timesteps"] == 240 and state["config"]["seed"] == seed
+
+
 def test_monitor_csvs_and_every_evaluation_in_tensorboard(one_run):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 

@@ -241,7 +241,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.resume is not None:
         out = args.resume
-        state = resume(out, timesteps=args.timesteps)
+        state = resume(
+            out, timesteps=args.timesteps, progress_bar=False if args.no_progress else None
+        )
     else:
         out, config = args.out, config_from_args(args)
         state = train_seeds(config, out, args.seeds) if args.seeds else train(config, out)

@@ -556,12 +556,14 @@ def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[
     return {"seeds": _train_seeds(config, out, seeds)}
 
 
-def _train_seeds(config: TrainConfig, out: Path, seeds: list[int]) -> dict[int, dict]:
+def _train_seeds(
+    config: TrainConfig, out: Path, seeds: list[int], progress_bar: bool | None = None
+) -> dict[int, dict]:
     states = {}
     for seed in seeds:
         run = out / f"seed_{seed}"
         if runs.has_checkpoint(run):
-            states[seed] = resume(run, timesteps=config.timesteps)
+            states[seed] = resume(run, timesteps=config.timesteps, progress_bar=progress_bar)
         else:
             states[seed] = train(dataclasses.replace(config, seed=seed), run)
     return states
@@ -640,9 +642,12 @@ def _load_checkpoint_file(path: Path, what: str, load):
         ) from None
 
 
-def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
+def resume(
+    out: str | Path, timesteps: int | None = None, progress_bar: bool | None = None
+) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
-    the configured number); returns the state. A ``--seeds`` folder continues every seed."""
+    the configured number; ``progress_bar`` default as configured); returns the state. A
+    ``--seeds`` folder continues every seed."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     from scorbot_gym.policies.sb3 import _algorithms
@@ -651,7 +656,7 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
     if not out.is_dir():
         raise FileNotFoundError(f"cannot resume {out}: no such run folder")
     if (out / runs.SEEDS).is_file():
-        return _resume_seeds(out, timesteps)
+        return _resume_seeds(out, timesteps, progress_bar)
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
@@ -671,6 +676,8 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
         if timesteps < 1:
             raise ValueError(f"timesteps must be >= 1, got {timesteps}")
         raw["timesteps"] = int(timesteps)
+    if progress_bar is not None:
+        raw["progress_bar"] = bool(progress_bar)
     _check_compatible(raw, state, out)
     try:
         config = TrainConfig.from_json(raw)
@@ -708,7 +715,7 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
     except BaseException:
         venv.close()
         raise
-    if timesteps is not None:
+    if timesteps is not None or progress_bar is not None:
         atomic_write_json(config_path, config.to_json())
     model._last_obs = None  # the interrupted episode is not continued: start fresh episodes
     run = _Run(config, out, model, venv, state)
@@ -719,7 +726,7 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
     return run.state
 
 
-def _resume_seeds(out: Path, timesteps: int | None) -> dict[str, Any]:
+def _resume_seeds(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
     record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
     seeds = record.get("seeds")
     if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
@@ -730,7 +737,9 @@ def _resume_seeds(out: Path, timesteps: int | None) -> dict[str, Any]:
         raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
     if timesteps is not None:
         config.timesteps = int(timesteps)
-    return {"seeds": _train_seeds(config, out, seeds)}
+    if progress_bar is not None:
+        config.progress_bar = bool(progress_bar)
+    return {"seeds": _train_seeds(config, out, seeds, progress_bar)}
 
 
 __all__ = [
