@@ -118,12 +118,15 @@ class TrainConfig:
         ):
             if getattr(self, name) < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)}")
-        for name in ("residual_scale", "noise_pos_m", "noise_yaw_deg"):
+        for name, low_open in (
+            ("residual_scale", True),
+            ("noise_pos_m", False),
+            ("noise_yaw_deg", False),
+        ):
             value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0) or (
-                name == "residual_scale" and not value
-            ):
-                raise ValueError(f"{name} must be a finite number > 0, got {value}")
+            if not (math.isfinite(value) and (value > 0 if low_open else value >= 0)):
+                bound = "> 0" if low_open else ">= 0"
+                raise ValueError(f"{name} must be a finite number {bound}, got {value}")
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
