@@ -17,6 +17,21 @@ import numpy as np
 
 from scorbot_gym.rl import runs
 
+#: the settings of an arm's first run that the report repeats (what the curve is of)
+SETTINGS_SHOWN = (
+    "algo",
+    "pose",
+    "action_type",
+    "objects",
+    "residual",
+    "bc_demos",
+    "n_envs",
+    "timesteps",
+    "eval_every",
+    "eval_episodes",
+    "hyperparams",
+)
+
 
 def expand_runs(paths: Sequence[str | Path]) -> list[Path]:
     """Run folders, a ``--seeds`` folder standing for its per-seed runs."""
@@ -38,6 +53,7 @@ def eval_history(run: str | Path) -> dict[str, Any]:
     return {
         "run": str(run),
         "seed": config.get("seed"),
+        "config": config,
         "timesteps": np.array([e["timesteps"] for e in evals], float),
         "wall_s": np.array([e["wall_s"] for e in evals], float),
         "success_rate": np.array([e["success_rate"] for e in evals], float),
@@ -84,6 +100,7 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
         if not histories:
             raise ValueError(f"arm {label!r}: no run folders")
         report[label] = {
+            "settings": {k: histories[0]["config"].get(k) for k in SETTINGS_SHOWN},
             "runs": [h["run"] for h in histories],
             "seeds": [h["seed"] for h in histories],
             "final_success_rate": [float(h["success_rate"][-1]) for h in histories],
