@@ -46,7 +46,7 @@ class TrainConfig:
 
     algo: str = "sac"
     pose: str = "oracle"
-    pose_model: str | None = None  # model file for pose="manifold"
+    pose_model: str | None = None  # model file for pose="manifold" (None: the default models)
     noise_pos_m: float = 0.01  # pose="noisy": x-y position noise (std)
     noise_yaw_deg: float = 5.0  # pose="noisy": heading noise (std)
     action_type: str = "cartesian"
@@ -80,8 +80,6 @@ class TrainConfig:
             raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
         if self.pose not in POSES:
             raise ValueError(f"pose must be one of {POSES}, got {self.pose!r}")
-        if self.pose == "manifold" and not self.pose_model:
-            raise ValueError("pose='manifold' needs pose_model (from `scorbot-gym pose train`)")
         if self.action_type not in ("cartesian", "joint"):
             raise ValueError(
                 f"action_type must be 'cartesian' or 'joint', got {self.action_type!r}"
@@ -110,7 +108,13 @@ class TrainConfig:
                 "yaw_sigma_deg": self.noise_yaw_deg,
             }
         if self.pose == "manifold":
-            return "manifold", {"models": self.pose_model}
+            if self.pose_model:
+                return "manifold", {"models": self.pose_model}
+            from scorbot_gym.perception.training import default_pose_models
+
+            # The top camera's default models, as `scorbot-gym rollout` uses: trained on first
+            # use and cached, so a resumed run and its evaluation read the same ones.
+            return "manifold", {"models": default_pose_models(progress=False)}
         return "oracle", {}
 
     def to_json(self) -> dict[str, Any]:
@@ -155,6 +159,8 @@ def make_vec_env(config: TrainConfig):
     """``n_envs`` training envs (``SubprocVecEnv``; ``DummyVecEnv`` for one), normalised."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
+    if config.n_envs > 1:
+        config.pose_args()  # default pose models are trained here once, not by every worker
     fns = [functools.partial(_monitored, config) for _ in range(config.n_envs)]
     venv = DummyVecEnv(fns) if config.n_envs == 1 else SubprocVecEnv(fns, start_method="spawn")
     if config.normalize:
