@@ -96,8 +96,18 @@ def format_summary(summary: dict) -> str:
         def fmt(v, spec: str, unit: str = "") -> str:
             return "-" if v is None else f"{v:{spec}}{unit}"
 
+        n_first = sum(1 for r in summary["results"] if r.get("perception"))
         rows += [
-            ("pose estimates valid", f"{p['valid_rate']:.1%}  ({p['estimates']} estimates)"),
+            (
+                "pose estimates valid",
+                f"{p['valid_rate']:.1%}  of {p['estimates']} estimates over all steps (the arm "
+                "hides the object from the pose camera for much of the grasp)",
+            ),
+            (
+                "  with a clear view",
+                f"{p['first_estimate_valid_rate']:.1%}  of the {n_first} first estimates, at "
+                "reset (the arm at home, clear of the view)",
+            ),
             ("recognition accuracy", fmt(p["recognition_accuracy"], ".1%")),
             ("median position error", fmt(p["median_pos_err_cm"], ".2f", " cm")),
             ("median rotation error", fmt(p["median_rot_err_deg"], ".2f", " deg")),
