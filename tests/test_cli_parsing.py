@@ -122,27 +122,3 @@ def test_training_config_manifold_without_a_model_uses_the_default_models(defaul
     finally:
         env.close()
     assert len(default_models) == 1
-
-
-def test_rollout_summary_says_what_the_valid_share_measures_and_the_clear_view_share():
-    """Valid estimates over all steps fall while the arm hides the object; the first estimate
-    of each episode (at reset, the arm at home) shows what the estimator does with a clear view."""
-    from scorbot_gym.evaluation import format_summary
-    from scorbot_gym.evaluation.episodes import EpisodeResult
-    from scorbot_gym.evaluation.summary import summarize
-
-    def episode(seed, first_valid, valid):
-        perception = {
-            "estimates": 10, "valid": valid, "first_valid": first_valid,
-            "median_rot_err_deg": 2.0, "median_pos_err_cm": 0.5, "median_add_s_cm": 0.4,
-            "success_5deg": 1.0, "recognised": None, "true_class": "box",
-            "recognition_correct": None, "median_estimate_ms": 30.0, "median_stage_ms": {},
-            "privileged": False,
-        }  # fmt: skip
-        return EpisodeResult(seed, "box", True, 40, None, 1.0, perception)
-
-    summary = summarize([episode(0, True, 2), episode(1, True, 1), episode(2, False, 0)])
-    text = " ".join(format_summary(summary).split())  # without the column padding
-    assert "pose estimates valid 10.0% of 30 estimates over all steps" in text
-    assert "the arm hides the object" in text
-    assert "with a clear view 66.7% of the 3 first estimates, at reset" in text
