@@ -26,8 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "compare",
         help="compare policies (scripted, rl, random, a policy directory) on paired seeds",
         description="Run every policy under every pose condition on the same episode seeds and "
-        "print each arm's success rate (95%% Wilson interval), steps to success and failure "
-        "causes, and each policy's difference from the first (paired 95%% interval, McNemar's "
+        "print each arm's success rate (95% Wilson interval), steps to success and failure "
+        "causes, and each policy's difference from the first (paired 95% interval, McNemar's "
         "test). --json and --png write the report and a per-object / per-noise plot.",
     )
     from scorbot_gym.objects import CATALOGUE  # the valid names, for this sub-command only
