@@ -113,7 +113,7 @@ def time_preload(runs: int) -> dict:
     }
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5, help="fresh processes per command (median)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/cli_startup.json")
@@ -129,13 +129,13 @@ def main() -> None:
         action="store_true",
         help="time the GL preload only (e.g. in a venv with the CUDA build of torch and triton)",
     )
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     commands = []
     # the baseline interleaved, command by command: both see the same machine load
-    for argv in () if args.preload_only else COMMANDS:
-        row = time_command(argv, args.runs)
+    for command in () if args.preload_only else COMMANDS:
+        row = time_command(command, args.runs)
         if args.baseline is not None:
-            base = time_command(argv, args.runs, args.baseline)
+            base = time_command(command, args.runs, args.baseline)
             row["baseline"] = {k: base[k] for k in ("median_s", "exit_codes", "heavy_imports")}
         commands.append(row)
         was = f"  (baseline {row['baseline']['median_s']:.2f} s)" if "baseline" in row else ""
@@ -144,18 +144,17 @@ def main() -> None:
         )
     preload = time_preload(args.runs)
     print(f"GL preload: {preload['median_ms']:.1f} ms, loaded {preload['loaded'] or 'nothing'}")
-    atomic_write_json(
-        args.out,
-        {
-            "runs": args.runs,
-            "baseline": None if args.baseline is None else str(args.baseline),
-            "python": platform.python_version(),
-            "machine": platform.machine(),
-            "commands": commands,
-            "gl_preload": preload,
-        },
-    )
+    result = {
+        "runs": args.runs,
+        "baseline": None if args.baseline is None else str(args.baseline),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "commands": commands,
+        "gl_preload": preload,
+    }
+    atomic_write_json(args.out, result)
     print(f"wrote {args.out}")
+    return result
 
 
 if __name__ == "__main__":
