@@ -17,10 +17,11 @@ POOL_THEN_WAIT = textwrap.dedent(
 
     if __name__ == "__main__":
         pool = worker_pool(2)
-        pids = {pool.submit(os.getpid).result() for _ in range(8)}
-        for _ in range(2):
+        for _ in range(3):
             pool.submit(time.sleep, 300)  # busy workers, as in a sweep
-        print(" ".join(map(str, sorted(pids))), flush=True)
+        while len(pool._processes) < 2:  # both started (spawned on demand)
+            time.sleep(0.05)
+        print("ready", flush=True)
         time.sleep(300)
     """
 )
@@ -35,6 +36,19 @@ def _running(pid: int) -> bool:
     return state not in ("Z", "X")
 
 
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (the pool's workers and its resource tracker)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (FileNotFoundError, ProcessLookupError):
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
 def _dead_pid() -> int:
     proc = subprocess.Popen([sys.executable, "-c", "pass"])
     proc.wait()
@@ -46,8 +60,9 @@ def test_pool_workers_die_when_their_parent_is_killed():
         [sys.executable, "-c", POOL_THEN_WAIT], stdout=subprocess.PIPE, text=True
     )
     try:
-        workers = [int(p) for p in parent.stdout.readline().split()]
-        assert workers and all(_running(p) for p in workers)
+        assert parent.stdout.readline().strip() == "ready"
+        workers = _children(parent.pid)
+        assert len(workers) >= 2 and all(_running(p) for p in workers)
     finally:
         parent.send_signal(signal.SIGKILL)
         parent.wait()
