@@ -5,10 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pose.fileio import atomic_write_json
-from scorbot_gym.cli._args import add_name_list
-from scorbot_gym.evaluation.compare import compare, plot_comparison, policy_label
-from scorbot_gym.objects import CATALOGUE
+from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
 
 
 def _floats(text: str) -> list[float]:
@@ -28,19 +25,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
         help="compare policies (scripted, rl, random, a policy directory) on paired seeds",
+        description="Run every policy under every pose condition on the same episode seeds and "
+        "print each arm's success rate (95% Wilson interval), steps to success and failure "
+        "causes, and each policy's difference from the first (paired 95% interval, McNemar's "
+        "test). --json and --png write the report and a per-object / per-noise plot.",
     )
+    from scorbot_gym.objects import CATALOGUE  # the valid names, for this sub-command only
+
     p.add_argument(
         "--policies",
         type=_names,
         default=["scripted", "rl"],
         help="comma-separated: scripted, rl (the shipped policy), random, or a "
-        "policy directory from `scorbot-gym train`; differences are against the first",
+        "policy directory from `scorbot-gym train`; differences are against the first "
+        "(default scripted,rl)",
     )
     p.add_argument(
         "--pose",
         type=_names,
         default=["oracle"],
-        help="comma-separated pose conditions: oracle, noisy, manifold",
+        help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
+        "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
+        "images) (default oracle)",
     )
     p.add_argument(
         "--noise",
@@ -49,9 +55,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="pose-noise levels (position std in metres, e.g. 0.005,0.01,0.02); each "
         "adds a noisy_oracle condition",
     )
-    p.add_argument("--pose-model", type=Path, default=None, help="for --pose manifold")
-    p.add_argument("--episodes", type=int, default=50)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--pose-model",
+        type=Path,
+        default=None,
+        help="model file from `scorbot-gym pose train` for --pose manifold (default: the "
+        "default models for the top camera, trained on first use and cached)",
+    )
+    p.add_argument(
+        "--episodes", type=positive_int, default=50, help="episodes per arm (default 50)"
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the first episode; every arm runs the same"
+    )
     add_name_list(p, "--objects", CATALOGUE, "objects (default: the whole catalogue)")
     p.add_argument(
         "--action-type",
@@ -59,14 +75,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="cartesian",
         help="for scripted/random arms (a learned policy fixes its own)",
     )
-    p.add_argument("--estimate-every", type=int, default=1)
-    p.add_argument("--json", type=Path, default=None)
-    p.add_argument("--png", type=Path, default=None)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument(
+        "--estimate-every",
+        type=non_negative_int,
+        default=1,
+        help="re-estimate the pose every K steps (0: once per episode, at reset; default 1)",
+    )
+    p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
+    p.add_argument("--png", type=Path, default=None, help="write the comparison plot here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
 def format_report(report: dict) -> str:
+    from scorbot_gym.evaluation.compare import policy_label
+
     lines = [f"{'policy':<20} {'pose':<14} {'success':>8}  {'95% CI':<15} {'steps':>6}  failures"]
     for r in report["results"]:
         lo, hi = r["ci95"]
@@ -86,6 +109,11 @@ def format_report(report: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.evaluation.compare import compare, plot_comparison
+
+    if args.pose_model is not None and not args.pose_model.is_file():
+        raise FileNotFoundError(f"--pose-model {args.pose_model}: no such file")
     report = compare(
         args.policies,
         args.pose,

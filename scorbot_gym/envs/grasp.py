@@ -346,6 +346,15 @@ class ScorbotGraspEnv(gym.Env):
             return self._perturbers[self.sim.object_spec.name].nominal_camera_model(camera, w, h)
         return self.sim.camera_model(camera, w, h)
 
+    def object_visibility(self, camera: str) -> float:
+        """Ground truth for scoring (never for a policy): the share of the target object that
+        ``camera`` sees unhidden by the arm or another object, from rays to points of the object
+        (:mod:`scorbot_gym.sim.visibility`). 1.0 is a clear view."""
+        from scorbot_gym.sim.visibility import object_visibility
+
+        sim = self.sim
+        return object_visibility(sim.model, sim.data, sim.camera_id(camera), sim.object_geoms)
+
     def camera_params(self, camera: str) -> dict[str, Any]:
         """:meth:`camera_model` as plain arrays (``K``, ``world_from_camera``, ``width``,
         ``height``), the form ``info["camera_params"]`` carries: it pickles across processes

@@ -10,7 +10,8 @@ discordant episodes.
 
 Pose conditions: ``oracle``; ``noisy@S`` (``noisy_oracle`` with x-y position noise S metres and
 heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees); ``manifold`` (the
-pose-manifold estimator from a ``scorbot-gym pose train`` model file).
+pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
+models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses).
 """
 
 from __future__ import annotations
@@ -42,15 +43,16 @@ class PoseCondition:
 def pose_conditions(
     poses: list[str], noise: list[float] = (), pose_model: str | Path | None = None
 ) -> list[PoseCondition]:
-    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S`` per noise level."""
+    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S`` per noise level.
+
+    ``manifold`` without ``pose_model`` gets its models (the defaults) from :func:`compare`."""
     out: list[PoseCondition] = []
     for p in poses:
         if p == "oracle":
             out.append(PoseCondition("oracle", "oracle", {}, 0.0))
         elif p == "manifold":
-            if pose_model is None:
-                raise ValueError("pose 'manifold' needs a pose model (--pose-model PATH)")
-            out.append(PoseCondition("manifold", "manifold", {"models": str(pose_model)}, None))
+            kw = {} if pose_model is None else {"models": str(pose_model)}
+            out.append(PoseCondition("manifold", "manifold", kw, None))
         elif p == "noisy":
             noise = list(noise) or [0.01]
         else:
@@ -134,6 +136,16 @@ def compare(
         raise ValueError("give at least one policy (scripted, random, rl or a policy directory)")
     conds = pose_conditions(poses, noise, pose_model)
     learned = {p: load_policy(p) for p in policies}
+    if any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
+        from scorbot_gym.perception.training import default_pose_models
+
+        models = default_pose_models(progress=progress)  # once, for every arm
+        conds = [
+            PoseCondition(c.label, c.source, {"models": models}, c.noise_m)
+            if c.source == "manifold" and "models" not in c.kwargs
+            else c
+            for c in conds
+        ]
     results, diffs = [], []
     for cond in conds:
         arm_records = []
