@@ -19,6 +19,7 @@ _COMMAND_MODULES = (
     "scorbot_gym.cli.shapes_cmd",
     "scorbot_gym.cli.train",
     "scorbot_gym.cli.compare",
+    "scorbot_gym.cli.demos",
 )
 
 
