@@ -117,6 +117,38 @@ def flat_info(info: dict[str, Any], classes: Sequence[str], cameras: Sequence[st
     return out
 
 
+class ExecutedActionExpert:
+    """The scripted controller as a DAgger labeller that knows what was executed.
+
+    The controller lifts a fixed time after it *commands* the fingers closed. When the learner
+    drives, the controller's phase would run on although the fingers were never closed (its
+    timer, not the gripper, moves it on), and it would label "lift" in a state where the
+    learner's own gripper history says "not closed yet". After every executed action that
+    opens the gripper while the controller is closing, lifting or holding, the controller goes
+    back to its descent (where it re-plans from the pose, re-aligns and closes again): labels
+    consistent with the history the learner sees. In demonstrations (the controller acts) the
+    executed gripper is its own and nothing changes.
+    """
+
+    def __init__(self, base: ScriptedGraspPolicy) -> None:
+        self.base = base
+
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
+        self.base.reset(obs, info)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return self.base.act(obs)
+
+    def executed(self, action: np.ndarray) -> None:
+        b = self.base
+        if action[-1] > 0 and b.phase in ("close", "lift", "hold"):
+            b.phase, b._phase_time = "descend", 0.0
+
+    @classmethod
+    def for_env(cls, env: gym.Env) -> ExecutedActionExpert:
+        return cls(ScriptedGraspPolicy.for_env(env))
+
+
 def collect_episodes(
     env: gym.Env,
     seeds: Sequence[int],
@@ -126,17 +158,20 @@ def collect_episodes(
     dart_sigma: float = 0.0,
     rng: np.random.Generator | None = None,
     expert_factory: Callable[[gym.Env], Any] | None = None,
+    sync_expert: bool = False,
 ) -> list[LabelledEpisode]:
     """Run one episode per seed; the expert labels every observation.
 
     Who acts: with ``learner=None`` the expert (plus DART noise ``dart_sigma`` on the arm);
     otherwise, at each step, the expert with probability ``beta`` and the learner otherwise.
-    The learner's features use the history of *executed* actions.
+    The learner's features use the history of *executed* actions. ``sync_expert`` makes the
+    expert an :class:`ExecutedActionExpert` (the default expert: the scripted controller).
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     classes = tuple(env.get_wrapper_attr("class_names"))
     cameras = tuple(env.get_wrapper_attr("cameras"))
-    make_expert = expert_factory or (lambda e: ScriptedGraspPolicy.for_env(e))
+    default = ExecutedActionExpert.for_env if sync_expert else ScriptedGraspPolicy.for_env
+    make_expert = expert_factory or default
     expert = make_expert(env)
     history = ActionHistory(learner.history_spec) if learner is not None else None
     episodes = []
@@ -159,6 +194,8 @@ def collect_episodes(
                 action = learner.action_from_features(learner.features(obs, history))
             if history is not None:
                 history.push(action)
+            if hasattr(expert, "executed"):
+                expert.executed(action)
             obs, reward, terminated, truncated, info = env.step(action)
             rows.append(obs)
             infos.append(info)
@@ -230,6 +267,7 @@ class ImitationConfig:
     history: HistorySpec = field(default_factory=HistorySpec)
     seed: int = 0
     torch_threads: int = 1
+    sync_expert: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
@@ -381,7 +419,9 @@ def train_imitation(
         beta = config.beta * config.beta_decay ** (r - 1)
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
-        new = collect_episodes(env, seeds, learner=policy, beta=beta, rng=rng)
+        new = collect_episodes(
+            env, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
+        )
         data += new
         new_pairs = [episode_features(ep, policy) for ep in new]
         feats = np.concatenate([feats, *[f for f, _ in new_pairs]])
@@ -410,4 +450,9 @@ def train_imitation(
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
     }
     policy.meta["training"] = record
+    policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
+        "residual_base": False,
+        "bc_demo_episodes": len(demonstrations),
+        "dagger_labelled_episodes": record["dagger_episodes"],
+    }
     return policy, record
