@@ -83,10 +83,10 @@ def oracle_view(obs: dict[str, np.ndarray], info: dict[str, Any], classes: Seque
     return out
 
 
-def flat_info(info: dict[str, Any], classes: Sequence[str], cameras: Sequence[str]) -> dict:
+def flat_info(info: dict[str, Any], classes: Sequence[str]) -> dict:
     """The numeric facts of one ``info`` with the same keys at every step (what Minari stores):
     outcome, true pose and class, reward terms, the estimator's record (NaN where it has
-    none) and the cameras' calibration."""
+    none); the caller adds the cameras' calibration."""
     perc = info.get("perception") or {}
 
     def num(key: str) -> float:
@@ -169,7 +169,6 @@ def collect_episodes(
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     classes = tuple(env.get_wrapper_attr("class_names"))
-    cameras = tuple(env.get_wrapper_attr("cameras"))
     default = ExecutedActionExpert.for_env if sync_expert else ScriptedGraspPolicy.for_env
     make_expert = expert_factory or default
     expert = make_expert(env)
@@ -177,7 +176,7 @@ def collect_episodes(
     episodes = []
     for seed in seeds:
         obs, info = env.reset(seed=int(seed))
-        calibration = _calibration(info, cameras)
+        calibration = _calibration(info)
         expert.reset(oracle_view(obs, info, classes), info)
         if history is not None:
             history.reset()
@@ -206,7 +205,7 @@ def collect_episodes(
             if terminated or truncated:
                 break
         labels.append(np.asarray(expert.act(oracle_view(obs, info, classes)), np.float32))
-        flat = [{**flat_info(i, classes, cameras), **calibration} for i in infos]
+        flat = [{**flat_info(i, classes), **calibration} for i in infos]
         episodes.append(
             LabelledEpisode(
                 seed=int(seed),
@@ -222,7 +221,7 @@ def collect_episodes(
     return episodes
 
 
-def _calibration(info: dict[str, Any], cameras: Sequence[str]) -> dict[str, np.ndarray]:
+def _calibration(info: dict[str, Any]) -> dict[str, np.ndarray]:
     """The fixed cameras' calibration from the reset's info (repeated at every step)."""
     out = {}
     for cam, params in info.get("camera_params", {}).items():
