@@ -5,7 +5,7 @@ The learned policy uses no scripted controller at test time (``policy.json`` say
 ``"uses_scripted_controller": false``); the scripted controller labels its training states.
 Records the training cost (wall time, demonstrations, env steps) next to the success rates.
 
-    nice -n 5 python benchmarks/learned_policy.py [--demos 200] [--dagger-rounds 6]
+    nice -n 5 python benchmarks/learned_policy.py [--demos 200] [--dagger-rounds 8]
         [--dagger-episodes 80] [--episodes 110] [--out scorbot_gym/policies/data/...]
         [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
 
@@ -46,29 +46,32 @@ def _evaluate(label: str, policy: str, episodes: int, seed: int) -> dict:
     return summary
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
     from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--demos", type=int, default=200)
-    p.add_argument("--dart-sigma", type=float, default=0.2)
-    p.add_argument("--dagger-rounds", type=int, default=6)
-    p.add_argument("--dagger-episodes", type=int, default=80)
-    p.add_argument("--fit-steps", type=int, default=6000)
+    p.add_argument("--demos", type=positive_int, default=200)
+    p.add_argument("--dart-sigma", type=non_negative_float, default=0.2)
+    p.add_argument("--dagger-rounds", type=non_negative_int, default=8)
+    p.add_argument("--dagger-episodes", type=positive_int, default=80)
+    p.add_argument("--fit-steps", type=positive_int, default=6000)
     p.add_argument(
         "--no-sync-expert",
         action="store_true",
         help="DAgger labels from the plain scripted controller (its phase timer runs on even "
         "when the learner did not close the fingers)",
     )
-    p.add_argument("--episodes", type=int, default=110, help="evaluation episodes per policy")
+    p.add_argument(
+        "--episodes", type=positive_int, default=110, help="evaluation episodes per policy"
+    )
     p.add_argument("--eval-seed", type=int, default=50_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
     p.add_argument("--out", type=Path, default=SHIPPED_LEARNED_POLICY)
     p.add_argument("--json", type=Path, default=RESULTS / "learned_policy.json")
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
-    args = p.parse_args()
+    args = p.parse_args(argv)
 
     from pose.fileio import atomic_write_json
     from scorbot_gym.envs.factory import make_env
