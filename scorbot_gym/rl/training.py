@@ -294,6 +294,7 @@ def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, 
         "format": FORMAT,
         "version": VERSION,
         "algo": config.algo,
+        "uses_scripted_controller": bool(config.residual),  # at test time (a residual's base)
         "action_type": config.action_type,
         "classes": config.class_names(),
         "observation_shapes": shapes,
