@@ -137,10 +137,10 @@ def _records(env, seed, steps=12):
     obs, info = env.reset(seed=seed)
     policy = ScriptedGraspPolicy.for_env(env)
     policy.reset(obs, info)
-    recs = [info["perception"]]
+    recs = [{**info["perception"], **(env.perception_timings or {})}]
     for _ in range(steps):
         obs, _, term, trunc, info = env.step(policy.act(obs))
-        recs.append(info["perception"])
+        recs.append({**info["perception"], **(env.perception_timings or {})})
         if term or trunc:
             break
     return obs, recs

@@ -2,8 +2,8 @@
 
 ``run_episode(env, policy, seed)`` is the one loop: reset with the seed, ``policy.reset(obs,
 info)``, then ``policy.act(obs)`` until the episode ends. Whatever the env's wrappers put in
-``info["perception"]`` (errors against the ground truth, recognition, timings) is collected
-for the record; the policy never sees it.
+``info["perception"]`` (errors against the ground truth, recognition), with the wrapper's
+wall-clock ``perception_timings``, is collected for the record; the policy never sees it.
 """
 
 from __future__ import annotations
@@ -59,11 +59,21 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
         ),
         "median_estimate_ms": median("total_ms", ran),
         "median_stage_ms": {
-            k: float(np.median([r["timings_ms"][k] for r in ran if k in r["timings_ms"]]))
+            k: float(np.median([r["timings_ms"][k] for r in ran if k in r.get("timings_ms", {})]))
             for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
         },
         "privileged": bool(first.get("privileged")),
     }
+
+
+def _perception(env: gym.Env, info: dict) -> dict[str, Any]:
+    """This step's ``info["perception"]`` with the pose wrapper's timings (kept out of ``info``
+    so that a seeded episode's info is reproducible)."""
+    try:
+        timings = env.get_wrapper_attr("perception_timings")
+    except AttributeError:
+        timings = None
+    return {**info["perception"], **timings} if timings else info["perception"]
 
 
 def run_episode(
@@ -80,7 +90,7 @@ def run_episode(
     if callable(seed_fn):
         seed_fn(seed)
     policy.reset(obs, info)
-    records = [info["perception"]] if "perception" in info else []
+    records = [_perception(env, info)] if "perception" in info else []
     if on_step:
         on_step(obs, info)
     total, steps = 0.0, 0
@@ -89,7 +99,7 @@ def run_episode(
         total += float(reward)
         steps += 1
         if "perception" in info:
-            records.append(info["perception"])
+            records.append(_perception(env, info))
         if on_step:
             on_step(obs, info)
         if terminated or truncated:
