@@ -35,6 +35,7 @@ from gymnasium import spaces
 
 from pose.camera import CameraModel
 from pose.metrics import add_s, rotation_error_deg
+from scorbot_gym.envs.arguments import name_list
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.registry import make_pose_source
@@ -128,8 +129,12 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self.estimate_every = int(estimate_every)
         self.rotation, self.include_class, self.identity = rotation, include_class, identity
         self.class_names = (
-            tuple(classes) if classes is not None else tuple(env.get_wrapper_attr("object_names"))
+            name_list("classes", classes, "banana")
+            if classes is not None
+            else tuple(env.get_wrapper_attr("object_names"))
         )
+        if not self.class_names:
+            raise ValueError("classes must name at least one catalogue object (None: the env's)")
         for name in self.class_names:
             get_object(name)  # KeyError listing the valid names
         base = env.observation_space
