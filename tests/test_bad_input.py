@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from scorbot_gym import OverlappedVectorEnv, make_env, pin_env_fns
-from scorbot_gym.envs.vector import WorkerEnvFn
+from scorbot_gym.envs.worker import WorkerEnvFn
 from scorbot_gym.objects import CATALOGUE, register_object
 
 
@@ -83,19 +83,22 @@ def test_make_env_classes_must_be_a_list_of_names():
     env.close()
 
 
-GOOD = functools.partial(gym.make, "ScorbotGrasp-v0", object_name="box")
-BAD = functools.partial(gym.make, "ScorbotGrasp-v0", object_name="nope")
+GOOD = functools.partial(gym.make, "scorbot_gym:ScorbotGrasp-v0", object_name="box")
+BAD = functools.partial(gym.make, "scorbot_gym:ScorbotGrasp-v0", object_name="nope")
+BAD_WRAPPED = functools.partial(make_env, pose="oracle", object_name="nope")
 UNKNOWN = "unknown object 'nope'; valid objects: banana"
 
 
 @pytest.mark.parametrize(
     "make_vector",
     [
-        lambda: gym.vector.AsyncVectorEnv([WorkerEnvFn(GOOD), WorkerEnvFn(BAD)], context="fork"),
-        lambda: gym.vector.AsyncVectorEnv(pin_env_fns([GOOD, BAD]), context="spawn"),
-        lambda: OverlappedVectorEnv([GOOD, GOOD, BAD], context="fork"),
+        lambda: gym.vector.AsyncVectorEnv([GOOD, BAD], context="fork"),
+        lambda: gym.vector.AsyncVectorEnv([GOOD, BAD], context="spawn"),
+        lambda: gym.vector.AsyncVectorEnv([WorkerEnvFn(GOOD), WorkerEnvFn(BAD_WRAPPED)]),
+        lambda: gym.vector.AsyncVectorEnv(pin_env_fns([GOOD, BAD]), context="fork"),
+        lambda: OverlappedVectorEnv([GOOD, GOOD, BAD_WRAPPED], context="fork"),
     ],
-    ids=["worker-env-fn", "pinned-spawn", "overlapped"],
+    ids=["plain-fork", "plain-spawn", "worker-env-fn-make-env", "pinned", "overlapped"],
 )
 def test_a_worker_that_cannot_make_its_env_raises_the_workers_error(make_vector):
     if "fork" not in multiprocessing.get_all_start_methods():

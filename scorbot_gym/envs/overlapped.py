@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space, create_empty_array
 
-from scorbot_gym.envs.vector import WorkerEnvFn
+from scorbot_gym.envs.worker import WorkerEnvFn
 
 
 class OverlappedVectorEnv(gym.vector.VectorEnv):

@@ -17,81 +17,20 @@ to give each job its own).
 
 The same functions work with stable-baselines3's ``SubprocVecEnv``.
 
-They also make a worker's failure to build its env reach the main process as itself. Gymnasium's
-``AsyncVectorEnv`` worker calls the env function before its error handling starts, so an
-exception there ends the worker and the main process only sees ``ConnectionResetError`` or
-``BrokenPipeError`` on its next call. :class:`WorkerEnvFn` (which ``pin_env_fns`` and
-:class:`~scorbot_gym.envs.overlapped.OverlappedVectorEnv` use) hands the worker a stand-in env
-that raises the original exception at ``reset``/``step``, which the worker sends back:
-
-    envs = gymnasium.vector.AsyncVectorEnv([WorkerEnvFn(fn) for fn in env_fns])
+A worker whose env function fails reports that error (:class:`~scorbot_gym.envs.worker.
+WorkerEnvFn`, which the pinned functions wrap).
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import os
-import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gymnasium as gym
 
-
-class _UnbuiltSpace(gym.spaces.Dict):
-    """The observation space of an env that could not be built: comparing it raises the error.
-
-    ``AsyncVectorEnv`` first asks each worker whether its spaces equal the main process's env's
-    (``main_space == worker_space``). Python tries the right operand's ``__eq__`` first when
-    its type subclasses the left's, so for a ``Dict`` observation space (every scorbot-gym env)
-    this raises the worker's error there, inside the worker's error handling."""
-
-    def __init__(self, error: Exception) -> None:
-        super().__init__({})
-        self.error = error
-
-    def __eq__(self, other: object) -> bool:
-        raise self.error
-
-    __hash__ = None
-
-
-class _FailedEnv(gym.Env):
-    """What a worker holds when its env could not be built: every call raises that error."""
-
-    def __init__(self, error: Exception) -> None:
-        self.error = error
-        self.observation_space = _UnbuiltSpace(error)
-        self.action_space = None
-
-    def reset(self, **kwargs):
-        raise self.error
-
-    def step(self, action):
-        raise self.error
-
-    def render(self):
-        raise self.error
-
-    def close(self) -> None:
-        pass
-
-
-@dataclass(frozen=True)
-class WorkerEnvFn:
-    """``env_fn``, whose exception in a vector-env worker reaches the main process unchanged
-    (at the first ``reset``), instead of a broken pipe; in the main process it just calls it."""
-
-    env_fn: Callable[[], gym.Env]
-
-    def __call__(self) -> gym.Env:
-        if multiprocessing.parent_process() is None:
-            return self.env_fn()
-        try:
-            return self.env_fn()
-        except Exception as error:  # noqa: BLE001 - any: it is raised again where it is seen
-            traceback.print_exc()  # where it happened, for envs whose error cannot be sent
-            return _FailedEnv(error)
+from scorbot_gym.envs.worker import WorkerEnvFn
 
 
 @dataclass(frozen=True)
