@@ -16,6 +16,7 @@ import pytest
 
 import scorbot_gym.data as data
 from scorbot_gym.cli import main
+from scorbot_gym.objects import load_object_model
 
 
 @pytest.fixture()
@@ -24,6 +25,7 @@ def unwritable_cache(tmp_path, monkeypatch):
     blocker = tmp_path / "a-file"
     blocker.write_text("not a folder")
     monkeypatch.setattr(data, "_usable", {})
+    load_object_model.cache_clear()  # objects loaded by earlier tests: read the cache again
     monkeypatch.setenv(data.CACHE_ENV, str(blocker / "cache"))
     return blocker / "cache"
 

@@ -2,17 +2,18 @@
 
 Gymnasium's ``AsyncVectorEnv`` worker calls its env function before its error handling starts:
 an exception there ends the worker, and the main process only sees ``ConnectionResetError`` or
-``BrokenPipeError`` on its next call (stable-baselines3's ``SubprocVecEnv`` likewise). Here the
-worker is handed a stand-in env that raises the original exception at its first use, which the
-worker does send back, so the main process raises the real error (``KeyError: unknown object
-'nope' ...``):
+``BrokenPipeError`` on its next call. Here such a worker is handed a stand-in env that raises
+the original exception at its first use, which the worker does send back, so the main process
+raises the real error (``KeyError: unknown object 'nope' ...``). Only in Gymnasium's workers
+(told by their process name): stable-baselines3's ``SubprocVecEnv`` sends no worker errors back
+at all, so there, as in any other process, the env function raises as it would.
 
 - :class:`WorkerEnvFn` wraps any env function (``pin_env_fns`` and
   :class:`~scorbot_gym.envs.overlapped.OverlappedVectorEnv` use it):
   ``gymnasium.vector.AsyncVectorEnv([WorkerEnvFn(fn) for fn in env_fns])``;
-- :func:`make_grasp_env`, the entry point of the registered ids, does the same inside a
-  Gymnasium vector-env worker process, so ``AsyncVectorEnv([lambda: gym.make(...), ...])``
-  reports it too. Everywhere else it raises at once, as a constructor should.
+- :func:`make_grasp_env`, the entry point of the registered ids, does the same, so
+  ``AsyncVectorEnv([lambda: gym.make("scorbot_gym:ScorbotGrasp-v0", ...), ...])`` reports it
+  too.
 """
 
 from __future__ import annotations
@@ -75,15 +76,19 @@ class _FailedEnv(gym.Env):
         pass
 
 
+def _in_gymnasium_worker() -> bool:
+    return multiprocessing.current_process().name.startswith(_GYMNASIUM_WORKER)
+
+
 @dataclass(frozen=True)
 class WorkerEnvFn:
-    """``env_fn``, whose exception in a vector-env worker reaches the main process unchanged
-    (at the first ``reset``), instead of a broken pipe; in the main process it just calls it."""
+    """``env_fn``, whose exception in a Gymnasium vector-env worker reaches the main process
+    unchanged instead of a broken pipe; anywhere else it just calls ``env_fn``."""
 
     env_fn: Callable[[], gym.Env]
 
     def __call__(self) -> gym.Env:
-        if multiprocessing.parent_process() is None:
+        if not _in_gymnasium_worker():
             return self.env_fn()
         try:
             return self.env_fn()
@@ -93,11 +98,11 @@ class WorkerEnvFn:
 
 
 def make_grasp_env(**kwargs: Any) -> gym.Env:
-    """``ScorbotGraspEnv(**kwargs)``, the registered ids' entry point; inside a Gymnasium vector-
-    env worker, a failure is handed back as a stand-in env that raises it (module docstring)."""
+    """``ScorbotGraspEnv(**kwargs)``, the registered ids' entry point; in a Gymnasium vector-env
+    worker, a failure is handed back as a stand-in env that raises it (module docstring)."""
     from scorbot_gym.envs.grasp import ScorbotGraspEnv
 
-    if not multiprocessing.current_process().name.startswith(_GYMNASIUM_WORKER):
+    if not _in_gymnasium_worker():
         return ScorbotGraspEnv(**kwargs)
     try:
         return ScorbotGraspEnv(**kwargs)
