@@ -8,13 +8,13 @@ line naming the argument and what it accepts, instead of deep inside MuJoCo, num
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from numbers import Real
 from typing import Any
 
 import numpy as np
 
-from scorbot_gym.objects import CATALOGUE, get_object
+from scorbot_gym.objects import CATALOGUE, ObjectSpec, get_object
 
 # Physics substeps per control step: 1 s of simulated time per step at the 2 ms timestep.
 MAX_FRAME_SKIP = 500
@@ -61,6 +61,36 @@ def name_list(name: str, value: Any, example: str) -> tuple[str, ...]:
     if len(set(value)) != len(value):
         raise ValueError(f"{name} must not repeat a name, got {list(value)}")
     return tuple(value)
+
+
+RESET_OPTIONS = ("object_name", "resting_index")
+
+
+def reset_options(options: Any) -> dict:
+    """``reset``'s ``options`` as a dict (``None``: no options); anything else is refused."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(
+            f"options must be a dict or None (keys: {', '.join(RESET_OPTIONS)}), got {options!r}"
+        )
+    return dict(options)
+
+
+def resting_index(value: Any, spec: ObjectSpec) -> int:
+    """``options["resting_index"]``: an int that numbers one of ``spec``'s resting faces."""
+    n_resting, object_name = len(spec.resting_quats), spec.name
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(
+            f"options['resting_index'] must be an int in [0, {n_resting - 1}] ({object_name} has "
+            f"{n_resting} resting faces), got {value!r}"
+        )
+    if not 0 <= value < n_resting:
+        raise ValueError(
+            f"options['resting_index'] must be in [0, {n_resting - 1}] ({object_name} has "
+            f"{n_resting} resting faces), got {value}"
+        )
+    return int(value)
 
 
 def object_names(object_name: str | None, objects: Sequence[str] | None) -> tuple[str, ...]:

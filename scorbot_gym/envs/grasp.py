@@ -218,13 +218,15 @@ class ScorbotGraspEnv(gym.Env):
     # --- gym API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        options = options or {}
+        options = args.reset_options(options)
         name = options.get("object_name")
         if name is None:
             name = self.object_names[int(self.np_random.integers(len(self.object_names)))]
-        self._activate(get_object(name).name)
+        spec = get_object(name)
+        rest = args.resting_index(options.get("resting_index", 0), spec)  # checked before use
+        self._activate(spec.name)
         self.sim.reset()
-        self.task.place_object(self.np_random, int(options.get("resting_index", 0)))
+        self.task.place_object(self.np_random, rest)
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
         if self.perturbation.active:  # drawn only when on: unperturbed episodes keep their seeds

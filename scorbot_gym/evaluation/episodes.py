@@ -2,8 +2,8 @@
 
 ``run_episode(env, policy, seed)`` is the one loop: reset with the seed, ``policy.reset(obs,
 info)``, then ``policy.act(obs)`` until the episode ends. Whatever the env's wrappers put in
-``info["perception"]`` (errors against the ground truth, recognition, timings) is collected
-for the record; the policy never sees it.
+``info["perception"]`` (errors against the ground truth, recognition), with the wrapper's
+wall-clock ``perception_timings``, is collected for the record; the policy never sees it.
 """
 
 from __future__ import annotations
@@ -62,11 +62,21 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
         ),
         "median_estimate_ms": median("total_ms", ran),
         "median_stage_ms": {
-            k: float(np.median([r["timings_ms"][k] for r in ran if k in r["timings_ms"]]))
+            k: float(np.median([r["timings_ms"][k] for r in ran if k in r.get("timings_ms", {})]))
             for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
         },
         "privileged": bool(first.get("privileged")),
     }
+
+
+def _perception(env: gym.Env, info: dict) -> dict[str, Any]:
+    """This step's ``info["perception"]`` with the pose wrapper's timings (kept out of ``info``
+    so that a seeded episode's info is reproducible)."""
+    try:
+        timings = env.get_wrapper_attr("perception_timings")
+    except AttributeError:
+        timings = None
+    return {**info["perception"], **timings} if timings else info["perception"]
 
 
 def run_episode(
@@ -90,7 +100,7 @@ def run_episode(
     def record(info: dict) -> dict:
         """The step's perception record, with whether every camera saw the object unhidden
         (ground truth for the summary: estimates with a clear view)."""
-        rec = dict(info["perception"])
+        rec = _perception(env, info)
         if visibility is not None and rec.get("estimated"):
             rec["clear_view"] = all(visibility(c) >= 1.0 for c in cameras)
         return rec

@@ -8,6 +8,7 @@ PoseSource`, or a plain function ``frame -> WorldPose`` (wrapped in :class:`Func
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -92,4 +93,6 @@ def make_pose_source(source: str | PoseSource, **kwargs: Any) -> PoseSource:
         made = FunctionPoseSource(made)
     if getattr(made, "name", None) is None:
         made.name = source  # how records and summaries refer to it
+    with contextlib.suppress(AttributeError):  # how an env's spec records it (see the wrapper)
+        made.made_from = (source, dict(kwargs))
     return made
