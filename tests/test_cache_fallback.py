@@ -83,7 +83,7 @@ def test_an_explicit_unwritable_cache_dir_is_a_one_line_error(tmp_path, capsys):
     argv += ["--out", str(tmp_path / "m.npz")]
     assert main(argv) == 2  # a usage error
     err = capsys.readouterr().err.strip()
-    assert err.startswith("scorbot-gym pose: error: cache folder") and "\n" not in err
+    assert err.startswith("scorbot-gym pose train: error: cache folder") and "\n" not in err
     assert not (tmp_path / "m.npz").exists()
 
 
