@@ -18,6 +18,7 @@ from typing import Protocol
 
 from scorbot_gym.experiments.spec import SweepSpec
 from scorbot_gym.experiments.trial import ModelJob, default_cache_dir, run_model_job
+from scorbot_gym.objects import install_objects, user_objects
 
 Work = Callable[[ModelJob], dict]
 
@@ -49,7 +50,13 @@ class LocalRunner:
                     self.progress(i + 1, len(jobs))
             return out
         ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(self.jobs, len(jobs)), mp_context=ctx) as pool:
+        # A spawned worker imports the built-in catalogue only: user-registered objects travel.
+        with ProcessPoolExecutor(
+            max_workers=min(self.jobs, len(jobs)),
+            mp_context=ctx,
+            initializer=install_objects,
+            initargs=(user_objects(),),
+        ) as pool:
             futures = [pool.submit(work, job) for job in jobs]
             for i, f in enumerate(futures):
                 out.append(f.result())

@@ -95,6 +95,8 @@ def train_models(
     params: dict | None = None,
 ) -> tuple[PoseModelSet, dict]:
     """One estimator per object (``jobs`` objects in parallel processes)."""
+    from scorbot_gym.objects import install_objects, user_objects
+
     names = _objects(objects)
     args = [(n, n_views, camera, width, height, seed, cache_dir, False, params) for n in names]
     t0 = time.perf_counter()
@@ -102,7 +104,13 @@ def train_models(
         # Spawned, not forked: a forked child of a process that has rendered (EGL context, Mesa
         # threads) can deadlock on its first render.
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(jobs, len(names)), mp_context=ctx) as pool:
+        # A spawned worker imports the built-in catalogue only: user-registered objects travel.
+        with ProcessPoolExecutor(
+            max_workers=min(jobs, len(names)),
+            mp_context=ctx,
+            initializer=install_objects,
+            initargs=(user_objects(),),
+        ) as pool:
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:

@@ -145,9 +145,14 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     return env
 
 
-def _monitored(config: TrainConfig) -> gym.Env:
+def _monitored(config: TrainConfig, objects: tuple = ()) -> gym.Env:
+    """A monitored training env; ``objects`` (user-registered ObjectSpecs) are installed first,
+    as a spawned ``SubprocVecEnv`` worker imports the built-in catalogue only."""
     from stable_baselines3.common.monitor import Monitor
 
+    from scorbot_gym.objects import install_objects
+
+    install_objects(objects)
     return Monitor(make_training_env(config), info_keywords=("is_success",))
 
 
@@ -155,7 +160,9 @@ def make_vec_env(config: TrainConfig):
     """``n_envs`` training envs (``SubprocVecEnv``; ``DummyVecEnv`` for one), normalised."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-    fns = [functools.partial(_monitored, config) for _ in range(config.n_envs)]
+    from scorbot_gym.objects import user_objects
+
+    fns = [functools.partial(_monitored, config, user_objects()) for _ in range(config.n_envs)]
     venv = DummyVecEnv(fns) if config.n_envs == 1 else SubprocVecEnv(fns, start_method="spawn")
     if config.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
