@@ -97,9 +97,10 @@ class ClutterTask:
         sim = self.sim
         pos, quat = sim.pose_of(target)
         up = quat_to_mat(sim.objects[target].spec.resting_quats[resting_index]).T[:, 2]
-        target_hull = self._prop(rng, target, pos, quat) if self.tilt_deg > 0 else None
-        if target_hull is None:
-            target_hull = self._hull(target, *sim.pose_of(target))
+        if self.tilt_deg > 0:
+            target_hull = self._prop(rng, target, pos, quat)
+        else:
+            target_hull = self._hull(target, pos, quat, inside=False)
         target_state = sim.data.qpos[sim.objects[target].qpos].copy()
         for _ in range(_LAYOUT_TRIES):
             poses = self._draw_layout(rng, target_hull, distractors, sim.pose_of(target)[0])
@@ -165,13 +166,16 @@ class ClutterTask:
                 return None
         return poses
 
-    def _hull(self, name: str, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
-        """The footprint's convex hull in raster pixels, or None if it leaves the clutter area."""
+    def _hull(
+        self, name: str, pos: np.ndarray, quat: np.ndarray, inside: bool = True
+    ) -> np.ndarray | None:
+        """The footprint's convex hull in raster pixels; None if ``inside`` and it leaves the
+        clutter area (the target may overhang it: its centre is in the workspace)."""
         v = self.sim.objects[name].spec.mesh_vertices() @ quat_to_mat(quat).T + pos
-        return self._hull_of(v[:, :2])
+        return self._hull_of(v[:, :2], inside)
 
-    def _hull_of(self, xy: np.ndarray) -> np.ndarray | None:
-        if (xy.min(0) < self._lo).any() or (xy.max(0) > self._hi).any():
+    def _hull_of(self, xy: np.ndarray, inside: bool = True) -> np.ndarray | None:
+        if inside and ((xy.min(0) < self._lo).any() or (xy.max(0) > self._hi).any()):
             return None
         px = np.round((xy - self._lo) / _RES).astype(np.int32)
         return cv2.convexHull(px)
@@ -183,7 +187,7 @@ class ClutterTask:
 
     def _prop(
         self, rng: np.random.Generator, target: str, pos: np.ndarray, quat: np.ndarray
-    ) -> np.ndarray | None:
+    ) -> np.ndarray:
         """Tilt the target by ``tilt_deg`` onto the stand (downhill heading drawn); returns the
         footprint hull of target and stand."""
         sim = self.sim
@@ -195,21 +199,23 @@ class ClutterTask:
         obj_quat = quat_mul(tilt, quat)
         verts = sim.objects[target].spec.mesh_vertices() @ quat_to_mat(obj_quat).T
         u, w = verts @ downhill, verts @ across
-        # The plate reaches 1 cm uphill of the object and 3 mm short of it downhill, where the
+        # The plate reaches 1 cm uphill of the object and 1 mm short of it downhill, where the
         # lip stands; its downhill edge rests on the table.
-        lo, hi = u.min() - 0.01, u.max() + 0.003
+        lo, hi = u.min() - 0.01, u.max() + 0.001
         half = ((hi - lo) / 2, float(np.abs(w).max()) + 0.01)
         thick = 0.004
         anchor = np.array([pos[0], pos[1], sim.table_height + thick + hi * np.sin(theta)])
         centre = anchor + (lo + hi) / 2 * downhill
-        sim.set_support(centre - thick * normal, plate_quat, half, lip=0.012)
+        # A lip half the object's height: a tall object leans on it instead of toppling over it.
+        height = float(np.ptp(verts @ normal))
+        sim.set_support(centre - thick * normal, plate_quat, half, lip=max(0.012, height / 2))
         origin = anchor + (5e-4 - (verts @ normal).min()) * normal
         sim.set_pose_of(target, origin, obj_quat)
         sim.forward()
         corners = np.array([[sx * (half[0] + 0.008), sy * half[1], 0.0] for sx in (-1, 1)
                             for sy in (-1, 1)])  # fmt: skip
         plate_xy = (corners @ quat_to_mat(plate_quat).T + centre)[:, :2]
-        return self._hull_of(np.vstack([(verts + origin)[:, :2], plate_xy]))
+        return self._hull_of(np.vstack([(verts + origin)[:, :2], plate_xy]), inside=False)
 
     def _interpenetrating(self, names: Sequence[str]) -> bool:
         d, m = self.sim.data, self.sim.model
