@@ -4,6 +4,8 @@ and the single-object env unchanged when the options are off."""
 
 from __future__ import annotations
 
+import json
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -195,3 +197,22 @@ def test_no_distractors_is_the_single_object_env():
     assert not {"objects", "target_name", "wrong_object"} & set(info)
     assert len(zero.unwrapped.sim.objects) == 1
     plain.close(), zero.close()
+
+
+def test_rollout_cli_on_a_cluttered_table(tmp_path, capsys):
+    """A seeded clutter episode grasped (oracle pose); the JSON summary keeps the plain run's
+    keys, with wrong_object among the failure causes."""
+    from scorbot_gym.cli import main
+
+    plain, clutter = tmp_path / "plain.json", tmp_path / "clutter.json"
+    common = ["rollout", "--episodes", "2", "--seed", "3", "--no-progress"]
+    assert main([*common, "--object", "box", "--json", str(plain)]) == 0
+    argv = ["--objects", "box", "banana", "tomato_soup_can", "--distractors", "2"]
+    assert main([*common, *argv, "--target", "box", "--json", str(clutter)]) == 0
+    assert "failures: wrong_object" in capsys.readouterr().out
+    a, b = json.loads(plain.read_text()), json.loads(clutter.read_text())
+    assert set(a) <= set(b) and set(a["failure_causes"]) == set(b["failure_causes"])
+    assert "wrong_object" in b["failure_causes"] and 0 <= b["distractors_knocked_over"] <= 4
+    assert b["config"]["distractors"] == 2 and b["config"]["target"] == "box"
+    assert b["per_object"] == {"box": {"episodes": 2, "successes": 2}}
+    assert main([*common, *argv, "--target", "golf_ball"]) == 2  # not one of --objects

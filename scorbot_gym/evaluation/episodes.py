@@ -95,6 +95,8 @@ def run_episode(
         if terminated or truncated:
             break
     extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    if "distractors_knocked_over" in info:  # a table with distractors
+        extra["distractors_knocked_over"] = int(info["distractors_knocked_over"])
     return EpisodeResult(
         seed,
         info["object_name"],

@@ -37,7 +37,9 @@ class RolloutConfig:
     the learned policy's action type (joint for the others). ``perturbation`` is the env's
     perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
-    pose models stay the unperturbed ones.
+    pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
+    ``objects``) share the table with the target, which is ``target`` in every episode or
+    drawn; ``tilt_deg`` props the target on a stand, tilted that much.
     """
 
     policy: str = "scripted"
@@ -58,6 +60,9 @@ class RolloutConfig:
     episodes: int = 20
     seed: int = 0
     perturbation: str | None = None
+    distractors: int = 0
+    target: str | None = None
+    tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -73,6 +78,14 @@ class RolloutConfig:
             self.action_type = learned.meta["action_type"] if learned else "joint"
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.distractors < 0:
+            raise ValueError(f"distractors must be >= 0, got {self.distractors}")
+        if self.target is not None:
+            from scorbot_gym.objects import get_object
+
+            self.target = get_object(self.target).name  # KeyError lists the valid names
+            if self.objects and self.target not in self.objects:
+                raise ValueError(f"target {self.target!r} is not one of objects {self.objects}")
         if self.estimate_every < 0:
             raise ValueError(
                 f"estimate_every must be >= 0 (0: once per episode), got {self.estimate_every}"
@@ -135,6 +148,10 @@ class RolloutConfig:
             env_kwargs.setdefault("objects", list(self.objects))
         if self.perturbation:
             env_kwargs.setdefault("perturbation", Perturbation.parse(self.perturbation))
+        if self.distractors:
+            env_kwargs.setdefault("distractors", self.distractors)
+        if self.tilt_deg:
+            env_kwargs.setdefault("tilt_deg", self.tilt_deg)
         return make_env(
             self.env_id,
             pose=self.pose,
@@ -166,6 +183,11 @@ class RolloutConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def reset_options(self) -> dict[str, Any] | None:
+        """What every episode's ``reset`` gets: the named target, if any."""
+        return {"target": self.target} if self.target else None
+
 
 def run_rollout(
     config: RolloutConfig, progress: bool = False
@@ -174,7 +196,9 @@ def run_rollout(
     env = config.make_env(progress=progress)
     try:
         policy = config.make_policy(env)
-        results = run_episodes(env, policy, config.episodes, config.seed, progress=progress)
+        results = run_episodes(
+            env, policy, config.episodes, config.seed, config.reset_options, progress
+        )
     finally:
         env.close()
     summary = summarize(results)

@@ -68,7 +68,7 @@ def summarize(results: list[EpisodeResult]) -> dict:
         o = per_object.setdefault(r.object_name, {"episodes": 0, "successes": 0})
         o["episodes"] += 1
         o["successes"] += int(r.success)
-    return {
+    summary = {
         "episodes": n,
         "successes": len(wins),
         "success_rate": len(wins) / n if n else 0.0,
@@ -79,6 +79,11 @@ def summarize(results: list[EpisodeResult]) -> dict:
         "perception": perception_summary(results),
         "results": [asdict(r) for r in results],
     }
+    if any("distractors_knocked_over" in r.extra for r in results):
+        summary["distractors_knocked_over"] = sum(
+            r.extra.get("distractors_knocked_over", 0) for r in results
+        )
+    return summary
 
 
 def format_summary(summary: dict) -> str:
@@ -90,6 +95,8 @@ def format_summary(summary: dict) -> str:
         ("mean steps to success", "-" if steps is None else f"{steps:.1f}"),
     ]
     rows += [(f"failures: {c}", str(k)) for c, k in summary["failure_causes"].items()]
+    if "distractors_knocked_over" in summary:
+        rows.append(("distractors knocked over", str(summary["distractors_knocked_over"])))
     p = summary.get("perception")
     if p is not None:
 
