@@ -63,6 +63,22 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
             for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
         },
         "privileged": bool(first.get("privileged")),
+        **_clutter_record(ran),
+    }
+
+
+def _clutter_record(ran: list[dict[str, Any]]) -> dict[str, Any]:
+    """On a cluttered table: how often the blob taken for the target was the target, and the
+    recognition of every blob recognised (``info["perception"]["objects"]``)."""
+    picks = [r["target_recognised"] for r in ran if r.get("target_recognised") is not None]
+    if not picks:
+        return {}
+    blobs = [b for r in ran for b in r.get("objects", []) if b.get("recognised") is not None]
+    return {
+        "target_recognised_rate": float(np.mean(picks)),
+        "blob_recognition_correct": (
+            float(np.mean([b["recognised"] == b["true_class"] for b in blobs])) if blobs else None
+        ),
     }
 
 

@@ -94,6 +94,11 @@ class RolloutConfig:
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
             )
+        if self.pose == "manifold_clutter" and self.recognize:
+            raise ValueError(
+                "pose 'manifold_clutter' is told the target (the task command) and recognises "
+                "every blob itself: drop recognize"
+            )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
         self.pose_cameras = tuple(self.pose_cameras)
@@ -120,6 +125,8 @@ class RolloutConfig:
     def pose_kwargs(self, progress: bool = False) -> dict[str, Any]:
         if self.pose == "noisy_oracle":
             return dict(self.noise)
+        if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
+            return {"models": self._models(progress), "recognizer": self.recognizer}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models
@@ -141,6 +148,15 @@ class RolloutConfig:
                 default_pose_models(c, w, h, progress=progress) for c in self.fallback_cameras
             ]
         return kwargs
+
+    def _models(self, progress: bool) -> Any:
+        """The pose model file, or the default models for the first pose camera."""
+        if self.pose_model is not None:
+            return self.pose_model
+        from scorbot_gym.perception.training import default_pose_models
+
+        w, h = self.pose_size
+        return default_pose_models(self.pose_cameras[0], w, h, progress=progress)
 
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""

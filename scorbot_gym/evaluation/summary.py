@@ -55,6 +55,21 @@ def perception_summary(results: list[EpisodeResult]) -> dict | None:
             for k in sorted({k for p in recs for k in p["median_stage_ms"]})
         },
         "privileged": any(p["privileged"] for p in recs),
+        **_clutter_summary(recs),
+    }
+
+
+def _clutter_summary(recs: list[dict]) -> dict:
+    """On cluttered tables: the share of episodes whose estimates mostly took the target's
+    blob for the target, and the share of blob recognitions that were right (pooled)."""
+    rates = [p["target_recognised_rate"] for p in recs if "target_recognised_rate" in p]
+    if not rates:
+        return {}
+    blobs = [p["blob_recognition_correct"] for p in recs]
+    blobs = [b for b in blobs if b is not None]
+    return {
+        "target_recognition_accuracy": float(np.mean([r > 0.5 for r in rates])),
+        "blob_recognition_accuracy": float(np.mean(blobs)) if blobs else None,
     }
 
 
