@@ -15,7 +15,7 @@ Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quic
 rollout summary (success with its 95 % interval, failure causes with ``wrong_object``,
 distractors knocked over, perception: target recognition, blob recognition, errors, timings).
 
-    python benchmarks/clutter_closed_loop.py [--episodes 40] [--distractors 2] [--seed 5000]
+    python benchmarks/clutter_closed_loop.py [--episodes 40] [--distractors 2] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -63,10 +63,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--arms", nargs="+", choices=sorted(ARMS), default=list(ARMS))
     ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--jobs", type=int, default=1, help="arms run in this many processes")
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
-    if args.episodes < 1 or args.distractors < 0:
-        ap.error("--episodes must be >= 1 and --distractors >= 0")
+    if args.episodes < 1 or args.distractors < 0 or args.jobs < 1:
+        ap.error("--episodes and --jobs must be >= 1, --distractors >= 0")
     episodes = 4 if args.quick else args.episodes
 
     import cv2
@@ -75,12 +76,22 @@ def main(argv: list[str] | None = None) -> int:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     cv2.setNumThreads(1)
-    arms = {}
-    for label in args.arms:
-        config = RolloutConfig(
+    configs = {
+        label: RolloutConfig(
             episodes=episodes, seed=args.seed, distractors=args.distractors, **ARMS[label]
         )
-        arms[label] = run_arm(label, config, progress=not args.no_progress)
+        for label in args.arms
+    }
+    progress = not args.no_progress and args.jobs == 1
+    if args.jobs > 1:  # spawned: no GL context is inherited
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(args.jobs, mp_context=mp.get_context("spawn")) as pool:
+            futures = {k: pool.submit(run_arm, k, c, False) for k, c in configs.items()}
+            arms = {k: f.result() for k, f in futures.items()}
+    else:
+        arms = {k: run_arm(k, c, progress) for k, c in configs.items()}
     name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
     out = args.out or Path(__file__).parent / "results" / name
     atomic_write_json(

@@ -69,11 +69,13 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
 
 def _clutter_record(ran: list[dict[str, Any]]) -> dict[str, Any]:
     """On a cluttered table: how often the blob taken for the target was the target, and the
-    recognition of every blob recognised (``info["perception"]["objects"]``)."""
+    recognition of the blobs of the first view (``info["perception"]["objects"]`` at reset,
+    before the arm moves in and splits or hides them)."""
     picks = [r["target_recognised"] for r in ran if r.get("target_recognised") is not None]
     if not picks:
         return {}
-    blobs = [b for r in ran for b in r.get("objects", []) if b.get("recognised") is not None]
+    first = next((r["objects"] for r in ran if r.get("objects")), [])
+    blobs = [b for b in first if b.get("recognised") is not None]
     return {
         "target_recognised_rate": float(np.mean(picks)),
         "blob_recognition_correct": (

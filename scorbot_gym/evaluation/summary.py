@@ -61,7 +61,7 @@ def perception_summary(results: list[EpisodeResult]) -> dict | None:
 
 def _clutter_summary(recs: list[dict]) -> dict:
     """On cluttered tables: the share of episodes whose estimates mostly took the target's
-    blob for the target, and the share of blob recognitions that were right (pooled)."""
+    blob for the target, and the mean share of right blob recognitions in the first view."""
     rates = [p["target_recognised_rate"] for p in recs if "target_recognised_rate" in p]
     if not rates:
         return {}

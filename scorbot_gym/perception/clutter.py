@@ -10,7 +10,9 @@ blob is recognised as the target, the blob on which the target's model explains 
 RANSAC inliers is taken (keypoint-to-model assignment). Once a valid estimate exists the target's
 blob is followed from step to step (the blob nearest the last estimate's projection, within a
 gate), so the full recognition runs only when the target is lost: during the grasp the arm splits
-and hides blobs, and recognising every blob at every step would cost one estimate per class.
+and hides blobs, and recognising every blob at every step would cost one estimate per class. For
+the same reason a blob at about the place and size of one recognised earlier in the episode keeps
+that label.
 
 A wrong pick is counted, never hidden: ``details["blobs"]`` lists every blob's recognition
 (``PoseEstimateObservation`` scores them against the ground truth in ``info["perception"]``).
@@ -109,6 +111,7 @@ class ClutterPoseSource:
         self.track_gate_px = float(track_gate_px)
         self._recognizer: Any = None
         self._last: WorldPose | None = None
+        self._known: list[tuple[dict, str]] = []  # (blob record, label) recognised this episode
 
     @property
     def required_keys(self) -> tuple[str, ...]:
@@ -125,7 +128,7 @@ class ClutterPoseSource:
         }
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
-        self._last = None
+        self._last, self._known = None, []
         self.segmenter.reset(frame, self.camera)
         if self._recognizer is None and len(self.models.object_names) > 1:
             self._recognizer = make_recognizer(
@@ -202,9 +205,13 @@ class ClutterPoseSource:
             view = View(image, cam, blob, None)
             label, est = None, None
             if self._recognizer is not None:
-                rec = self._recognize(blob, view)
-                label = rec.label
-                est = rec.estimates.get(target) if rec.estimates else None
+                label = self._remembered(records[i])
+                if label is None:
+                    rec = self._recognize(blob, view)
+                    label = rec.label
+                    est = rec.estimates.get(target) if rec.estimates else None
+                    if label is not None:
+                        self._known.append((records[i], label))
             records[i]["recognised"] = label if self._recognizer is not None else target
             if label == target or self._recognizer is None:
                 est = est or self.models.predict(View(image, cam, blob, target))
@@ -222,6 +229,17 @@ class ClutterPoseSource:
             return None, None
         i = max(valid, key=lambda k: valid[k].n_inliers)
         return i, valid[i]
+
+    def _remembered(self, record: dict) -> str | None:
+        """The label of a blob recognised earlier in the episode at about the same place and
+        size: objects other than the target stay put while the arm works, and recognising each
+        of them again at every step would cost one estimate per shortlisted class."""
+        c, area = np.asarray(record["centroid_px"]), record["area"]
+        for known, label in self._known:
+            near = np.linalg.norm(c - known["centroid_px"]) <= self.track_gate_px
+            if near and 0.5 <= area / known["area"] <= 2.0:
+                return label
+        return None
 
     def _recognize(self, blob: np.ndarray, view: View) -> Any:
         rec = self._recognizer
