@@ -71,3 +71,18 @@ def test_a_clutter_episode_is_grasped_from_images(clutter_env):
     assert result.object_name == "box"
     assert result.perception["target_recognised_rate"] > 0.5
     assert result.success, result.failure_cause
+
+
+def test_summary_counts_a_target_never_found_as_not_recognised():
+    from scorbot_gym.evaluation.episodes import _perception_record
+    from scorbot_gym.evaluation.summary import _clutter_summary
+
+    blob = {"recognised": "box", "true_class": "box", "area": 900, "centroid_px": [1.0, 2.0]}
+    step = {"estimated": True, "valid": False, "timings_ms": {}, "objects": [blob]}
+    found = _perception_record([{**step, "target_recognised": True}] * 3)
+    lost = _perception_record([{**step, "target_recognised": None}] * 3)  # never picked
+    plain = _perception_record([{"estimated": True, "valid": True, "success_5deg": True}])
+    assert found["target_recognised_rate"] == 1.0 and lost["target_recognised_rate"] == 0.0
+    assert "target_recognised_rate" not in plain  # a single-object source adds nothing
+    summary = _clutter_summary([found, lost, plain])
+    assert summary == {"target_recognition_accuracy": 0.5, "blob_recognition_accuracy": 1.0}

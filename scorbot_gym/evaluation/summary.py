@@ -65,7 +65,7 @@ def _clutter_summary(recs: list[dict]) -> dict:
     rates = [p["target_recognised_rate"] for p in recs if "target_recognised_rate" in p]
     if not rates:
         return {}
-    blobs = [p["blob_recognition_correct"] for p in recs]
+    blobs = [p.get("blob_recognition_correct") for p in recs]
     blobs = [b for b in blobs if b is not None]
     return {
         "target_recognition_accuracy": float(np.mean([r > 0.5 for r in rates])),
