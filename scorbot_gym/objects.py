@@ -512,3 +512,30 @@ def register_object(
         )
     CATALOGUE[name] = spec
     return spec
+
+
+_BUILTIN_SPECS: dict[str, ObjectSpec] = {spec.name: spec for spec in _BUILTIN}
+
+
+def user_objects() -> tuple[ObjectSpec, ...]:
+    """The catalogue entries :func:`register_object` added (or replaced) in this process.
+
+    A spawned worker process imports a fresh catalogue (the built-in objects only): pass these to
+    :func:`install_objects` as its pool initializer, or a job naming a user object fails there
+    with ``KeyError: unknown object``. Specs are small frozen dataclasses (paths, not meshes),
+    so they pickle cheaply; a worker reads the mesh from the same path.
+    """
+    return tuple(s for name, s in CATALOGUE.items() if _BUILTIN_SPECS.get(name) is not s)
+
+
+def install_objects(specs: Sequence[ObjectSpec]) -> None:
+    """Put ``specs`` (from :func:`user_objects` in the parent) into this process's catalogue.
+
+    Meant as a ``ProcessPoolExecutor(initializer=install_objects, initargs=(user_objects(),))``
+    initializer. The specs were checked by :func:`register_object` in the parent, so they are
+    installed as they are (no second mesh load per worker).
+    """
+    for spec in specs:
+        if not isinstance(spec, ObjectSpec):
+            raise TypeError(f"install_objects takes ObjectSpecs, got {type(spec).__name__}")
+        CATALOGUE[spec.name] = spec

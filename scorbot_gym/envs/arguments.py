@@ -63,7 +63,7 @@ def name_list(name: str, value: Any, example: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-RESET_OPTIONS = ("object_name", "resting_index")
+RESET_OPTIONS = ("object_name", "target", "resting_index")
 
 
 def reset_options(options: Any) -> dict:
@@ -110,3 +110,33 @@ def object_names(object_name: str | None, objects: Sequence[str] | None) -> tupl
                 "objects must name at least one catalogue object (None means all of them)"
             )
     return tuple(get_object(n).name for n in names)  # KeyError lists the valid names
+
+
+def distractors(value: Any, objects: Sequence[str], explicit: bool) -> int | tuple[str, ...]:
+    """``distractors``: how many of ``objects`` to put beside the target (drawn per episode), or
+    a list of catalogue names always on the table (canonical names). Named distractors may not
+    be possible targets when ``objects`` were given (``explicit``); otherwise the env leaves them
+    out of its targets."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        if not 0 <= value < len(objects):
+            raise ValueError(
+                f"distractors must be in [0, {len(objects) - 1}] (drawn from the env's "
+                f"{len(objects)} objects beside the target), got {value}"
+            )
+        return int(value)
+    names = name_list("distractors", value, "banana")
+    names = tuple(get_object(n).name for n in names)  # KeyError lists the valid names
+    both = sorted(set(names) & set(objects))
+    if both and explicit:
+        raise ValueError(
+            f"distractors {both} are also possible targets (objects); name targets with "
+            "objects=[...] and distractors with distractors=[...], or give distractors=K"
+        )
+    return names
+
+
+def tilt_deg(value: Any, high: float) -> float:
+    """``tilt_deg``: the target's tilt on the stand, degrees in [0, high]."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0.0 <= value <= high:
+        raise ValueError(f"tilt_deg must be a number of degrees in [0, {high:g}], got {value!r}")
+    return float(value)

@@ -66,6 +66,24 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
             for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
         },
         "privileged": bool(first.get("privileged")),
+        **_clutter_record(ran),
+    }
+
+
+def _clutter_record(ran: list[dict[str, Any]]) -> dict[str, Any]:
+    """On a cluttered table: how often the blob taken for the target was the target, and the
+    recognition of the blobs of the first view (``info["perception"]["objects"]`` at reset,
+    before the arm moves in and splits or hides them)."""
+    if not any("objects" in r for r in ran):
+        return {}  # not a source that splits a cluttered table
+    picks = [r["target_recognised"] for r in ran if r.get("target_recognised") is not None]
+    first = next((r["objects"] for r in ran if r.get("objects")), [])
+    blobs = [b for b in first if b.get("recognised") is not None]
+    return {
+        "target_recognised_rate": float(np.mean(picks)) if picks else 0.0,  # never found: 0
+        "blob_recognition_correct": (
+            float(np.mean([b["recognised"] == b["true_class"] for b in blobs])) if blobs else None
+        ),
     }
 
 
@@ -120,6 +138,8 @@ def run_episode(
         if terminated or truncated:
             break
     extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    if "distractors_knocked_over" in info:  # a table with distractors
+        extra["distractors_knocked_over"] = int(info["distractors_knocked_over"])
     return EpisodeResult(
         seed,
         info["object_name"],

@@ -44,10 +44,19 @@ def _model_set_source(**kwargs: Any) -> PoseSource:
     return ModelSetPoseSource(**kwargs)
 
 
+def _clutter_source(**kwargs: Any) -> PoseSource:
+    """The pose-manifold source for tables with several objects (blobs split, each recognised,
+    the target's pose estimated), imported on first use like ``manifold``."""
+    from scorbot_gym.perception.clutter import ClutterPoseSource
+
+    return ClutterPoseSource(**kwargs)
+
+
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
     "manifold": _model_set_source,
+    "manifold_clutter": _clutter_source,
 }
 
 

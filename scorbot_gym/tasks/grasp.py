@@ -9,7 +9,8 @@ import numpy as np
 from scorbot_gym.robot import Robot
 from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation, quat_to_mat
 
-FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
+# "wrong_object" (a distractor lifted instead of the target) is decided by the ClutterTask.
+FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable", "wrong_object")
 
 #: The discount the dense reward is designed for (SB3's SAC/TQC/PPO default).
 REWARD_GAMMA = 0.99

@@ -263,6 +263,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reason=est.reason,
             camera=est.camera,
         )
+        if "blobs" in est.details and "objects" in info:  # a cluttered table
+            rec.update(_score_blobs(est.details, info, self._cameras.get(est.camera)))
         if rec["valid"]:
             spec = get_object(true_name)
             gt_pos = np.asarray(info["object_pose"]["position"], float)
@@ -300,6 +302,23 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 onehot[self.class_names.index(held.object_name)] = 1.0
             out["object_class"] = onehot
         return out
+
+
+def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[str, Any]:
+    """Each blob's true class (the object whose projected centre is nearest the blob's
+    centroid) beside its recognition, and whether the blob taken for the target is it."""
+    names = list(info["objects"])
+    out: dict[str, Any] = {"objects": [], "target_recognised": None}
+    if camera is None or not names:
+        return out
+    centres = camera.project(np.array([info["objects"][n]["position"] for n in names]))
+    for blob in details["blobs"]:
+        d = np.linalg.norm(centres - np.asarray(blob["centroid_px"]), axis=1)
+        out["objects"].append({**blob, "true_class": names[int(np.argmin(d))]})
+    chosen = details.get("chosen")
+    if chosen is not None:
+        out["target_recognised"] = out["objects"][chosen]["true_class"] == info["object_name"]
+    return out
 
 
 def _is_plain(value: Any) -> bool:
