@@ -48,6 +48,9 @@ class GraspTask:
         self._arm_geoms = np.array(
             [g for g in range(m.ngeom) if m.geom(g).name.startswith(ARM_PREFIX)]
         )
+        self._arm_mask = robot.geom_mask(self._arm_geoms)  # per-geom lookup: no np.isin per step
+        # Where the fingers close, in the object frame (z = 0): fixed for the scene's object.
+        self._grasp_offset = np.r_[sim.object_spec.model.grasp_point, 0.0]
 
     def place_object(self, rng: np.random.Generator, resting_index: int = 0) -> None:
         (x0, x1), (y0, y1) = self.sim.workspace_xy_bounds
@@ -60,7 +63,7 @@ class GraspTask:
 
     def grasp_point_world(self) -> np.ndarray:
         pos, quat = self.sim.object_pose()
-        return pos + quat_to_mat(quat) @ np.r_[self.sim.object_spec.model.grasp_point, 0.0]
+        return pos + quat_to_mat(quat) @ self._grasp_offset
 
     def update(self, dt: float) -> dict:
         """Advance the episode bookkeeping after ``dt`` seconds; return the step's facts."""
@@ -92,13 +95,15 @@ class GraspTask:
     def self_collision(self) -> bool:
         """Whether two parts of the arm touch now (e.g. the hand folded onto the column)."""
         d = self.sim.data
+        if not d.ncon:
+            return False
         pairs = d.contact.geom[: d.ncon]
-        return bool(np.isin(pairs, self._arm_geoms).all(axis=1).any())
+        return bool((self._arm_mask[pairs[:, 0]] & self._arm_mask[pairs[:, 1]]).any())
 
     def reward(self, facts: dict) -> float:
         if self.reward_type == "sparse":
             return float(self.state.success)
-        lift_frac = np.clip(facts["lift"] / self.lift_height, 0.0, 1.0)
+        lift_frac = min(max(facts["lift"] / self.lift_height, 0.0), 1.0)  # np.clip's, for a float
         return float(
             (1.0 - np.tanh(10.0 * facts["reach"]))
             + facts["grasped"] * (1.0 + 2.0 * lift_frac)
