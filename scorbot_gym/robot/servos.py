@@ -35,15 +35,16 @@ class Robot:
         arm_bodies = [m.body(ARM_PREFIX + b).id for b in ("upper_arm", "forearm", "wrist", "hand")]
         self.link_geoms = np.flatnonzero(np.isin(m.geom_bodyid, arm_bodies))
         self.kinematics = kinematics or ArmKinematics()
-        self._masks: dict[bytes, np.ndarray] = {}
-        # Per geom, which parts it belongs to, as bits: left finger 1, right finger 2, link 4.
-        self._part_bits = np.zeros(m.ngeom, dtype=np.uint8)
+        self._geom_sets: dict[bytes, frozenset[int]] = {}
+        # Per geom, the parts it belongs to, as bits: left finger 1, right finger 2, link 4.
+        parts = np.zeros(m.ngeom, dtype=int)
         for bit, geoms in (
             (1, self.finger_geoms[0]),
             (2, self.finger_geoms[1]),
             (4, self.link_geoms),
         ):
-            self._part_bits[geoms] |= bit
+            parts[geoms] |= bit
+        self._parts = parts.tolist()
 
     # --- state ---------------------------------------------------------------------------
     @property
@@ -77,29 +78,27 @@ class Robot:
         self.sim.data.ctrl[self.gripper_actuator] = min(max(opening, 0.0), GRIPPER_MAX_OPENING)
 
     # --- contacts ------------------------------------------------------------------------
-    def geom_mask(self, geoms: np.ndarray) -> np.ndarray:
-        """A read-only ``bool (ngeom,)`` lookup: True at ``geoms``. Cached per set of ids, so a
-        contact test is one gather per contact column (``np.isin`` cost ~13 us a call)."""
-        ids = np.asarray(geoms, dtype=np.intp).ravel()
-        key = ids.tobytes()
-        mask = self._masks.get(key)
-        if mask is None:
-            mask = np.zeros(self.sim.model.ngeom, dtype=bool)
-            mask[ids] = True
-            mask.flags.writeable = False
-            self._masks[key] = mask
-        return mask
+    def geom_set(self, geoms: np.ndarray) -> frozenset[int]:
+        """``geoms`` as a set of ids, cached per set of ids (it is asked for every step)."""
+        key = np.asarray(geoms, dtype=np.intp).tobytes()
+        found = self._geom_sets.get(key)
+        if found is None:
+            found = self._geom_sets[key] = frozenset(np.asarray(geoms).ravel().tolist())
+        return found
 
     def contacts_with(self, geoms: np.ndarray) -> tuple[bool, bool, bool]:
-        """Whether the left finger, right finger and arm links touch any of ``geoms``."""
+        """Whether the left finger, right finger and arm links touch any of ``geoms``.
+
+        A plain loop over the contacts: there are a handful (2-12 in a grasp), and per-call
+        overheads made array tests (``np.isin``: ~13 us a call) cost as much as the physics."""
         d = self.sim.data
         if not d.ncon:
             return False, False, False
-        pairs = d.contact.geom[: d.ncon]  # (ncon, 2): one array test instead of a Python loop
-        g1, g2 = pairs[:, 0], pairs[:, 1]
-        mask = self.geom_mask(geoms)
-        in1, in2 = mask[g1], mask[g2]
-        # the geom touching one of ``geoms`` (the second one when both are in ``geoms``)
-        other = np.where(in1, g2, g1)[in1 | in2]
-        bits = int(np.bitwise_or.reduce(self._part_bits[other])) if len(other) else 0
-        return bool(bits & 1), bool(bits & 2), bool(bits & 4)
+        members, parts = self.geom_set(geoms), self._parts
+        touching = 0  # bits of the parts touching one of ``geoms``
+        for g1, g2 in d.contact.geom[: d.ncon].tolist():
+            if g1 in members:
+                touching |= parts[g2]
+            elif g2 in members:
+                touching |= parts[g1]
+        return bool(touching & 1), bool(touching & 2), bool(touching & 4)

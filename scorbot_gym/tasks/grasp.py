@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,7 +49,7 @@ class GraspTask:
         self._arm_geoms = np.array(
             [g for g in range(m.ngeom) if m.geom(g).name.startswith(ARM_PREFIX)]
         )
-        self._arm_mask = robot.geom_mask(self._arm_geoms)  # per-geom lookup: no np.isin per step
+        self._arm_set = robot.geom_set(self._arm_geoms)
         # Where the fingers close, in the object frame (z = 0): fixed for the scene's object.
         self._grasp_offset = np.r_[sim.object_spec.model.grasp_point, 0.0]
 
@@ -83,7 +84,8 @@ class GraspTask:
         st.closed_empty |= opening < 0.004 and not grasped
         st.success |= st.held_time >= self.hold_time - 1e-9
         fell = pos[2] < self.sim.table_height - 0.05
-        reach = float(np.linalg.norm(self.robot.tcp_pos - self.grasp_point_world()))
+        gap = self.robot.tcp_pos - self.grasp_point_world()
+        reach = math.sqrt(gap @ gap)  # np.linalg.norm's arithmetic, without its overhead
         return {
             "grasped": grasped,
             "touched": bool(left or right or link_obj),
@@ -94,11 +96,9 @@ class GraspTask:
 
     def self_collision(self) -> bool:
         """Whether two parts of the arm touch now (e.g. the hand folded onto the column)."""
-        d = self.sim.data
-        if not d.ncon:
-            return False
-        pairs = d.contact.geom[: d.ncon]
-        return bool((self._arm_mask[pairs[:, 0]] & self._arm_mask[pairs[:, 1]]).any())
+        d, arm = self.sim.data, self._arm_set
+        # a loop: a handful of contacts (see Robot.contacts_with)
+        return any(g1 in arm and g2 in arm for g1, g2 in d.contact.geom[: d.ncon].tolist())
 
     def reward(self, facts: dict) -> float:
         if self.reward_type == "sparse":
