@@ -103,7 +103,7 @@ class GraspTask:
     def reward(self, facts: dict) -> float:
         if self.reward_type == "sparse":
             return float(self.state.success)
-        lift_frac = min(max(facts["lift"] / self.lift_height, 0.0), 1.0)  # np.clip's, for a float
+        lift_frac = np.clip(facts["lift"] / self.lift_height, 0.0, 1.0)
         return float(
             (1.0 - np.tanh(10.0 * facts["reach"]))
             + facts["grasped"] * (1.0 + 2.0 * lift_frac)
