@@ -5,12 +5,13 @@ Rotations ``(3, 3)`` map object to camera coordinates; translations are in metre
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from pose.rotations import angle_from_trace_deg, geodesic_deg
+from pose.rotations import geodesic_deg
 from pose.symmetry import Symmetry
 
 if TYPE_CHECKING:
@@ -34,8 +35,8 @@ def rotation_error_deg(
         return float(geodesic_deg(R_est, R_gt))
     # tr(R_est (R_gt S)^T) = <R_gt^T R_est, S> for every S at once; the smallest angle is the
     # largest trace (arccos falls), so one arccos, not one per symmetry (an axial set is 360).
-    traces = symmetry.rotations(step_deg).reshape(-1, 9) @ (R_gt.T @ R_est).ravel()
-    return float(angle_from_trace_deg(traces.max()))
+    trace = float((symmetry.rotations(step_deg).reshape(-1, 9) @ (R_gt.T @ R_est).ravel()).max())
+    return math.degrees(math.acos(min(max((trace - 1.0) / 2.0, -1.0), 1.0)))  # one number
 
 
 def translation_error(t_est: np.ndarray, t_gt: np.ndarray) -> float:
@@ -64,15 +65,18 @@ def add_s(R_est, t_est, R_gt, t_gt, points: np.ndarray, tree=None) -> float:
     when not given). ``R_est`` must be a rotation.
     """
     points = np.asarray(points, float)
-    gt = _transform(R_gt, t_gt, points)
-    nearest = np.linalg.norm(gt - _transform(R_est, t_est, points), axis=1)
+    R_est, R_gt = np.asarray(R_est, float), np.asarray(R_gt, float)
+    t_est, t_gt = np.asarray(t_est, float).ravel(), np.asarray(t_gt, float).ravel()
+    # each point's distance to its own counterpart: (R_gt - R_est) p + (t_gt - t_est)
+    gap = points @ (R_gt - R_est).T + (t_gt - t_est)
+    nearest = np.sqrt(np.einsum("ij,ij->i", gap, gap))  # row norms; np.linalg.norm's are slow
     moved = nearest > 0.0
     if moved.any():
         if tree is None:
             from scipy.spatial import cKDTree  # here: scipy costs an oracle-only env ~20 MB
 
             tree = cKDTree(points)
-        local = (gt[moved] - np.asarray(t_est, float).ravel()) @ np.asarray(R_est, float)
+        local = (_transform(R_gt, t_gt, points[moved]) - t_est) @ R_est
         bound = nearest[moved]
         found = tree.query(local, k=1, distance_upper_bound=float(bound.max()) * (1 + 1e-9))[0]
         nearest[moved] = np.minimum(bound, found)  # inf where nothing is nearer than the bound

@@ -51,12 +51,7 @@ def from_6d(x: np.ndarray) -> np.ndarray:
 def geodesic_deg(R1: np.ndarray, R2: np.ndarray) -> np.ndarray:
     """Angle (degrees) of ``R1 R2^T``; broadcasts over leading axes."""
     tr = np.einsum("...ij,...ij->...", np.asarray(R1, float), np.asarray(R2, float))
-    return angle_from_trace_deg(tr)
-
-
-def angle_from_trace_deg(trace: np.ndarray | float) -> np.ndarray:
-    """Angle (degrees) of a rotation with this trace: ``arccos((tr - 1) / 2)``, clipped."""
-    return np.degrees(np.arccos(np.clip((trace - 1.0) / 2.0, -1.0, 1.0)))
+    return np.degrees(np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0)))
 
 
 def ray_rotation(K: np.ndarray, uv: np.ndarray) -> np.ndarray:

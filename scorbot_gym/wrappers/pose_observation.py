@@ -184,7 +184,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _estimate(self, frame: PerceptionFrame, info: dict) -> dict[str, Any]:
         est = self.source.estimate(frame)
         ok = bool(
-            est.valid and np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.quaternion))
+            est.valid and np.isfinite(est.position).all() and np.isfinite(est.quaternion).all()
         )
         self._last_valid = ok
         if ok:
