@@ -64,6 +64,10 @@ class TrainConfig:
     batch_size: int = 256
     buffer_size: int = 50_000
     learning_starts: int = 1000
+    # SAC/TQC: gradient updates per env step, whatever n_envs is (SB3's default, one update per
+    # vector step, would halve it with 2 envs); with n_envs it must give a whole number of
+    # updates per vector step, or one update every whole number of vector steps
+    updates_per_env_step: float = 1.0
     n_steps: int = 1024  # PPO: env steps per update, over all envs
     ent_coef_init: float = 0.05
     log_std_init: float = -2.0  # of a residual actor: small exploration around the base
@@ -89,12 +93,27 @@ class TrainConfig:
         for name in ("timesteps", "n_envs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        self.update_schedule()  # ValueError for a ratio n_envs cannot give
         if self.bc_demos < 0:
             raise ValueError(f"bc_demos must be >= 0, got {self.bc_demos}")
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
         return self
+
+    def update_schedule(self) -> tuple[int, int]:
+        """SAC/TQC's ``(train_freq, gradient_steps)`` in vector steps that give
+        ``updates_per_env_step`` updates per env step with ``n_envs`` envs."""
+        per_vector_step = self.updates_per_env_step * self.n_envs
+        if per_vector_step >= 1 and float(per_vector_step).is_integer():
+            return 1, int(per_vector_step)
+        if 0 < per_vector_step < 1 and float(1 / per_vector_step).is_integer():
+            return int(1 / per_vector_step), 1
+        raise ValueError(
+            f"updates_per_env_step={self.updates_per_env_step} with n_envs={self.n_envs} is "
+            f"{per_vector_step:g} updates per vector step; it must be a whole number of updates "
+            "per vector step or one update every whole number of vector steps"
+        )
 
     @property
     def env_id(self) -> str:
@@ -236,10 +255,13 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
         )
     else:
         cls = SAC if config.algo == "sac" else TQC
+        train_freq, gradient_steps = config.update_schedule()
         model = cls(
             buffer_size=config.buffer_size,
             batch_size=config.batch_size,
             learning_starts=config.learning_starts,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
             ent_coef=f"auto_{config.ent_coef_init}",
             policy_kwargs={"net_arch": list(config.net_arch)},
             **common,
