@@ -2,7 +2,8 @@
 step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-place-v3 and
 robosuite Lift (Panda) in the same run.
 
-Run:  python benchmarks/env_step.py [--peers] [--repeats 5] [--out PATH.json]
+Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...]] [--repeats 5] [--cpu 0]
+      [--out PATH.json]
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
