@@ -50,6 +50,8 @@ COMMANDS = (
     ("pose", "train", "--help"),
     ("pose", "train", "--camera", "ceiling"),
     ("shapes", "eval", "--help"),
+    ("demos", "--help"),
+    ("demos", "--out", "x", "--episodes", "0"),
     ("doctor", "--help"),
 )
 HEAVY = ("torch", "stable_baselines3", "cv2", "mujoco", "dm_control", "sklearn", "scipy.stats")

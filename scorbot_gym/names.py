@@ -12,9 +12,9 @@ from __future__ import annotations
 
 #: who acts in ``scorbot-gym rollout`` (besides a policy or training-run folder);
 #: :mod:`scorbot_gym.evaluation.rollout` takes them from here
-POLICIES = ("scripted", "random", "rl")
+POLICIES = ("scripted", "random", "rl", "learned")
 #: the pose sources :mod:`scorbot_gym.perception.registry` registers itself (sorted)
-POSE_SOURCES = ("manifold", "noisy_oracle", "oracle")
+POSE_SOURCES = ("manifold", "manifold_clutter", "noisy_oracle", "oracle")
 #: short pose-source names the command line accepts, and the registered source each stands for
 POSE_ALIASES = {"noisy": "noisy_oracle"}
 

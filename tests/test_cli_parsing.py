@@ -57,6 +57,8 @@ def test_help_and_argument_errors_import_no_simulator_learner_or_opencv(argv, co
         (["pose", "eval", "--help"], 0),
         (["shapes", "eval", "--help"], 0),
         (["doctor", "--help"], 0),
+        (["demos", "--help"], 0),
+        (["demos", "--episodes", "0"], 2),
     ],
 )
 def test_sub_command_help_and_argument_errors_import_nothing_heavy(argv, code):

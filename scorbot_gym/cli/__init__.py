@@ -36,6 +36,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "scorbot_gym.cli.compare",
         "compare policies (scripted, rl, random, a policy directory) on paired seeds",
     ),
+    "demos": ("scorbot_gym.cli.demos", "record scripted demonstrations as a Minari dataset"),
 }
 
 

@@ -26,10 +26,11 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+from scorbot_gym.policies.imitation import ImitationPolicy
+from scorbot_gym.policies.sb3 import SB3Policy
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
-BUILTIN_POLICIES = ("scripted", "random", "rl")
+BUILTIN_POLICIES = ("scripted", "random", "rl", "learned")
 
 
 @dataclass(frozen=True)
@@ -73,11 +74,14 @@ def policy_label(policy: str) -> str:
     return p.parent.name if p.name == "policy" else p.name
 
 
-def load_policy(name: str) -> SB3Policy | None:
-    """``rl`` (the shipped policy) or a policy directory; ``None`` for scripted/random."""
+def load_policy(name: str) -> SB3Policy | ImitationPolicy | None:
+    """``rl`` (the shipped residual), ``learned`` (the shipped stand-alone imitation policy) or
+    a policy directory; ``None`` for scripted/random."""
     if name in ("scripted", "random"):
         return None
-    return SB3Policy.load(SHIPPED_POLICY if name == "rl" else name)
+    from scorbot_gym.policies.loading import load_policy as load_saved
+
+    return load_saved(name)
 
 
 def _make_policy(name: str, learned: SB3Policy | None, env, seed: int):

@@ -30,13 +30,17 @@ class RolloutConfig:
     ``segmenter`` and ``recognizer`` name the source's components (defaults: background
     subtraction; FLR shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
-    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy), a
-    policy folder or a ``scorbot-gym train`` run folder (its ``checkpoint``: ``best`` or
-    ``last`` exported policy, with its normalisation); ``action_type=None`` takes
+    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 residual
+    policy: the scripted controller + a learned correction), ``learned`` (the shipped
+    stand-alone imitation policy, no scripted controller), a saved policy folder (``scorbot-gym
+    train`` or an imitation policy) or a ``scorbot-gym train`` run folder (its ``checkpoint``:
+    ``best`` or ``last`` exported policy, with its normalisation); ``action_type=None`` takes
     the learned policy's action type (joint for the others). ``perturbation`` is the env's
     perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
-    pose models stay the unperturbed ones.
+    pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
+    ``objects``) share the table with the target, which is ``target`` in every episode or
+    drawn; ``tilt_deg`` props the target on a stand, tilted that much.
     """
 
     policy: str = "scripted"
@@ -58,6 +62,9 @@ class RolloutConfig:
     seed: int = 0
     perturbation: str | None = None
     checkpoint: str = "best"
+    distractors: int = 0
+    target: str | None = None
+    tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -75,6 +82,14 @@ class RolloutConfig:
             self.action_type = learned.meta["action_type"] if learned else "joint"
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.distractors < 0:
+            raise ValueError(f"distractors must be >= 0, got {self.distractors}")
+        if self.target is not None:
+            from scorbot_gym.objects import get_object
+
+            self.target = get_object(self.target).name  # KeyError lists the valid names
+            if self.objects and self.target not in self.objects:
+                raise ValueError(f"target {self.target!r} is not one of objects {self.objects}")
         if self.estimate_every < 0:
             raise ValueError(
                 f"estimate_every must be >= 0 (0: once per episode), got {self.estimate_every}"
@@ -82,6 +97,11 @@ class RolloutConfig:
         if self.noise and self.pose != "noisy_oracle":
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
+            )
+        if self.pose == "manifold_clutter" and self.recognize:
+            raise ValueError(
+                "pose 'manifold_clutter' is told the target (the task command) and recognises "
+                "every blob itself: drop recognize"
             )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
@@ -109,6 +129,8 @@ class RolloutConfig:
     def pose_kwargs(self, progress: bool = False) -> dict[str, Any]:
         if self.pose == "noisy_oracle":
             return dict(self.noise)
+        if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
+            return {"models": self._models(progress), "recognizer": self.recognizer}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models
@@ -131,12 +153,25 @@ class RolloutConfig:
             ]
         return kwargs
 
+    def _models(self, progress: bool) -> Any:
+        """The pose model file, or the default models for the first pose camera."""
+        if self.pose_model is not None:
+            return self.pose_model
+        from scorbot_gym.perception.training import default_pose_models
+
+        w, h = self.pose_size
+        return default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""
         if self.objects:
             env_kwargs.setdefault("objects", list(self.objects))
         if self.perturbation:
             env_kwargs.setdefault("perturbation", Perturbation.parse(self.perturbation))
+        if self.distractors:
+            env_kwargs.setdefault("distractors", self.distractors)
+        if self.tilt_deg:
+            env_kwargs.setdefault("tilt_deg", self.tilt_deg)
         return make_env(
             self.env_id,
             pose=self.pose,
@@ -148,17 +183,13 @@ class RolloutConfig:
         )
 
     def _learned(self):
-        """The SB3 policy this configuration runs, if any (loaded once, with clear errors)."""
+        """The learned policy this configuration runs, if any (loaded once, clear errors)."""
         if self.policy in ("scripted", "random"):
             return None
         if "_loaded_policy" not in self.__dict__:  # not a field: stays out of to_dict()
-            from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
-            from scorbot_gym.rl.runs import policy_dir
+            from scorbot_gym.policies.loading import load_policy
 
-            path = (
-                SHIPPED_POLICY if self.policy == "rl" else policy_dir(self.policy, self.checkpoint)
-            )
-            self.__dict__["_loaded_policy"] = SB3Policy.load(path)
+            self.__dict__["_loaded_policy"] = load_policy(self.policy, self.checkpoint)
         return self.__dict__["_loaded_policy"]
 
     def make_policy(self, env):
@@ -171,6 +202,11 @@ class RolloutConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def reset_options(self) -> dict[str, Any] | None:
+        """What every episode's ``reset`` gets: the named target, if any."""
+        return {"target": self.target} if self.target else None
+
 
 def run_rollout(
     config: RolloutConfig, progress: bool = False
@@ -179,7 +215,9 @@ def run_rollout(
     env = config.make_env(progress=progress)
     try:
         policy = config.make_policy(env)
-        results = run_episodes(env, policy, config.episodes, config.seed, progress=progress)
+        results = run_episodes(
+            env, policy, config.episodes, config.seed, config.reset_options, progress
+        )
     finally:
         env.close()
     summary = summarize(results)
