@@ -14,7 +14,7 @@ torch).
 
     python benchmarks/cli_startup.py              # writes benchmarks/results/cli_startup.json
     python benchmarks/cli_startup.py --runs 3 --out /tmp/cli.json
-    mkdir /tmp/before && git archive 341b9c6 | tar -x -C /tmp/before
+    mkdir /tmp/before && git archive febf072 | tar -x -C /tmp/before
     python benchmarks/cli_startup.py --baseline /tmp/before   # the same commands, side by side
     python benchmarks/cli_startup.py --preload-only --out benchmarks/results/gl_preload_cuda.json
 """
