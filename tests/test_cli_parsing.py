@@ -66,6 +66,23 @@ def test_sub_command_help_and_argument_errors_import_nothing_heavy(argv, code):
     assert _imports_after(*argv) == {"code": code, "imported": []}
 
 
+def test_pose_ablate_without_occlusion_sweeps_the_default_levels(monkeypatch):
+    """The default levels are parsed when the sweep starts (not while parsing): still 0:95:5."""
+    import scorbot_gym.experiments as experiments
+    from scorbot_gym.experiments.spec import parse_occlusions
+
+    class Started(Exception):
+        pass
+
+    def ablate(spec, runner, cache_dir):
+        raise Started(spec)
+
+    monkeypatch.setattr(experiments, "ablate", ablate)
+    with pytest.raises(Started) as started:
+        main(["pose", "ablate", "--protocol", "top-resting", "--objects", "box", "--jobs", "1"])
+    assert started.value.args[0].occlusions == parse_occlusions("0:95:5")
+
+
 _REGISTERED_NAMES = """
 import json
 from scorbot_gym.data.protocols import protocol_names
