@@ -187,18 +187,49 @@ def compare_table(name: str) -> Callable[[], str]:
     return render
 
 
+def compare_arms() -> str:
+    """``compare.json``, one row per arm (``scorbot_gym.evaluation.compare.markdown_table``)."""
+    from scorbot_gym.evaluation.compare import markdown_table
+
+    return markdown_table(read("compare.json"))
+
+
 def headline_compare() -> str:
+    """Every policy against the reference with the true pose and under the strongest pose
+    noise of ``compare.json``."""
     d = read("compare.json")
     by = {(r["policy"], r["pose"]): r for r in d["results"]}
-    s, r = by[("scripted", "manifold")], by[("rl", "manifold")]
-    diff = next(x for x in d["differences"] if x["pose"] == "manifold" and x["a"] == "rl")
+    ref = d["reference"]
+    noisy = [c for c in d["conditions"] if c["source"] == "noisy_oracle"]
+    strongest = max(noisy, key=lambda c: (c["noise_pos_m"], c["noise_yaw_deg"]), default=None)
+    sentences = []
+    for cond in [d["conditions"][0]] + ([strongest] if strongest else []):
+        pose = cond["label"]
+        where = (
+            "with the true pose"
+            if cond["source"] == "oracle"
+            else f"with pose noise σ {100 * cond['noise_pos_m']:g} cm / {cond['noise_yaw_deg']:g}°"
+            if cond["source"] == "noisy_oracle"
+            else f"with the `{pose}` pose"
+        )
+        parts = [
+            f"`{ref}` **{pct(by[(ref, pose)]['success_rate'])}** {ci(by[(ref, pose)]['ci95'])}"
+        ]
+        for r in d["results"]:
+            if r["pose"] != pose or r["policy"] == ref:
+                continue
+            diff = r["vs_reference"]
+            parts.append(
+                f"`{r['label']}` **{pct(r['success_rate'])}** {ci(r['ci95'])} "
+                f"(paired difference {100 * diff['diff']:+.1f} points, 95 % CI "
+                f"{ci(diff['ci95'])[1:-1]}, McNemar p = {diff['mcnemar_p']:.2g})"
+            )
+        sentences.append(f"{where[0].upper()}{where[1:]}: " + ", ".join(parts))
     return (
-        f"With the pose estimated by the manifold at every step, over {s['episodes']} paired "
-        f"episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, whole catalogue, Cartesian actions): "
-        f"scripted **{pct(s['success_rate'])}** {ci(s['ci95'])}, the shipped residual SAC "
-        f"policy **{pct(r['success_rate'])}** {ci(r['ci95'])}, paired difference "
-        f"{100 * diff['diff']:+.1f} points {ci(diff['ci95'])}, McNemar p = "
-        f"{diff['mcnemar_p']:.1g} (`benchmarks/results/compare.json`).\n"
+        f"Over {d['episodes']} paired episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, whole "
+        f"catalogue, Cartesian actions). "
+        + ". ".join(sentences)
+        + " (`benchmarks/results/compare.json`).\n"
     )
 
 
@@ -426,7 +457,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "closed-loop": closed_loop_arms,
     "closed-loop-robustness": closed_loop_robustness,
     "closed-loop-perturbations": closed_loop_perturbations,
-    "compare": compare_table("compare.json"),
+    "compare": compare_arms,
     "compare-noise-once": compare_table("compare_noise_once.json"),
     "compare-heldout": compare_table("compare_heldout_objects.json"),
     "compare-heldout-training": compare_table("compare_heldout_training_objects.json"),
