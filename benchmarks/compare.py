@@ -4,13 +4,15 @@ Runs :func:`scorbot_gym.evaluation.compare.compare` for the scripted controller 
 reference) and the learned arms (``--policies``: built-in names such as ``rl``, the shipped
 residual, or policy / training-run folders) on the whole catalogue, every arm on the same
 seeds, under the oracle pose and the noisy-oracle levels (``S`` metres of position noise with
-``S * 500`` degrees of heading noise, or ``S:Y`` for Y degrees: ``0.02:20`` is the issue's
-"yaw σ 20°, position σ 2 cm"); with ``--pose-model`` also under the pose-manifold estimator.
+``S * 500`` degrees of heading noise, or ``S:Y`` for Y degrees). The default levels are the
+issue's two: heading σ 20° alone (``0:20``) and position σ 2 cm alone (``0.02:0``), under which
+the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.json``. With
+``--pose-model`` also under the pose-manifold estimator.
 Writes ``benchmarks/results/compare.json`` (the report documented in
 :mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``.
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned] [--episodes 200] \
-        [--noise 0.01,0.02,0.02:20] [--pose-model pose_models_320.npz] [--jobs 3]
+        [--noise 0:20,0.02:0] [--pose-model pose_models_320.npz] [--jobs 6]
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--noise", default="0.01,0.02:20", help="noise levels: S or S:Y")
+    parser.add_argument("--noise", default="0:20,0.02:0", help="noise levels: S or S:Y")
     parser.add_argument("--pose-model", type=Path, default=None, help="adds the manifold arms")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
     parser.add_argument("--jobs", type=int, default=1, help="arms run at a time (processes)")

@@ -194,27 +194,26 @@ def compare_arms() -> str:
     return markdown_table(read("compare.json"))
 
 
+def _condition_words(cond: dict) -> str:
+    """``with the true pose`` / ``with heading noise σ 20°`` / ... for a compare condition."""
+    if cond["source"] == "oracle":
+        return "with the true pose"
+    if cond["source"] != "noisy_oracle":
+        return f"with the `{cond['label']}` pose"
+    pos, yaw = cond["noise_pos_m"], cond["noise_yaw_deg"]
+    noise = [f"position σ {100 * pos:g} cm" if pos else "", f"heading σ {yaw:g}°" if yaw else ""]
+    return "with pose noise " + " and ".join(n for n in noise if n)
+
+
 def headline_compare() -> str:
-    """Every policy against the reference with the true pose and under the strongest pose
-    noise of ``compare.json``."""
+    """Every policy against the reference under every pose condition of ``compare.json``."""
     d = read("compare.json")
     by = {(r["policy"], r["pose"]): r for r in d["results"]}
     ref = d["reference"]
-    noisy = [c for c in d["conditions"] if c["source"] == "noisy_oracle"]
-    strongest = max(noisy, key=lambda c: (c["noise_pos_m"], c["noise_yaw_deg"]), default=None)
     sentences = []
-    for cond in [d["conditions"][0]] + ([strongest] if strongest else []):
-        pose = cond["label"]
-        where = (
-            "with the true pose"
-            if cond["source"] == "oracle"
-            else f"with pose noise σ {100 * cond['noise_pos_m']:g} cm / {cond['noise_yaw_deg']:g}°"
-            if cond["source"] == "noisy_oracle"
-            else f"with the `{pose}` pose"
-        )
-        parts = [
-            f"`{ref}` **{pct(by[(ref, pose)]['success_rate'])}** {ci(by[(ref, pose)]['ci95'])}"
-        ]
+    for cond in d["conditions"]:
+        pose, r0 = cond["label"], by[(ref, cond["label"])]
+        parts = [f"`{ref}` **{pct(r0['success_rate'])}** {ci(r0['ci95'])}"]
         for r in d["results"]:
             if r["pose"] != pose or r["policy"] == ref:
                 continue
@@ -224,10 +223,12 @@ def headline_compare() -> str:
                 f"(paired difference {100 * diff['diff']:+.1f} points, 95 % CI "
                 f"{ci(diff['ci95'])[1:-1]}, McNemar p = {diff['mcnemar_p']:.2g})"
             )
-        sentences.append(f"{where[0].upper()}{where[1:]}: " + ", ".join(parts))
+        words = _condition_words(cond)
+        sentences.append(f"{words[0].upper()}{words[1:]}: " + ", ".join(parts))
+    objects = "whole catalogue" if d["objects"] is None else ", ".join(d["objects"])
     return (
-        f"Over {d['episodes']} paired episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, whole "
-        f"catalogue, Cartesian actions). "
+        f"Over {d['episodes']} paired episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, "
+        f"{objects}, {d['action_type']} actions). "
         + ". ".join(sentences)
         + " (`benchmarks/results/compare.json`).\n"
     )

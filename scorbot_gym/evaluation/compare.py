@@ -616,7 +616,7 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
         "McNemar p",
         fontsize=9,
     )
-    a.legend(fontsize=7, loc="upper center", ncol=min(3, len(policies)))
+    handles, labels = a.get_legend_handles_labels()
 
     if "objects" in ax:
         b = ax["objects"]
@@ -655,11 +655,12 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
         c.set_xlabel("pose noise σ: position, heading")
         c.set_ylim(0, 1.05)
         c.set_title("success vs pose noise\n(95 % Wilson intervals)", fontsize=9)
-        c.legend(fontsize=7)
 
     head = headline(report)
     fig.suptitle(head, fontsize=8.5)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.025 * (head.count("\n") + 1)))
+    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(policies)), fontsize=7.5)
+    rows = -(-len(policies) // 3)
+    fig.tight_layout(rect=(0, 0.045 * rows, 1, 1 - 0.026 * (head.count("\n") + 1)))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
