@@ -26,10 +26,12 @@ def tiny_config(**kw) -> TrainConfig:
         objects=["box"],
         residual=True,
         timesteps=300,
-        learning_starts=100,
-        batch_size=64,
-        buffer_size=2000,
-        net_arch=[32, 32],
+        hyperparams={
+            "learning_starts": 100,
+            "batch_size": 64,
+            "buffer_size": 2000,
+            "net_arch": [32, 32],
+        },
         eval_every=150,
         eval_episodes=2,
         checkpoint_every=150,
@@ -83,7 +85,9 @@ def test_train_refuses_to_overwrite_a_run(trained_run):
 
 @pytest.mark.parametrize("algo", ["tqc", "ppo"])
 def test_other_algorithms_train_and_export(algo, tmp_path):
-    cfg = tiny_config(algo=algo, timesteps=64, n_steps=32, learning_starts=32, eval_every=64)
+    hp = {"n_steps": 32, "batch_size": 32} if algo == "ppo" else {"learning_starts": 32}
+    cfg = tiny_config(algo=algo, timesteps=64, hyperparams={"net_arch": [32, 32], **hp})
+    cfg.eval_every = 64
     state = train(cfg, tmp_path / algo)
     assert state["timesteps"] >= 64
     policy = SB3Policy.load(tmp_path / algo / "policy")
@@ -96,7 +100,8 @@ def test_other_algorithms_train_and_export(algo, tmp_path):
 
 def test_same_seed_same_first_updates():
     def params(seed):
-        cfg = tiny_config(residual=False, learning_starts=50, normalize=False, seed=seed)
+        hp = {"learning_starts": 50, "batch_size": 64, "buffer_size": 2000, "net_arch": [32, 32]}
+        cfg = tiny_config(residual=False, hyperparams=hp, normalize=False, seed=seed)
         venv = make_vec_env(cfg)
         model = build_model(cfg, venv, None)
         model.learn(120)
@@ -200,7 +205,11 @@ def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
         main(["rollout", "--policy", "rl", "--episodes", "0"])
     assert exc.value.code == 2
     assert main(["train"]) == 2  # neither --out nor --resume
-    assert main(["train", "--resume", str(tmp_path / "nothing")]) == 2  # no checkpoint
+    with pytest.raises(SystemExit) as exc:  # no run folder: checked while parsing
+        main(["train", "--resume", str(tmp_path / "nothing")])
+    assert exc.value.code == 2
+    (tmp_path / "empty").mkdir()
+    assert main(["train", "--resume", str(tmp_path / "empty")]) == 2  # no checkpoint
 
 
 def test_compare_writes_json_and_png_with_the_documented_keys(tmp_path):

@@ -15,7 +15,7 @@ from scorbot_gym.cli._args import (
 )
 from scorbot_gym.evaluation import format_summary
 from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES, RolloutConfig, run_rollout
-from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episode
+from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episodes
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.perception import pose_source_names
 from scorbot_gym.perception.motion import motion_names
@@ -37,9 +37,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--policy",
-        choices=POLICIES,
+        type=_policy,
         default="scripted",
-        help="who acts: scripted (PBVS controller), random, rl (the shipped learned policy)",
+        help=f"who acts: {', '.join(POLICIES)} (scripted: PBVS controller; rl: the shipped "
+        "learned policy), or a folder: a policy, or a `scorbot-gym train` run (replays its "
+        "--checkpoint)",
+    )
+    p.add_argument(
+        "--checkpoint",
+        choices=("best", "last"),
+        default="best",
+        help="for --policy RUN_FOLDER: the policy of the best evaluation (default) or the last",
     )
     p.add_argument(
         "--pose",
@@ -138,7 +146,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--camera", choices=CAMERAS, default="overview", help="camera for --video")
     p.add_argument(
-        "--video", type=Path, default=None, help="MP4 or GIF of the first episode (after the run)"
+        "--video",
+        type=Path,
+        default=None,
+        help="MP4 or GIF of all the episodes, one after the other (recorded after the run)",
     )
     p.add_argument(
         "--overlay", action="store_true", help="draw the estimated pose's axes on the video"
@@ -146,6 +157,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
+
+
+def _policy(text: str) -> str:
+    if text in POLICIES or Path(text).is_dir():
+        return text
+    raise argparse.ArgumentTypeError(
+        f"invalid choice: {text!r} (choose from {', '.join(POLICIES)}, or a policy or "
+        "training run folder)"
+    )
 
 
 def config_from_args(args: argparse.Namespace) -> RolloutConfig:
@@ -183,6 +203,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         episodes=args.episodes,
         seed=args.seed,
         perturbation=args.perturb or None,
+        checkpoint=args.checkpoint,
     )
 
 
@@ -198,10 +219,9 @@ def run(args: argparse.Namespace) -> int:
             render_mode="rgb_array", render_camera=args.camera, render_width=480, render_height=360
         )
         try:
-            _, n = record_episode(
-                env, config.make_policy(env), config.seed, args.video, args.overlay
-            )
+            seeds = range(config.seed, config.seed + config.episodes)
+            _, n = record_episodes(env, config.make_policy(env), seeds, args.video, args.overlay)
         finally:
             env.close()
-        print(f"video of episode seed={config.seed}: {args.video} ({n} frames)")
+        print(f"video of episodes seed={seeds[0]}..{seeds[-1]}: {args.video} ({n} frames)")
     return 0

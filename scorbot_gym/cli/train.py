@@ -1,94 +1,259 @@
-"""``scorbot-gym train``: train an SB3 agent on the grasping env, or resume a run."""
+"""``scorbot-gym train``: train an SB3 agent on the grasping env (one or several seeds), or
+resume a run. Every option is checked while parsing; SB3 and torch are imported only to train.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from scorbot_gym.cli._args import add_name_list
+from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
 from scorbot_gym.objects import CATALOGUE
-from scorbot_gym.rl.training import ALGOS, POSES, TrainConfig, resume, train
+from scorbot_gym.rl import hyperparams as hparams
+
+#: options that define a new run: with --resume the run's own settings apply (only --timesteps)
+_NEW_RUN_OPTIONS = (
+    "algo",
+    "pose",
+    "pose_model",
+    "action_type",
+    "objects",
+    "seed",
+    "seeds",
+    "n_envs",
+    "residual",
+    "residual_scale",
+    "bc_demos",
+    "bc_steps",
+    "hyperparams",
+    "net_arch",
+    "learning_starts",
+    "eval_every",
+    "eval_episodes",
+    "checkpoint_every",
+)
+
+
+def _positive_float(text: str) -> float:
+    value = float(text)
+    if not (0 < value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
+
+
+def _new_run_folder(text: str) -> Path:
+    path = Path(text)
+    if path.exists() and not path.is_dir():
+        raise argparse.ArgumentTypeError(f"{text} is a file, not a run folder")
+    return path
+
+
+def _run_folder(text: str) -> Path:
+    path = Path(text)
+    if not path.is_dir():
+        raise argparse.ArgumentTypeError(f"no run folder at {text}")
+    return path
+
+
+def _existing_file(text: str) -> Path:
+    path = Path(text)
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"no such file: {text}")
+    return path
+
+
+def _seed_list(text: str) -> list[int]:
+    try:
+        seeds = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be comma-separated integers, got {text}") from None
+    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"must be distinct integers >= 0, got {text}")
+    return seeds
+
+
+class _Overrides(argparse.Action):
+    """``--hyperparams k=v [k=v ...]``: values read as YAML; names checked once the algorithm
+    is known (after parsing)."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        try:
+            setattr(namespace, self.dest, hparams.parse_overrides(values))
+        except ValueError as exc:
+            parser.error(f"{option_string}: {exc}")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "train",
         help="train a learned grasping policy (SB3 SAC/TQC/PPO), or resume a run",
-        description="Train into --out (config, checkpoints, TensorBoard logs, exported policy/),"
-        " or continue an interrupted run with --resume DIR.",
+        description="Train into --out (config.json, hyperparams.yml, Monitor CSVs, checkpoints, "
+        "TensorBoard logs, the last policy/ and the best/), or continue an interrupted run "
+        "with --resume DIR. Hyperparameters come from the package's hyperparams/<algo>.yml "
+        "(entry 'residual' or 'default'), overridden by --hyperparams.",
     )
-    p.add_argument("--algo", choices=ALGOS, default="sac")
-    p.add_argument("--pose", choices=POSES, default="oracle", help="pose source in training")
-    p.add_argument("--pose-model", type=Path, default=None, help="with --pose manifold")
+    p.add_argument("--algo", choices=hparams.ALGOS, default="sac")
+    p.add_argument("--pose", choices=hparams.POSES, default="oracle", help="pose source")
+    p.add_argument(
+        "--pose-model", type=_existing_file, default=None, help="model file, with --pose manifold"
+    )
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
     add_name_list(p, "--objects", CATALOGUE, "training objects (default: all)")
     p.add_argument(
         "--timesteps",
-        type=int,
+        type=positive_int,
         default=None,
         help="total env steps (default 20000; with --resume: a new total to continue to)",
     )
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--n-envs", type=int, default=1, help="SubprocVecEnv workers (1: in-process)")
-    p.add_argument("--out", type=Path, default=None, help="run directory (new)")
-    p.add_argument("--resume", type=Path, default=None, help="continue the run in this directory")
+    seeds = p.add_mutually_exclusive_group()
+    seeds.add_argument("--seed", type=non_negative_int, default=0)
+    seeds.add_argument(
+        "--seeds",
+        type=_seed_list,
+        default=None,
+        metavar="S,S,...",
+        help="train one run per seed, one after another, into --out/seed_<S>/",
+    )
+    p.add_argument(
+        "--n-envs", type=positive_int, default=1, help="SubprocVecEnv workers (1: in-process)"
+    )
+    p.add_argument("--out", type=_new_run_folder, default=None, help="run folder (new)")
+    p.add_argument(
+        "--resume", type=_run_folder, default=None, help="continue the run in this folder"
+    )
     p.add_argument(
         "--residual", action="store_true", help="learn a residual on top of the scripted controller"
     )
-    p.add_argument("--residual-scale", type=float, default=0.3)
+    p.add_argument("--residual-scale", type=_positive_float, default=0.3)
     p.add_argument(
         "--bc-demos",
-        type=int,
+        type=non_negative_int,
         default=0,
         help="scripted demonstration episodes: replay buffer + behaviour cloning",
     )
-    p.add_argument("--bc-steps", type=int, default=2000, help="behaviour-cloning gradient steps")
-    p.add_argument("--net-arch", type=int, nargs="+", default=[64, 64])
-    p.add_argument("--learning-starts", type=int, default=1000)
-    p.add_argument("--eval-every", type=int, default=5000, help="env steps between evaluations")
-    p.add_argument("--eval-episodes", type=int, default=20)
-    p.add_argument("--checkpoint-every", type=int, default=5000)
+    p.add_argument(
+        "--bc-steps", type=non_negative_int, default=2000, help="behaviour-cloning gradient steps"
+    )
+    p.add_argument(
+        "--hyperparams",
+        nargs="+",
+        action=_Overrides,
+        default={},
+        metavar="KEY=VALUE",
+        help="override the YAML entry, e.g. gamma=0.98 net_arch=[256,256] ent_coef=auto_0.1 "
+        f"(SAC/TQC: {', '.join(hparams.valid_keys('tqc'))}; "
+        f"PPO: {', '.join(hparams.valid_keys('ppo'))})",
+    )
+    p.add_argument(
+        "--net-arch",
+        type=positive_int,
+        nargs="+",
+        default=None,
+        help="hidden layer widths (same as --hyperparams net_arch=[...])",
+    )
+    p.add_argument(
+        "--learning-starts",
+        type=non_negative_int,
+        default=None,
+        help="random steps before updates (same as --hyperparams learning_starts=N)",
+    )
+    p.add_argument(
+        "--eval-every", type=positive_int, default=5000, help="env steps between evaluations"
+    )
+    p.add_argument("--eval-episodes", type=positive_int, default=20)
+    p.add_argument(
+        "--checkpoint-every", type=positive_int, default=5000, help="env steps between checkpoints"
+    )
+    p.add_argument(
+        "--show-hyperparams",
+        action="store_true",
+        help="print the resolved hyperparameters and SB3 schedule, then exit without training",
+    )
     p.add_argument("--no-tensorboard", action="store_true")
     p.add_argument("--no-progress", action="store_true")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, _parser=p)
 
 
-def run(args: argparse.Namespace) -> int:
-    if (args.out is None) == (args.resume is None):
-        raise ValueError("give exactly one of --out DIR (a new run) or --resume DIR")
-    if args.resume is not None:
-        state = resume(args.resume, timesteps=args.timesteps)
-        out = args.resume
-    else:
-        config = TrainConfig(
-            algo=args.algo,
-            pose=args.pose,
-            pose_model=str(args.pose_model) if args.pose_model else None,
-            action_type=args.action_type,
-            objects=args.objects,
-            timesteps=20_000 if args.timesteps is None else args.timesteps,
-            seed=args.seed,
-            n_envs=args.n_envs,
-            residual=args.residual,
-            residual_scale=args.residual_scale,
-            bc_demos=args.bc_demos,
-            bc_steps=args.bc_steps,
-            net_arch=args.net_arch,
-            learning_starts=args.learning_starts,
-            eval_every=args.eval_every,
-            eval_episodes=args.eval_episodes,
-            checkpoint_every=args.checkpoint_every,
-            progress_bar=not args.no_progress,
-            tensorboard=not args.no_tensorboard,
-        )
-        state = train(config, args.out)
-        out = args.out
+def _overrides(args: argparse.Namespace) -> dict:
+    overrides = dict(args.hyperparams)
+    for key, value in (("net_arch", args.net_arch), ("learning_starts", args.learning_starts)):
+        if value is None:
+            continue
+        if key in overrides:
+            raise ValueError(f"--{key.replace('_', '-')} and --hyperparams {key}=... both given")
+        overrides[key] = value
+    return overrides
+
+
+def config_from_args(args: argparse.Namespace):
+    """The run's :class:`~scorbot_gym.rl.training.TrainConfig`, checked (hyperparameters too)."""
+    from scorbot_gym.rl.training import TrainConfig
+
+    return TrainConfig(
+        algo=args.algo,
+        pose=args.pose,
+        pose_model=str(args.pose_model) if args.pose_model else None,
+        action_type=args.action_type,
+        objects=args.objects,
+        timesteps=20_000 if args.timesteps is None else args.timesteps,
+        seed=args.seed,
+        n_envs=args.n_envs,
+        residual=args.residual,
+        residual_scale=args.residual_scale,
+        bc_demos=args.bc_demos,
+        bc_steps=args.bc_steps,
+        hyperparams=_overrides(args),
+        eval_every=args.eval_every,
+        eval_episodes=args.eval_episodes,
+        checkpoint_every=args.checkpoint_every,
+        progress_bar=not args.no_progress,
+        tensorboard=not args.no_tensorboard,
+    ).validate()
+
+
+def _summary(state: dict) -> str:
     last = state["eval"][-1]
     lo, hi = last["ci95"]
-    print(
+    return (
         f"{state['timesteps']} env steps in {state['wall_s']:.0f} s of training; success on "
         f"{last['episodes']} held-out episodes: {last['success_rate']:.1%} "
         f"(95% CI {lo:.1%} - {hi:.1%})"
     )
-    print(f"policy: {out / 'policy'}  (scorbot-gym compare --policies scripted,{out / 'policy'})")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.show_hyperparams:
+        import yaml
+
+        config = config_from_args(args).resolved()
+        record = {"hyperparams": config.hyperparams, "sb3": config.schedule()}
+        print(yaml.safe_dump(record, sort_keys=False), end="")
+        return 0
+    if (args.out is None) == (args.resume is None):
+        raise ValueError("give exactly one of --out DIR (a new run) or --resume DIR")
+    if args.resume is not None:
+        defaults = args._parser.parse_args([])
+        given = [k for k in _NEW_RUN_OPTIONS if getattr(args, k) != getattr(defaults, k)]
+        if given:
+            flags = ", ".join(f"--{k.replace('_', '-')}" for k in given)
+            raise ValueError(f"--resume continues the run's own settings; {flags} cannot change")
+    from scorbot_gym.rl.training import resume, train, train_seeds
+
+    if args.resume is not None:
+        out = args.resume
+        state = resume(
+            out, timesteps=args.timesteps, progress_bar=False if args.no_progress else None
+        )
+    else:
+        out, config = args.out, config_from_args(args)
+        state = train_seeds(config, out, args.seeds) if args.seeds else train(config, out)
+    if "seeds" in state:  # a multi-seed folder
+        for seed, seed_state in state["seeds"].items():
+            print(f"seed {seed}: {_summary(seed_state)}")
+        first = out / f"seed_{next(iter(state['seeds']))}"
+        print(f"runs: {out}/seed_*  (scorbot-gym rollout --policy {first})")
+        return 0
+    print(_summary(state))
+    print(f"policies: {out / 'policy'} (last), {out / 'best'} (best evaluation)")
+    print(f"replay: scorbot-gym rollout --policy {out} [--checkpoint last] [--video run.mp4]")
     return 0

@@ -32,8 +32,9 @@ class RolloutConfig:
     ``segmenter`` and ``recognizer`` name the source's components (defaults: background
     subtraction; FLR shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
-    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy) or
-    the directory of a policy exported by ``scorbot-gym train``; ``action_type=None`` takes
+    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy), a
+    policy folder or a ``scorbot-gym train`` run folder (its ``checkpoint``: ``best`` or
+    ``last`` exported policy, with its normalisation); ``action_type=None`` takes
     the learned policy's action type (joint for the others). ``perturbation`` is the env's
     perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
@@ -58,6 +59,7 @@ class RolloutConfig:
     episodes: int = 20
     seed: int = 0
     perturbation: str | None = None
+    checkpoint: str = "best"
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -68,6 +70,8 @@ class RolloutConfig:
                 f"policy must be one of {POLICIES} or a policy directory from `scorbot-gym "
                 f"train`, got {self.policy!r}"
             )
+        if self.checkpoint not in ("best", "last"):
+            raise ValueError(f"checkpoint must be 'best' or 'last', got {self.checkpoint!r}")
         if self.action_type is None:
             learned = self._learned()
             self.action_type = learned.meta["action_type"] if learned else "joint"
@@ -151,8 +155,11 @@ class RolloutConfig:
             return None
         if "_loaded_policy" not in self.__dict__:  # not a field: stays out of to_dict()
             from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+            from scorbot_gym.rl.runs import policy_dir
 
-            path = SHIPPED_POLICY if self.policy == "rl" else self.policy
+            path = (
+                SHIPPED_POLICY if self.policy == "rl" else policy_dir(self.policy, self.checkpoint)
+            )
             self.__dict__["_loaded_policy"] = SB3Policy.load(path)
         return self.__dict__["_loaded_policy"]
 

@@ -8,6 +8,7 @@ frame when the held estimate is stale (``pose_age > 0``) and none before the fir
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from typing import Any
 
 import cv2
@@ -69,6 +70,21 @@ def record_episode(
 ) -> tuple[EpisodeResult, int]:
     """Run one episode of ``env`` (made with ``render_mode="rgb_array"``) and write its frames
     to ``path`` (MP4 or GIF, atomically); returns the result and the number of frames."""
+    results, n = record_episodes(env, policy, [seed], path, overlay, options)
+    return results[0], n
+
+
+def record_episodes(
+    env: Any,
+    policy: Any,
+    seeds: Sequence[int],
+    path: str | os.PathLike,
+    overlay: bool = False,
+    options: dict | None = None,
+) -> tuple[list[EpisodeResult], int]:
+    """Run one episode per seed of ``env`` (made with ``render_mode="rgb_array"``) and write
+    all their frames, one episode after the other, to ``path`` (MP4 or GIF, atomically);
+    returns the results and the number of frames."""
     import imageio.v3 as iio
 
     suffix = os.fspath(path).lower()[-4:]
@@ -91,11 +107,11 @@ def record_episode(
                 frame = draw_pose(frame, camera, *pose, stale=stale)
         frames.append(frame)
 
-    result = run_episode(env, policy, seed, options=options, on_step=on_step)
+    results = [run_episode(env, policy, s, options=options, on_step=on_step) for s in seeds]
     fps = env.metadata["render_fps"]
     if suffix == ".gif":
         data = iio.imwrite("<bytes>", frames[::2], extension=".gif", duration=2000 / fps, loop=0)
     else:
         data = iio.imwrite("<bytes>", frames, extension=".mp4", fps=fps, macro_block_size=8)
     atomic_write_bytes(path, data)
-    return result, len(frames)
+    return results, len(frames)

@@ -156,7 +156,17 @@ class SB3Policy:
                 f"{type(exc).__name__}: {exc}"
             ) from None
         norm_path = path / "normalize.npz"
-        normalizer = ObservationNormalizer.load(norm_path) if norm_path.is_file() else None
+        normalizer = None
+        if norm_path.is_file():
+            try:
+                normalizer = ObservationNormalizer.load(norm_path)
+            except Exception as exc:  # zip/npy/key errors of a damaged file
+                raise ValueError(f"{norm_path} is damaged ({type(exc).__name__}: {exc})") from None
+        elif meta.get("normalize", (meta.get("config") or {}).get("normalize")):
+            raise FileNotFoundError(
+                f"policy {path} is missing normalize.npz (policy.json says the model was "
+                "trained on normalised observations)"
+            )
         policy = cls(model, meta, normalizer)
         policy._check_model()
         return policy

@@ -2,6 +2,8 @@
 
 Both keep their state in the run directory, so an interrupted run resumes with its learning
 curve intact (``state.json`` holds the evaluation history and the training wall time so far).
+Each evaluation is dumped to the logger (TensorBoard) at once, as SB3's ``EvalCallback`` does:
+otherwise the last ones would wait for a log dump that never comes.
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from pose.fileio import atomic_write_json
 from scorbot_gym.evaluation.episodes import run_episodes
 from scorbot_gym.evaluation.summary import summarize
 
@@ -46,6 +47,8 @@ class SuccessEvalCallback(BaseCallback):
 
     ``make_policy(model)`` builds the :class:`~scorbot_gym.policies.sb3.SB3Policy` to evaluate
     (with the current normalisation statistics); ``env`` is a plain ``make_env`` env.
+    ``on_best(model, record)`` is called after an evaluation at least as good as every earlier
+    one (the latest among equals: it has trained longest), e.g. to export the best policy.
     """
 
     def __init__(
@@ -57,10 +60,13 @@ class SuccessEvalCallback(BaseCallback):
         every: int,
         episodes: int,
         seed: int,
+        on_best: Callable[[Any, dict], None] | None = None,
     ) -> None:
         super().__init__()
+        if every < 1 or episodes < 1:
+            raise ValueError(f"every and episodes must be >= 1, got {every} and {episodes}")
         self.env, self.make_policy, self.history, self.clock = env, make_policy, history, clock
-        self.every, self.episodes, self.seed = every, episodes, seed
+        self.every, self.episodes, self.seed, self.on_best = every, episodes, seed, on_best
         self._next = 0
 
     def _on_training_start(self) -> None:
@@ -70,7 +76,7 @@ class SuccessEvalCallback(BaseCallback):
             self.evaluate()
 
     def _on_step(self) -> bool:
-        if self.every > 0 and self.num_timesteps >= self._next:
+        if self.num_timesteps >= self._next:
             self.evaluate()
         return True
 
@@ -90,9 +96,14 @@ class SuccessEvalCallback(BaseCallback):
             "mean_steps_to_success": s["mean_steps_to_success"],
             "failure_causes": s["failure_causes"],
         }
+        best = max((e["success_rate"] for e in self.history), default=-1.0)
         self.history.append(rec)
         self.logger.record("eval/success_rate", rec["success_rate"])
         self.logger.record("eval/wall_s", rec["wall_s"])
+        self.logger.record("time/total_timesteps", rec["timesteps"], exclude="tensorboard")
+        self.logger.dump(self.num_timesteps)
+        if self.on_best is not None and rec["success_rate"] >= best:
+            self.on_best(self.model, rec)
         self._next = (self.num_timesteps // self.every + 1) * self.every
         return rec
 
@@ -102,6 +113,8 @@ class CheckpointCallback(BaseCallback):
 
     def __init__(self, save: Callable[[Any], None], every: int) -> None:
         super().__init__()
+        if every < 1:
+            raise ValueError(f"checkpoint interval must be >= 1 env steps, got {every}")
         self.save, self.every = save, every
         self._last = 0
 
@@ -109,7 +122,7 @@ class CheckpointCallback(BaseCallback):
         self._last = self.num_timesteps
 
     def _on_step(self) -> bool:
-        if self.every > 0 and self.num_timesteps - self._last >= self.every:
+        if self.num_timesteps - self._last >= self.every:
             self.save(self.model)
             self._last = self.num_timesteps
         return True
@@ -125,7 +138,3 @@ def atomic_save(path: Path, write: Callable[[Path], None]) -> None:
     finally:
         if tmp.exists():
             tmp.unlink()
-
-
-def write_state(path: Path, **state: Any) -> None:
-    atomic_write_json(path, state)

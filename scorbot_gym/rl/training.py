@@ -1,48 +1,70 @@
 """Train SB3 / sb3-contrib agents on the grasping env (the ``scorbot-gym train`` logic).
 
-A run directory holds everything needed to continue or use the run:
+A run folder holds everything needed to continue or use the run (layout in
+:mod:`scorbot_gym.rl.runs`): ``config.json`` (the :class:`TrainConfig` with its hyperparameters
+resolved from the shipped YAML files, see :mod:`scorbot_gym.rl.hyperparams`), Monitor CSVs,
+the checkpoint (each file written atomically; ``state.json`` holds timesteps, training wall
+time, the evaluation history and the configuration it was trained with), the last and the best
+exported policy (see :mod:`scorbot_gym.policies.sb3`) and TensorBoard logs (every evaluation is
+dumped as soon as it is made).
 
-- ``config.json``: the :class:`TrainConfig`;
-- ``checkpoint/``: ``model.zip``, ``replay_buffer.pkl`` (off-policy), ``vecnormalize.pkl``,
-  each written atomically, and ``state.json`` (timesteps, training wall time, eval history);
-- ``policy/``: the exported policy (see :mod:`scorbot_gym.policies.sb3`), rewritten at the end
-  and at every checkpoint;
-- ``tb/``: TensorBoard logs (``eval/success_rate`` against env steps).
-
-:func:`resume` continues from the last checkpoint up to the configured number of steps.
+``config.json`` is written only once the run has started (settings checked, envs and model
+built); a folder whose run stopped before its first checkpoint is started afresh by
+:func:`train`. :func:`resume` continues from the last checkpoint up to the configured number of
+steps and refuses, with the file and what is wrong, damaged files or a changed configuration.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import json
+import math
+import shutil
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import yaml
 
-from pose.fileio import atomic_write_json
+from pose.fileio import atomic_write_bytes, atomic_write_json
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.policies.sb3 import FORMAT, VERSION, ObservationNormalizer, SB3Policy
+from scorbot_gym.rl import hyperparams as hparams
+from scorbot_gym.rl import runs
 from scorbot_gym.rl.callbacks import (
     CheckpointCallback,
     SuccessEvalCallback,
     TrainingClock,
     atomic_save,
 )
+from scorbot_gym.rl.hyperparams import ALGOS, POSES
 from scorbot_gym.rl.residual import ResidualActionWrapper
 
-ALGOS = ("sac", "tqc", "ppo")
-POSES = ("oracle", "noisy", "manifold")
 EVAL_SEED = 1_000_000  # evaluation seeds start here; training episodes never use them
+#: settings a resumed run may change (how long, how often to evaluate and save, logging);
+#: any other difference from the checkpoint's configuration is refused
+RESUMABLE_CHANGES = (
+    "timesteps",
+    "eval_every",
+    "eval_episodes",
+    "checkpoint_every",
+    "progress_bar",
+    "torch_threads",
+    "tensorboard",
+)
 
 
 @dataclass
 class TrainConfig:
-    """Everything a run depends on (saved as ``config.json``; the run is a function of it)."""
+    """Everything a run depends on (saved as ``config.json``; the run is a function of it).
+
+    ``hyperparams`` overrides the entry of the shipped ``hyperparams/<algo>.yml`` for the
+    setting (``residual`` or ``default``); :meth:`resolved` fills in the rest, and a run
+    records the resolved set, so it does not change with the package's defaults.
+    """
 
     algo: str = "sac"
     pose: str = "oracle"
@@ -59,14 +81,7 @@ class TrainConfig:
     residual_scale: float = 0.3
     bc_demos: int = 0
     bc_steps: int = 2000
-    net_arch: list[int] = field(default_factory=lambda: [64, 64])
-    learning_rate: float = 3e-4
-    batch_size: int = 256
-    buffer_size: int = 50_000
-    learning_starts: int = 1000
-    n_steps: int = 1024  # PPO: env steps per update, over all envs
-    ent_coef_init: float = 0.05
-    log_std_init: float = -2.0  # of a residual actor: small exploration around the base
+    hyperparams: dict[str, Any] = field(default_factory=dict)
     normalize: bool = True
     eval_every: int = 5000
     eval_episodes: int = 20
@@ -76,25 +91,76 @@ class TrainConfig:
     tensorboard: bool = True
 
     def validate(self) -> TrainConfig:
+        """Check every setting (one-line errors naming it); hyperparameters included."""
+        self._check_types()
         if self.algo not in ALGOS:
             raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
         if self.pose not in POSES:
             raise ValueError(f"pose must be one of {POSES}, got {self.pose!r}")
         if self.pose == "manifold" and not self.pose_model:
             raise ValueError("pose='manifold' needs pose_model (from `scorbot-gym pose train`)")
+        if self.pose != "manifold" and self.pose_model:
+            raise ValueError(f"pose_model only applies to pose 'manifold', not {self.pose!r}")
         if self.action_type not in ("cartesian", "joint"):
             raise ValueError(
                 f"action_type must be 'cartesian' or 'joint', got {self.action_type!r}"
             )
-        for name in ("timesteps", "n_envs"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.bc_demos < 0:
-            raise ValueError(f"bc_demos must be >= 0, got {self.bc_demos}")
+        for name, low in (
+            ("timesteps", 1),
+            ("n_envs", 1),
+            ("eval_every", 1),
+            ("eval_episodes", 1),
+            ("checkpoint_every", 1),
+            ("seed", 0),
+            ("bc_demos", 0),
+            ("bc_steps", 0),
+            ("torch_threads", 0),
+        ):
+            if getattr(self, name) < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)}")
+        for name, low_open in (
+            ("residual_scale", True),
+            ("noise_pos_m", False),
+            ("noise_yaw_deg", False),
+        ):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and (value > 0 if low_open else value >= 0)):
+                bound = "> 0" if low_open else ">= 0"
+                raise ValueError(f"{name} must be a finite number {bound}, got {value}")
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
+        hparams.resolve(self.algo, self.residual, self.hyperparams)
         return self
+
+    def _check_types(self) -> None:
+        """A hand-edited config.json fails here, naming the key, rather than deep in SB3."""
+        kinds = {int: "an integer", float: "a number", bool: "true or false", str: "a string"}
+        for f in dataclasses.fields(self):
+            value, default = getattr(self, f.name), f.default
+            if f.name == "hyperparams":
+                ok = isinstance(value, dict)
+                kind = "a mapping"
+            elif f.name in ("objects", "classes"):
+                ok = value is None or (
+                    isinstance(value, list) and all(isinstance(v, str) for v in value)
+                )
+                kind = "a list of names"
+            elif f.name == "pose_model":
+                ok, kind = value is None or isinstance(value, str), "a path"
+            else:
+                want = type(default)
+                kind = kinds[want]
+                ok = isinstance(value, want) and not (want is int and isinstance(value, bool))
+                if want is float and isinstance(value, int) and not isinstance(value, bool):
+                    ok = True
+            if not ok:
+                raise ValueError(f"{f.name} must be {kind}, got {value!r}")
+
+    def resolved(self) -> TrainConfig:
+        """A copy whose ``hyperparams`` is the full set the run uses."""
+        hp = hparams.resolve(self.algo, self.residual, self.hyperparams)
+        return dataclasses.replace(self, hyperparams=hp)
 
     @property
     def env_id(self) -> str:
@@ -113,6 +179,11 @@ class TrainConfig:
             return "manifold", {"models": self.pose_model}
         return "oracle", {}
 
+    def schedule(self) -> dict[str, Any]:
+        """SB3's arguments for this many envs and the updates per env step they give."""
+        hp = hparams.resolve(self.algo, self.residual, self.hyperparams)
+        return hparams.sb3_schedule(self.algo, hp, self.n_envs)
+
     def to_json(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
 
@@ -123,6 +194,25 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"unknown training settings {unknown}; valid: {sorted(known)}")
         return cls(**data).validate()
+
+
+def check_pose_model(config: TrainConfig) -> None:
+    """Load the pose model file once, before anything is written: a damaged or wrong file is
+    a one-line error here rather than a traceback from an env worker."""
+    if config.pose != "manifold":
+        return
+    from pose.model_set import PoseModelSet
+
+    path = Path(config.pose_model)
+    if not path.is_file():
+        raise FileNotFoundError(f"pose model {path}: no such file")
+    try:
+        PoseModelSet.load(path)
+    except Exception as exc:  # numpy/zip/JSON errors of many kinds on a damaged file
+        raise ValueError(
+            f"pose model {path} is not a model file from `scorbot-gym pose train` "
+            f"({type(exc).__name__}: {exc})"
+        ) from None
 
 
 def make_policy_env(config: TrainConfig, objects: list[str] | None = None) -> gym.Env:
@@ -145,17 +235,32 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     return env
 
 
-def _monitored(config: TrainConfig) -> gym.Env:
+def _monitored(config: TrainConfig, filename: str | None) -> gym.Env:
     from stable_baselines3.common.monitor import Monitor
 
-    return Monitor(make_training_env(config), info_keywords=("is_success",))
+    # a resumed run appends to its CSV (SB3 writes the header only when it starts a file)
+    fresh = filename is None or not Path(f"{filename}.{Monitor.EXT}").exists()
+    return Monitor(
+        make_training_env(config),
+        filename=filename,
+        info_keywords=("is_success",),
+        override_existing=fresh,
+    )
 
 
-def make_vec_env(config: TrainConfig):
-    """``n_envs`` training envs (``SubprocVecEnv``; ``DummyVecEnv`` for one), normalised."""
+def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
+    """``n_envs`` training envs (``SubprocVecEnv``; ``DummyVecEnv`` for one), normalised;
+    with ``monitor_dir``, each env logs its episodes to ``monitor_dir/env_<i>.monitor.csv``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-    fns = [functools.partial(_monitored, config) for _ in range(config.n_envs)]
+    if monitor_dir is not None:
+        Path(monitor_dir).mkdir(parents=True, exist_ok=True)
+    fns = [
+        functools.partial(
+            _monitored, config, str(Path(monitor_dir) / f"env_{i}") if monitor_dir else None
+        )
+        for i in range(config.n_envs)
+    ]
     venv = DummyVecEnv(fns) if config.n_envs == 1 else SubprocVecEnv(fns, start_method="spawn")
     if config.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
@@ -187,6 +292,7 @@ def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, 
         "classes": config.class_names(),
         "observation_shapes": shapes,
         "residual": residual,
+        "normalize": bool(config.normalize),  # normalize.npz must then travel with the model
         "trained_timesteps": int(timesteps),
         "saw_scripted_controller": {
             "residual_base": bool(config.residual),
@@ -213,39 +319,49 @@ def _zero_init_actor(model, log_std_init: float) -> None:
 
 
 def build_model(config: TrainConfig, venv, tb_dir: Path | None):
+    """The SB3 model of ``config`` (hyperparameters resolved, see :meth:`TrainConfig.schedule`
+    for how they map onto SB3's per-vector-step arguments)."""
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
+    hp = hparams.resolve(config.algo, config.residual, config.hyperparams)
+    sched = hparams.sb3_schedule(config.algo, hp, config.n_envs)
+    policy_kwargs: dict[str, Any] = {"net_arch": list(hp["net_arch"])}
+    for key in ("log_std_init", "n_critics", "n_quantiles"):
+        if key in hp:
+            policy_kwargs[key] = hp[key]
     common = {
         "policy": "MultiInputPolicy",
         "env": venv,
-        "learning_rate": config.learning_rate,
+        "learning_rate": hp["learning_rate"],
+        "gamma": hp["gamma"],
+        "ent_coef": hp["ent_coef"],
+        "policy_kwargs": policy_kwargs,
         "seed": config.seed,
         "verbose": 0,
         "device": "cpu",
         "tensorboard_log": str(tb_dir) if tb_dir else None,
     }
     if config.algo == "ppo":
-        n_steps = max(8, config.n_steps // config.n_envs)
-        kwargs = {"log_std_init": config.log_std_init} if config.residual else {}
+        ppo_keys = ("n_epochs", "gae_lambda", "clip_range", "vf_coef", "max_grad_norm")
         model = PPO(
-            n_steps=n_steps,
-            batch_size=min(64, n_steps * config.n_envs),
-            policy_kwargs={"net_arch": list(config.net_arch), **kwargs},
+            n_steps=sched["n_steps_per_env"],
+            batch_size=sched["batch_size"],
+            **{k: hp[k] for k in ppo_keys if k in hp},
             **common,
         )
     else:
         cls = SAC if config.algo == "sac" else TQC
+        keys = ("tau", "buffer_size", "batch_size", "learning_starts", "target_update_interval")
+        extra = {k: hp[k] for k in (*keys, "top_quantiles_to_drop_per_net") if k in hp}
         model = cls(
-            buffer_size=config.buffer_size,
-            batch_size=config.batch_size,
-            learning_starts=config.learning_starts,
-            ent_coef=f"auto_{config.ent_coef_init}",
-            policy_kwargs={"net_arch": list(config.net_arch)},
+            train_freq=sched["train_freq"],
+            gradient_steps=sched["gradient_steps"],
+            **extra,
             **common,
         )
     if config.residual:
-        _zero_init_actor(model, config.log_std_init)
+        _zero_init_actor(model, hp["log_std_init"])
     return model
 
 
@@ -254,6 +370,7 @@ class _Run:
 
     def __init__(self, config: TrainConfig, out: Path, model, venv, state: dict) -> None:
         self.config, self.out, self.model, self.venv, self.state = config, out, model, venv, state
+        self.state["config"] = config.to_json()  # what the checkpoints are trained with
         self.clock = TrainingClock(state.get("wall_s", 0.0))
         self.eval_env = make_policy_env(config)
         self.meta_env = make_training_env(config)  # observation space incl. base_action
@@ -269,16 +386,21 @@ class _Run:
         )
 
     def save(self, model) -> None:
-        ck = self.out / "checkpoint"
+        ck = self.out / runs.CHECKPOINT
         ck.mkdir(parents=True, exist_ok=True)
         atomic_save(ck / "model.zip", model.save)
         if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
             atomic_save(ck / "replay_buffer.pkl", model.save_replay_buffer)
         if self.config.normalize:
             atomic_save(ck / "vecnormalize.pkl", self.venv.save)
-        self.export(model, self.out / "policy")
+        self.export(model, self.out / runs.POLICY)
         self.state.update(timesteps=int(model.num_timesteps), wall_s=round(self.clock.seconds, 2))
-        atomic_write_json(ck / "state.json", self.state)
+        atomic_write_json(ck / runs.STATE, self.state)
+
+    def save_best(self, model, record: dict[str, Any]) -> None:
+        """The policy of the best evaluation so far (``rollout --policy RUN`` loads it)."""
+        self.export(model, self.out / runs.BEST)
+        self.state["best"] = {k: record[k] for k in ("timesteps", "success_rate", "ci95")}
 
     def export(self, model, path: Path) -> None:
         path.mkdir(parents=True, exist_ok=True)
@@ -301,6 +423,7 @@ class _Run:
             c.eval_every,
             c.eval_episodes,
             EVAL_SEED,
+            on_best=self.save_best,
         )
         callbacks = CallbackList([evaluator, CheckpointCallback(self.save, c.checkpoint_every)])
         if remaining > 0:
@@ -312,6 +435,11 @@ class _Run:
                 tb_log_name="run",
             )
         if not self.state["eval"] or self.state["eval"][-1]["timesteps"] < self.model.num_timesteps:
+            if remaining <= 0:  # no learn() call: the model has no logger yet
+                from stable_baselines3.common.utils import configure_logger
+
+                tb = str(self.out / runs.TENSORBOARD) if c.tensorboard else None
+                self.model.set_logger(configure_logger(0, tb, "run", False))
             evaluator.init_callback(self.model)
             evaluator.evaluate()
         self.save(self.model)
@@ -352,54 +480,246 @@ def _limit_threads(n: int) -> None:
         th.set_num_threads(n)
 
 
-def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
-    """Train from scratch into ``out`` (which must not hold a run yet); returns the state."""
-    config.validate()
-    _limit_threads(config.torch_threads)
-    out = Path(out)
-    if (out / "config.json").exists():
+def _hyperparams_record(config: TrainConfig) -> bytes:
+    """``hyperparams.yml``: the resolved set, where it came from, and SB3's schedule."""
+    record = {
+        "algo": config.algo,
+        "setting": hparams.setting_for(config.residual),
+        "n_envs": config.n_envs,
+        "hyperparams": config.hyperparams,
+        "sb3": config.schedule(),
+    }
+    return yaml.safe_dump(record, sort_keys=False).encode()
+
+
+def _prepare_fresh(out: Path) -> None:
+    """``out`` may be new, empty, or hold a run that stopped before its first checkpoint
+    (its files are removed: nothing of it can be continued); anything else is refused."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a run folder")
+    if runs.has_checkpoint(out) or (out / runs.SEEDS).is_file():
         raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
+    if (out / runs.CONFIG).is_file():
+        for name in runs.ARTEFACTS:
+            target = out / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            elif target.exists():
+                target.unlink()
+        (out / runs.CONFIG).unlink()
+
+
+def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
+    """Train from scratch into ``out``; returns the state.
+
+    Every setting is checked and the envs and model are built before ``config.json`` is
+    written, so a refused run leaves no half-made run folder behind.
+    """
+    config = config.validate().resolved()
+    check_pose_model(config)
+    out = Path(out)
+    _prepare_fresh(out)
+    _limit_threads(config.torch_threads)
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / "config.json", config.to_json())
-    venv = make_vec_env(config)
-    model = build_model(config, venv, out / "tb" if config.tensorboard else None)
-    run = _Run(config, out, model, venv, {"timesteps": 0, "wall_s": 0.0, "eval": []})
+    venv = make_vec_env(config, out / runs.MONITOR)
     try:
+        model = build_model(config, venv, out / runs.TENSORBOARD if config.tensorboard else None)
+    except BaseException:
+        venv.close()
+        raise
+    state: dict[str, Any] = {"timesteps": 0, "wall_s": 0.0, "eval": []}
+    run = _Run(config, out, model, venv, state)
+    try:
+        atomic_write_json(out / runs.CONFIG, config.to_json())
+        atomic_write_bytes(out / runs.HYPERPARAMS, _hyperparams_record(config))
         if config.bc_demos:
             run.state["demos"] = _seed_with_demos(run)
+        run.save(model)  # resumable from here on
         run.learn(config.timesteps)
     finally:
         run.close()
     return run.state
 
 
-def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
+def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[str, Any]:
+    """Train ``config`` once per seed, one after another, into ``out/seed_<s>/``; ``seeds.json``
+    records the seeds and the configuration, so :func:`resume` continues all of them.
+    Returns ``{"seeds": {seed: state}}``."""
+    if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
+        raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
+    config = config.validate().resolved()
+    check_pose_model(config)
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a run folder")
+    if (out / runs.SEEDS).is_file() or (out / runs.CONFIG).is_file() or runs.seed_runs(out):
+        raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
+    return {"seeds": _train_seeds(config, out, seeds)}
+
+
+def _train_seeds(
+    config: TrainConfig, out: Path, seeds: list[int], progress_bar: bool | None = None
+) -> dict[int, dict]:
+    states = {}
+    for seed in seeds:
+        run = out / f"seed_{seed}"
+        if runs.has_checkpoint(run):
+            states[seed] = resume(run, timesteps=config.timesteps, progress_bar=progress_bar)
+        else:
+            states[seed] = train(dataclasses.replace(config, seed=seed), run)
+    return states
+
+
+def _read_state(path: Path) -> dict[str, Any]:
+    """``state.json``, its structure checked (one-line errors naming the file)."""
+    state = runs.read_json(path, "the training state")
+    for key, kinds in (("timesteps", int), ("wall_s", (int, float)), ("eval", list)):
+        if not isinstance(state.get(key), kinds) or isinstance(state.get(key), bool):
+            raise ValueError(
+                f"{path}: {key!r} is missing or of the wrong type ({state.get(key)!r})"
+            )
+    for rec in state["eval"]:
+        if not (
+            isinstance(rec, dict)
+            and isinstance(rec.get("timesteps"), int)
+            and isinstance(rec.get("success_rate"), (int, float))
+        ):
+            raise ValueError(f"{path}: 'eval' must be a list of evaluation records, got {rec!r}")
+    return state
+
+
+def _flat(config: dict[str, Any]) -> dict[str, Any]:
+    """``hyperparams`` entries as keys of their own, so a difference names the one that differs."""
+    hp = config.get("hyperparams")
+    flat = {k: v for k, v in config.items() if k != "hyperparams"}
+    if isinstance(hp, dict):
+        flat.update({f"hyperparams.{k}": v for k, v in hp.items()})
+    else:
+        flat["hyperparams"] = hp
+    return flat
+
+
+def _check_compatible(config: dict[str, Any], state: dict[str, Any], out: Path) -> None:
+    """Refuse to continue a checkpoint with settings it was not trained with (checked on the
+    raw ``config.json``, so that the error names what changed, not what it breaks)."""
+    trained = state.get("config")
+    if not isinstance(trained, dict):  # a checkpoint from before the configuration was recorded
+        return
+    now = _flat(config)
+    trained = _flat(trained)
+    differ = sorted(
+        k
+        for k in set(now) | set(trained)
+        if k not in RESUMABLE_CHANGES and now.get(k) != trained.get(k)
+    )
+    if differ:
+        detail = ", ".join(f"{k} ({trained.get(k)!r} -> {now.get(k)!r})" for k in differ)
+        raise ValueError(
+            f"cannot resume {out}: {runs.CONFIG} differs from the checkpoint's configuration in "
+            f"{detail}; only {', '.join(RESUMABLE_CHANGES)} may change"
+        )
+
+
+def _remove_orphaned_writes(out: Path) -> int:
+    """Delete the temporary files of atomic writes killed mid-way (``.model.tmp<pid>.zip``,
+    ``.state.json.tmp``): a run folder is written by its own run only, so none is in use."""
+    removed = 0
+    for folder in (out, out / runs.CHECKPOINT, out / runs.POLICY, out / runs.BEST):
+        for tmp in folder.glob(".*.tmp*"):
+            if tmp.is_file():
+                tmp.unlink()
+                removed += 1
+    return removed
+
+
+def _load_checkpoint_file(path: Path, what: str, load):
+    """``load(path)`` with any failure turned into a one-line error naming the file."""
+    try:
+        return load(path)
+    except Exception as exc:  # pickle, zip, torch and SB3 raise many kinds on damaged files
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        raise ValueError(
+            f"cannot resume: {path} is damaged or not {what} ({type(exc).__name__}: {msg})"
+        ) from None
+
+
+def resume(
+    out: str | Path, timesteps: int | None = None, progress_bar: bool | None = None
+) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
-    the configured number); returns the state."""
+    the configured number; ``progress_bar`` default as configured); returns the state. A
+    ``--seeds`` folder continues every seed."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    out = Path(out)
-    ck = out / "checkpoint"
-    for p in (out / "config.json", ck / "model.zip", ck / "state.json"):
-        if not p.is_file():
-            raise FileNotFoundError(f"cannot resume {out}: {p.name} is missing (no checkpoint yet)")
-    config = TrainConfig.from_json(json.loads((out / "config.json").read_text()))
-    if timesteps is not None:
-        config.timesteps = int(timesteps)
-        atomic_write_json(out / "config.json", config.to_json())
-    state = json.loads((ck / "state.json").read_text())
-    _limit_threads(config.torch_threads)
-    venv = make_vec_env(config)
-    if config.normalize:
-        venv = VecNormalize.load(str(ck / "vecnormalize.pkl"), venv.venv)
     from scorbot_gym.policies.sb3 import _algorithms
 
-    tb = str(out / "tb") if config.tensorboard else None
-    model = _algorithms()[config.algo].load(
-        ck / "model.zip", env=venv, device="cpu", tensorboard_log=tb
-    )
-    if (ck / "replay_buffer.pkl").is_file() and hasattr(model, "replay_buffer"):
-        model.load_replay_buffer(ck / "replay_buffer.pkl")
+    out = Path(out)
+    if not out.is_dir():
+        raise FileNotFoundError(f"cannot resume {out}: no such run folder")
+    if (out / runs.SEEDS).is_file():
+        return _resume_seeds(out, timesteps, progress_bar)
+    ck = out / runs.CHECKPOINT
+    if not (out / runs.CONFIG).is_file():
+        raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
+    for p in (ck / "model.zip", ck / runs.STATE):
+        if not p.is_file():
+            raise FileNotFoundError(
+                f"cannot resume {out}: {p.name} is missing (the run stopped before its first "
+                f"checkpoint); start it again with --out {out}"
+            )
+    config_path = out / runs.CONFIG
+    try:
+        raw = runs.read_json(config_path, "a training configuration")
+        state = _read_state(ck / runs.STATE)
+    except ValueError as exc:
+        raise ValueError(f"cannot resume: {exc}") from None
+    if timesteps is not None:
+        if timesteps < 1:
+            raise ValueError(f"timesteps must be >= 1, got {timesteps}")
+        raw["timesteps"] = int(timesteps)
+    if progress_bar is not None:
+        raw["progress_bar"] = bool(progress_bar)
+    _check_compatible(raw, state, out)
+    try:
+        config = TrainConfig.from_json(raw)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"cannot resume: {config_path}: {exc}") from None
+    check_pose_model(config)
+    if not zipfile.is_zipfile(ck / "model.zip"):
+        raise ValueError(f"cannot resume: {ck / 'model.zip'} is damaged (not a zip file)")
+    if config.normalize and not (ck / "vecnormalize.pkl").is_file():
+        raise FileNotFoundError(
+            f"cannot resume {out}: vecnormalize.pkl is missing (the run normalises observations)"
+        )
+    _remove_orphaned_writes(out)
+    _limit_threads(config.torch_threads)
+    venv = make_vec_env(config, out / runs.MONITOR)
+    try:
+        if config.normalize:
+            venv = _load_checkpoint_file(
+                ck / "vecnormalize.pkl",
+                "VecNormalize statistics",
+                lambda p: VecNormalize.load(str(p), venv.venv),
+            )
+        tb = str(out / runs.TENSORBOARD) if config.tensorboard else None
+        model = _load_checkpoint_file(
+            ck / "model.zip",
+            f"a {config.algo} model",
+            lambda p: _algorithms()[config.algo].load(
+                p, env=venv, device="cpu", tensorboard_log=tb
+            ),
+        )
+        if (ck / "replay_buffer.pkl").is_file() and hasattr(model, "replay_buffer"):
+            _load_checkpoint_file(
+                ck / "replay_buffer.pkl", "a replay buffer", model.load_replay_buffer
+            )
+    except BaseException:
+        venv.close()
+        raise
+    if timesteps is not None or progress_bar is not None:
+        atomic_write_json(config_path, config.to_json())
     model._last_obs = None  # the interrupted episode is not continued: start fresh episodes
     run = _Run(config, out, model, venv, state)
     try:
@@ -409,13 +729,31 @@ def resume(out: str | Path, timesteps: int | None = None) -> dict[str, Any]:
     return run.state
 
 
+def _resume_seeds(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
+    record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
+    seeds = record.get("seeds")
+    if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
+        raise ValueError(f"{out / runs.SEEDS}: 'seeds' must be a list of integers")
+    try:
+        config = TrainConfig.from_json(record.get("config") or {})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
+    if timesteps is not None:
+        config.timesteps = int(timesteps)
+    if progress_bar is not None:
+        config.progress_bar = bool(progress_bar)
+    return {"seeds": _train_seeds(config, out, seeds, progress_bar)}
+
+
 __all__ = [
     "ALGOS",
     "POSES",
     "TrainConfig",
     "build_model",
+    "check_pose_model",
     "make_policy_env",
     "make_vec_env",
     "resume",
     "train",
+    "train_seeds",
 ]

@@ -1,0 +1,151 @@
+"""Learning curves over seeds: mean success and a 95 % band, against env steps and wall time.
+
+Each run's curve is its own evaluation history (``checkpoint/state.json``: success rate on
+held-out seeds, with the env steps and the training wall time at which it was measured). The
+seeds of an arm are put on a common axis by linear interpolation, over the range every seed
+reached (no extrapolation), and the band is the Student-t 95 % interval of the mean over seeds
+(none for a single seed): what RL papers print, e.g. rliable's and RL Zoo's plots.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.rl import runs
+
+#: the settings of an arm's first run that the report repeats (what the curve is of)
+SETTINGS_SHOWN = (
+    "algo",
+    "pose",
+    "action_type",
+    "objects",
+    "residual",
+    "bc_demos",
+    "n_envs",
+    "timesteps",
+    "eval_every",
+    "eval_episodes",
+    "hyperparams",
+)
+
+
+def expand_runs(paths: Sequence[str | Path]) -> list[Path]:
+    """Run folders, a ``--seeds`` folder standing for its per-seed runs."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        seeds = runs.seed_runs(p) if not (p / runs.CONFIG).is_file() else []
+        out.extend(seeds or [p])
+    return out
+
+
+def eval_history(run: str | Path) -> dict[str, Any]:
+    """A run's evaluations as arrays (``timesteps``, ``wall_s``, ``success_rate``) + its seed."""
+    run = Path(run)
+    state = runs.read_json(run / runs.CHECKPOINT / runs.STATE, "the training state")
+    evals = state.get("eval")
+    if not isinstance(evals, list) or not evals:
+        raise ValueError(f"{run}: no evaluations recorded yet")
+    config = state.get("config") or runs.read_json(run / runs.CONFIG)
+    return {
+        "run": str(run),
+        "seed": config.get("seed"),
+        "config": config,
+        "timesteps": np.array([e["timesteps"] for e in evals], float),
+        "wall_s": np.array([e["wall_s"] for e in evals], float),
+        "success_rate": np.array([e["success_rate"] for e in evals], float),
+    }
+
+
+def _band(values: np.ndarray) -> dict[str, list[float] | None]:
+    """Mean over seeds (rows) per point and the t-interval of the mean, clipped to [0, 1]."""
+    from scipy import stats
+
+    mean = values.mean(axis=0)
+    n = values.shape[0]
+    if n < 2:
+        return {"mean": mean.tolist(), "ci95_low": None, "ci95_high": None}
+    half = stats.t.ppf(0.975, n - 1) * values.std(axis=0, ddof=1) / np.sqrt(n)
+    return {
+        "mean": mean.tolist(),
+        "ci95_low": np.clip(mean - half, 0.0, 1.0).tolist(),
+        "ci95_high": np.clip(mean + half, 0.0, 1.0).tolist(),
+    }
+
+
+def curve(histories: Sequence[dict[str, Any]], axis: str, points: int = 50) -> dict[str, Any]:
+    """Mean and band of the seeds' success against ``axis`` (``timesteps`` or ``wall_s``).
+
+    Env steps use the union of the evaluation points (they coincide when every seed evaluates
+    on the same schedule); wall time, which differs between seeds, ``points`` even steps."""
+    end = min(h[axis][-1] for h in histories)
+    if axis == "timesteps":
+        grid = np.unique(np.concatenate([h[axis][h[axis] <= end] for h in histories]))
+    else:
+        start = max(h[axis][0] for h in histories)
+        grid = np.linspace(start, end, points) if end > start else np.array([end])
+    values = np.stack([np.interp(grid, h[axis], h["success_rate"]) for h in histories])
+    return {axis: grid.tolist(), **_band(values)}
+
+
+def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) -> dict[str, Any]:
+    """Per arm (label -> run folders, a ``--seeds`` folder counting as its seeds): the seeds and
+    the mean success with its 95 % band against env steps and against training wall time."""
+    report: dict[str, Any] = {}
+    for label, paths in arms.items():
+        histories = [eval_history(r) for r in expand_runs(paths)]
+        if not histories:
+            raise ValueError(f"arm {label!r}: no run folders")
+        report[label] = {
+            "settings": {k: histories[0]["config"].get(k) for k in SETTINGS_SHOWN},
+            "runs": [h["run"] for h in histories],
+            "seeds": [h["seed"] for h in histories],
+            "final_success_rate": [float(h["success_rate"][-1]) for h in histories],
+            "by_timesteps": curve(histories, "timesteps", points),
+            "by_wall_s": curve(histories, "wall_s", points),
+        }
+    return report
+
+
+def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
+    """Two panels (success vs env steps, vs training wall time), one line + band per arm."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from pose.fileio import atomic_write_bytes
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
+    for label, arm in report.items():
+        n = len(arm["seeds"])
+        for ax, key, axis in (
+            (axes[0], "by_timesteps", "timesteps"),
+            (axes[1], "by_wall_s", "wall_s"),
+        ):
+            c = arm[key]
+            x = np.asarray(c[axis]) / (60.0 if axis == "wall_s" else 1.0)
+            (line,) = ax.plot(x, c["mean"], label=f"{label} ({n} seed{'s' * (n > 1)})")
+            if c["ci95_low"] is not None:
+                ax.fill_between(
+                    x, c["ci95_low"], c["ci95_high"], alpha=0.25, color=line.get_color()
+                )
+    axes[0].set_xlabel("env steps")
+    axes[1].set_xlabel("training wall time (min)")
+    axes[0].set_ylabel("success rate (held-out seeds)")
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(loc="best", fontsize=8)
+    fig.suptitle("mean over seeds, band: 95 % CI of the mean")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+__all__ = ["curve", "eval_history", "expand_runs", "learning_curves", "plot_learning_curves"]

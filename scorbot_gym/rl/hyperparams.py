@@ -1,0 +1,217 @@
+"""Hyperparameters of the training runs: YAML files shipped with the package, plus overrides.
+
+As in RL Zoo, each algorithm has a file (``hyperparams/sac.yml``, ``tqc.yml``, ``ppo.yml``)
+with one entry per setting (``default``: the policy acts alone; ``residual``: a correction on
+top of the scripted controller). A run takes its entry, applies ``key=value`` overrides, checks
+every value, and records the resolved set in its folder (``config.json`` and
+``hyperparams.yml``), so a run is a function of its folder, not of the package version.
+
+``train_freq`` and ``gradient_steps`` (off-policy) are counted per env, as if there were one:
+:func:`sb3_schedule` scales ``gradient_steps`` with the number of envs, so updates per env step
+are the same whatever ``--n-envs`` is (SB3 counts ``train_freq`` in vector-env steps, each of
+which is ``n_envs`` env steps). PPO's ``n_steps`` is the rollout over all envs.
+
+This module imports only PyYAML: the CLI checks overrides while parsing arguments.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable
+from importlib import resources
+from typing import Any
+
+import yaml
+
+ALGOS = ("sac", "tqc", "ppo")
+POSES = ("oracle", "noisy", "manifold")  # the pose sources a run trains with
+SETTINGS = ("default", "residual")
+OFF_POLICY = ("sac", "tqc")
+
+
+def _int(low: int) -> Callable[[Any], int]:
+    def check(v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise ValueError(f"must be an integer >= {low}")
+        return v
+
+    return check
+
+
+def _float(low: float, high: float = math.inf, low_open: bool = False) -> Callable[[Any], float]:
+    def check(v: Any) -> float:
+        try:
+            x = float(v) if not isinstance(v, bool) else math.nan
+        except (TypeError, ValueError):
+            x = math.nan
+        if not (math.isfinite(x) and (x > low if low_open else x >= low) and x <= high):
+            bracket = "(" if low_open else "["
+            upper = "inf)" if high == math.inf else f"{high}]"
+            raise ValueError(f"must be a number in {bracket}{low}, {upper}")
+        return x
+
+    return check
+
+
+def _gradient_steps(v: Any) -> int:
+    if isinstance(v, bool) or not isinstance(v, int) or not (v >= 1 or v == -1):
+        raise ValueError("must be an integer >= 1 (updates per train_freq env steps) or -1")
+    return v
+
+
+def _ent_coef_off_policy(v: Any) -> float | str:
+    if isinstance(v, str) and (v == "auto" or v.startswith("auto_")):
+        if v != "auto":
+            _float(0.0, low_open=True)(v[5:])
+        return v
+    try:
+        return _float(0.0)(v)
+    except ValueError:
+        raise ValueError("must be a number >= 0, 'auto' or 'auto_<initial value>'") from None
+
+
+def _net_arch(v: Any) -> list[int]:
+    if isinstance(v, int) and not isinstance(v, bool):
+        v = [v]
+    if (
+        not isinstance(v, list)
+        or not v
+        or any(isinstance(n, bool) or not isinstance(n, int) or n < 1 for n in v)
+    ):
+        raise ValueError("must be a non-empty list of layer widths >= 1, e.g. [256, 256]")
+    return list(v)
+
+
+def _finite(v: Any) -> float:
+    return _float(-math.inf)(v)
+
+
+#: key -> (algorithms it applies to, check-and-convert, what it is)
+KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
+    "gamma": (ALGOS, _float(0.0, 1.0, low_open=True), "discount factor"),
+    "learning_rate": (ALGOS, _float(0.0, low_open=True), "Adam step size"),
+    "net_arch": (ALGOS, _net_arch, "hidden layer widths of actor and critic"),
+    "log_std_init": (ALGOS, _finite, "initial log std of the actor (residual: exploration)"),
+    "batch_size": (ALGOS, _int(1), "minibatch size"),
+    "tau": (OFF_POLICY, _float(0.0, 1.0, low_open=True), "target network soft-update rate"),
+    "buffer_size": (OFF_POLICY, _int(1), "replay buffer capacity (transitions)"),
+    "learning_starts": (OFF_POLICY, _int(0), "env steps of random actions before updates"),
+    "train_freq": (OFF_POLICY, _int(1), "env steps (per env) between update phases"),
+    "gradient_steps": (OFF_POLICY, _gradient_steps, "updates per update phase (per env)"),
+    "target_update_interval": (OFF_POLICY, _int(1), "updates between target updates"),
+    "ent_coef": (ALGOS, _ent_coef_off_policy, "entropy coefficient (off-policy: 'auto_<init>')"),
+    "n_quantiles": (("tqc",), _int(1), "quantiles per critic"),
+    "top_quantiles_to_drop_per_net": (("tqc",), _int(0), "quantiles dropped per critic"),
+    "n_critics": (OFF_POLICY, _int(1), "critic networks"),
+    "n_steps": (("ppo",), _int(2), "rollout length over all envs"),
+    "n_epochs": (("ppo",), _int(1), "passes over each rollout"),
+    "gae_lambda": (("ppo",), _float(0.0, 1.0), "GAE lambda"),
+    "clip_range": (("ppo",), _float(0.0, low_open=True), "PPO clip range"),
+    "vf_coef": (("ppo",), _float(0.0), "value loss weight"),
+    "max_grad_norm": (("ppo",), _float(0.0, low_open=True), "gradient clipping norm"),
+}
+
+
+#: checks that differ by algorithm: PPO's entropy coefficient is a fixed number
+_ALGO_CHECKS: dict[tuple[str, str], Callable[[Any], Any]] = {("ppo", "ent_coef"): _float(0.0)}
+
+
+def valid_keys(algo: str) -> list[str]:
+    """The hyperparameters ``algo`` accepts, sorted."""
+    return sorted(k for k, (algos, _, _) in KEYS.items() if algo in algos)
+
+
+def setting_for(residual: bool) -> str:
+    """The entry of the algorithm's file a run uses."""
+    return "residual" if residual else "default"
+
+
+def load_defaults(algo: str, setting: str) -> dict[str, Any]:
+    """The entry ``setting`` of the shipped ``hyperparams/<algo>.yml``, checked."""
+    if algo not in ALGOS:
+        raise ValueError(f"algo must be one of {ALGOS}, got {algo!r}")
+    name = f"{algo}.yml"
+    text = resources.files("scorbot_gym.rl").joinpath("hyperparams", name).read_text()
+    entries = yaml.safe_load(text)
+    if setting not in entries:
+        raise ValueError(f"hyperparams/{name} has no entry {setting!r}; it has {sorted(entries)}")
+    return check(algo, entries[setting], source=f"hyperparams/{name}[{setting}]")
+
+
+def check(algo: str, values: dict[str, Any], source: str = "hyperparams") -> dict[str, Any]:
+    """``values`` with each value checked and converted; one-line errors naming the key."""
+    if not isinstance(values, dict):
+        raise ValueError(f"{source} must be a mapping of hyperparameter names to values")
+    valid = valid_keys(algo)
+    out = {}
+    for key, value in values.items():
+        if key not in valid:
+            raise ValueError(
+                f"{source}: unknown hyperparameter {key!r} for {algo}; valid: {', '.join(valid)}"
+            )
+        try:
+            out[key] = _ALGO_CHECKS.get((algo, key), KEYS[key][1])(value)
+        except ValueError as exc:
+            raise ValueError(f"{source}: {key} {exc}, got {value!r}") from None
+    return out
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
+    """``["gamma=0.98", "net_arch=[256,256]"]`` -> values parsed as YAML (names not checked
+    yet: that needs the algorithm, see :func:`resolve`)."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key or not text.strip():
+            raise ValueError(f"hyperparameter override {item!r} is not of the form key=value")
+        if key in out:
+            raise ValueError(f"hyperparameter {key!r} is given twice")
+        try:
+            out[key] = yaml.safe_load(text)
+        except yaml.YAMLError:
+            raise ValueError(f"hyperparameter {key}: cannot read the value {text!r}") from None
+    return out
+
+
+def resolve(algo: str, residual: bool, overrides: dict[str, Any]) -> dict[str, Any]:
+    """The shipped entry for (``algo``, setting) updated by the checked ``overrides``."""
+    resolved = load_defaults(algo, setting_for(residual))
+    resolved.update(check(algo, overrides))
+    return dict(sorted(resolved.items()))
+
+
+def sb3_schedule(algo: str, hp: dict[str, Any], n_envs: int) -> dict[str, Any]:
+    """How the resolved set maps onto SB3's per-vector-step arguments for ``n_envs`` envs,
+    and the resulting updates per env step (recorded in the run folder)."""
+    if algo == "ppo":
+        n_steps_per_env = max(8, hp["n_steps"] // n_envs)
+        rollout = n_steps_per_env * n_envs
+        batch = min(hp["batch_size"], rollout)
+        minibatches = hp["n_epochs"] * math.ceil(rollout / batch)
+        return {
+            "n_steps_per_env": n_steps_per_env,
+            "batch_size": batch,
+            "updates_per_env_step": minibatches / rollout,
+        }
+    gs = hp["gradient_steps"]
+    return {
+        "train_freq": hp["train_freq"],
+        "gradient_steps": gs * n_envs if gs > 0 else -1,
+        "updates_per_env_step": gs / hp["train_freq"] if gs > 0 else 1.0,
+    }
+
+
+__all__ = [
+    "ALGOS",
+    "KEYS",
+    "POSES",
+    "SETTINGS",
+    "check",
+    "load_defaults",
+    "parse_overrides",
+    "resolve",
+    "sb3_schedule",
+    "setting_for",
+    "valid_keys",
+]
