@@ -65,6 +65,7 @@ from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+from scorbot_gym.rl import runs
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
 #: per-object success gets its own bar (and interval) only from this many episodes per object;
@@ -208,33 +209,23 @@ BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
 def _read_json(path: Path) -> dict[str, Any] | None:
     """A JSON object from a run's bookkeeping, or ``None`` if absent or unreadable (then the
     figure it would have given is reported as unknown, never guessed)."""
-    import json
-
     try:
-        data = json.loads(path.read_text())
+        return runs.read_json(path)
     except (OSError, ValueError):
         return None
-    return data if isinstance(data, dict) else None
 
 
 def policy_folder(path: str | Path) -> Path:
-    """A saved policy folder (``policy.json`` inside), its ``model.zip``, or a training run
-    folder (its final ``policy/``); one-line error otherwise."""
+    """A saved policy folder (``policy.json`` inside), a file in one, or a training run folder
+    (its final ``policy/``, via :func:`scorbot_gym.rl.runs.policy_dir`); one-line error
+    listing the valid names for anything else."""
     path = Path(path)
-    if path.is_file() and path.name in ("model.zip", "policy.json", "weights.npz"):
-        path = path.parent
-    for candidate in (path, path / "policy"):
-        if (candidate / "policy.json").is_file():
-            return candidate
-    if path.is_dir():
-        raise FileNotFoundError(
-            f"{path} is neither a policy folder (policy.json) nor a training run folder "
-            "(policy/policy.json)"
+    if not path.exists():
+        raise ValueError(
+            f"unknown policy {str(path)!r}; valid: {', '.join(BUILTIN_ARMS)}, or a policy "
+            "folder (with policy.json) or a `scorbot-gym train` run folder"
         )
-    raise ValueError(
-        f"unknown policy {str(path)!r}; valid: {', '.join(BUILTIN_ARMS)}, or a policy folder "
-        "(with policy.json) or a `scorbot-gym train` run folder"
-    )
+    return runs.policy_dir(path.parent if path.is_file() else path, checkpoint="last")
 
 
 def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
@@ -259,11 +250,11 @@ def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
     env_steps = train.get("env_steps", meta.get("trained_timesteps"))
     wall = train.get("wall_time_s", train.get("wall_s"))
     seed = config.get("seed") if isinstance(config, dict) else None
-    if folder.name == "policy":  # a run folder's final export: the run's own bookkeeping
-        state = _read_json(folder.parent / "checkpoint" / "state.json") or {}
+    if folder.name == runs.POLICY:  # a run folder's final export: the run's own bookkeeping
+        state = _read_json(folder.parent / runs.CHECKPOINT / runs.STATE) or {}
         env_steps = state.get("timesteps", env_steps)
         wall = state.get("wall_s", wall)
-        seed = (_read_json(folder.parent / "config.json") or {}).get("seed", seed)
+        seed = (_read_json(folder.parent / runs.CONFIG) or {}).get("seed", seed)
     return _training(
         trained_from,
         bool(uses),
