@@ -94,6 +94,7 @@ def test_how_each_arm_was_trained_comes_from_its_folder_never_guessed(cli_report
     assert rl["trained_from"] == "residual" and rl["uses_scripted_controller"] is True
     assert rl["env_steps"] == 10000 and rl["seeds"] == [0]
     assert rl["wall_time_s"] is None  # the shipped policy's folder does not record it
+    assert rl["source"] == "scorbot_gym/policies/data/residual_sac_oracle"  # not this install's
     assert arms[str(run_folder)]["label"] == "my_run"
     run = arms[str(run_folder)]["training"]
     assert (run["env_steps"], run["wall_time_s"], run["seeds"]) == (1234, 56.5, [7])

@@ -228,6 +228,16 @@ def policy_folder(path: str | Path) -> Path:
     return runs.policy_dir(path.parent if path.is_file() else path, checkpoint="last")
 
 
+def _source(folder: Path) -> str:
+    """The folder as a reader can find it: package-relative for a shipped policy (not this
+    machine's install path), as given otherwise."""
+    package = Path(__file__).resolve().parent.parent
+    try:
+        return str(Path(package.name) / Path(folder).resolve().relative_to(package))
+    except ValueError:
+        return str(folder)
+
+
 def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
     """How a saved policy was trained, from its ``policy.json`` (``uses_scripted_controller``,
     ``residual``, ``saw_scripted_controller``, ``training``, ``trained_timesteps``, ``config``)
@@ -258,7 +268,7 @@ def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
     return _training(
         trained_from,
         bool(uses),
-        str(folder),
+        _source(folder),
         algo=meta.get("algo"),
         demonstration_episodes=demos,
         env_steps=None if env_steps is None else int(env_steps),
@@ -296,9 +306,12 @@ def resolve_arm(name: str) -> Arm:
 
 
 def policy_label(policy: str) -> str:
-    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``)."""
+    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``,
+    ``runs/bc/best`` -> ``bc/best``)."""
     p = Path(policy)
-    return p.parent.name if p.name == "policy" else p.name
+    if p.name == runs.POLICY:
+        return p.parent.name
+    return f"{p.parent.name}/{p.name}" if p.name == runs.BEST else p.name
 
 
 # ---- running and recording ----------------------------------------------------------------
