@@ -7,7 +7,9 @@ given the permissions a plain ``open`` would give, and renamed over the target i
 Caches built on these files heal themselves: an entry that cannot be read (truncated,
 bit-flipped, from an older layout) is discarded with a warning and rebuilt
 (:func:`discard_cache_entry`, :data:`UNREADABLE`), and the temporary files of writes that were
-killed midway are removed on a later run (:func:`remove_orphaned_tmp`).
+killed midway are removed on a later run (:func:`remove_orphaned_tmp`): a temporary file's name
+carries its writer's host and process id, so one whose writer is dead goes at once, and one whose
+writer cannot be judged (another host, an older name) once it is old enough.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
+import socket
 import tempfile
 import time
 import warnings
@@ -31,7 +35,7 @@ def atomic_write(path: str | os.PathLike, write: Callable[[IO[bytes]], None]) ->
     """Call ``write(f)`` on a temporary file, then rename it to ``path``."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.{_writer()}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:
             write(f)
@@ -89,14 +93,53 @@ def discard_cache_entry(path: str | os.PathLike, error: BaseException) -> None:
     Path(path).unlink(missing_ok=True)
 
 
-def remove_orphaned_tmp(folder: str | os.PathLike, min_age_s: float = ORPHAN_AGE_S) -> int:
-    """Remove the temporary files that :func:`atomic_write` left in ``folder`` when it was
-    killed; returns how many. Only files untouched for ``min_age_s`` go: a younger one may be
-    another process's write in progress (the cache is shared)."""
-    now, removed = time.time(), 0
-    for tmp in Path(folder).glob(".*.tmp"):
+def _writer() -> str:
+    """``host-pid`` of this process, as temporary file names carry it (dots would split it)."""
+    return f"{socket.gethostname().replace('.', '_')}-{os.getpid()}"
+
+
+# .NAME.HOST-PID.RANDOM.tmp (atomic_write) and .STEM.tmpPID.SUFFIX (an SB3 checkpoint's, whose
+# writer appends the suffix itself); older names without a writer match neither.
+_TMP_WRITER = (
+    re.compile(r"^\..+\.(?P<host>[^.]+)-(?P<pid>\d+)\.[^.]+\.tmp$"),
+    re.compile(r"^\..+\.tmp(?P<pid>\d+)(\.[^.]+)?$"),
+)
+
+
+def _writer_is_dead(name: str) -> bool:
+    """Whether ``name``'s writer was a process of this host that no longer runs."""
+    for pattern in _TMP_WRITER:
+        m = pattern.match(name)
+        if m is None:
+            continue
+        host = m.groupdict().get("host")
+        if host is not None and host != _writer().rsplit("-", 1)[0]:
+            return False  # another machine's write (a shared cache): only age can tell
+        pid = int(m["pid"])
+        if pid == os.getpid():
+            return False
         try:
-            if now - tmp.stat().st_mtime >= min_age_s:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:  # alive, another user's
+            return False
+        return False
+    return False
+
+
+def remove_orphaned_tmp(folder: str | os.PathLike, min_age_s: float = ORPHAN_AGE_S) -> int:
+    """Remove the temporary files that killed writes left in ``folder``; returns how many.
+
+    A file whose writer (named in it, see :func:`_writer`) is a dead process of this host goes
+    at once; any other only once untouched for ``min_age_s``: it may be another process's write
+    in progress (the cache is shared, also across machines)."""
+    now, removed = time.time(), 0
+    for tmp in Path(folder).glob(".*.tmp*"):
+        if not any(p.match(tmp.name) for p in _TMP_WRITER) and not tmp.name.endswith(".tmp"):
+            continue
+        try:
+            if _writer_is_dead(tmp.name) or now - tmp.stat().st_mtime >= min_age_s:
                 tmp.unlink()
                 removed += 1
         except FileNotFoundError:  # its writer finished or another cleaner got there first

@@ -18,16 +18,31 @@ Two process-level choices follow from software rendering:
   llvmpipe to rasterize in the calling thread (``LP_NUM_THREADS=0``) in a child process
   (``multiprocessing.parent_process()`` is set) unless ``LP_NUM_THREADS`` is set; a main
   process keeps Mesa's default.
+
+One library-level choice, too. Mesa's llvmpipe links the system's ``libLLVM`` and its loader opens
+the driver with ``RTLD_GLOBAL``, so from the first frame on every LLVM symbol resolves to Mesa's
+copy first. Triton (pulled in by the CUDA build of torch; ``torch._dynamo`` imports it when SB3
+builds its Adam optimiser) bundles a different LLVM in ``libtriton.so`` and exports its symbols:
+loaded after the first frame, it binds some 12,000 of them to Mesa's LLVM and segfaults in its
+static initialisers. :func:`preload_bundled_llvm` loads such libraries before the first context,
+privately (``RTLD_LOCAL``) and fully bound (``RTLD_NOW``), so that each copy keeps its own symbols.
 """
 
 from __future__ import annotations
 
+import ctypes
+import functools
 import importlib
+import importlib.util
 import multiprocessing
 import os
 import sys
 
 VALID_BACKENDS = ("egl", "osmesa", "glfw")
+
+# Extension libraries of Python packages that bundle their own LLVM with exported symbols:
+# (package, path inside the package).
+BUNDLED_LLVM_LIBRARIES = (("triton", "_C/libtriton.so"),)
 
 INSTALL_HINT = (
     "No working OpenGL backend for MuJoCo rendering. On headless Linux install EGL, e.g. "
@@ -81,3 +96,34 @@ def prepare_first_context() -> None:
     """Settings read when the process opens its display (before the first GL context)."""
     if multiprocessing.parent_process() is not None:
         os.environ.setdefault("LP_NUM_THREADS", "0")
+    preload_bundled_llvm()
+
+
+@functools.cache
+def preload_bundled_llvm() -> tuple[str, ...]:
+    """Load the installed libraries of :data:`BUNDLED_LLVM_LIBRARIES` before Mesa's LLVM is.
+
+    Returns the paths loaded. Nothing is imported (the package's ``__init__`` does not run); a
+    library that is not installed, or that fails to load (its package's own import will then say
+    why), is skipped. Once loaded here, the package's later import reuses the same handle.
+    """
+    if not sys.platform.startswith("linux"):
+        return ()
+    loaded = []
+    for package, relative in BUNDLED_LLVM_LIBRARIES:
+        try:
+            spec = importlib.util.find_spec(package)
+        except (ImportError, ValueError):
+            continue
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        for folder in spec.submodule_search_locations:
+            path = os.path.join(folder, relative)
+            if os.path.isfile(path):
+                try:
+                    ctypes.CDLL(path, mode=os.RTLD_NOW | os.RTLD_LOCAL)
+                except OSError:
+                    continue
+                loaded.append(path)
+                break
+    return tuple(loaded)

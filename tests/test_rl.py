@@ -226,7 +226,6 @@ def test_compare_writes_json_and_png_with_the_documented_keys(tmp_path):
         assert set(rec["per_object"]) == {"box"}
     assert [(d["a"], d["b"]) for d in report["differences"]] == [("rl", "scripted")] * 2
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert main(["compare", "--pose", "manifold", "--episodes", "1"]) == 2  # no --pose-model
 
 
 def test_newcombe_paired_difference():

@@ -5,10 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pose.fileio import atomic_write_json
-from scorbot_gym.cli._args import add_name_list, positive_int
-from scorbot_gym.evaluation.compare import compare, plot_comparison
-from scorbot_gym.objects import CATALOGUE
+from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
 
 
 def _noise_levels(text: str) -> list[str]:
@@ -35,21 +32,32 @@ def _names(text: str) -> list[str]:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
-        help="compare policies (scripted, rl, random, a policy directory) on paired seeds",
+        help="compare policies (scripted, rl, learned, random, a policy or run folder) on "
+        "paired seeds",
+        description="Run every policy under every pose condition on the same episode seeds and "
+        "print each arm's success rate (95% Wilson interval), its difference from scripted "
+        "(paired 95% interval, McNemar's test), steps to success (median and quartiles), failure "
+        "causes and how each policy was trained. --json writes the report (keys documented in "
+        "scorbot_gym.evaluation.compare), --png the figure with the headline numbers.",
     )
+    from scorbot_gym.objects import CATALOGUE  # the valid names, for this sub-command only
+
     p.add_argument(
         "--policies",
         type=_names,
         default=["scripted", "rl"],
         help="comma-separated: built-in policies (scripted: the controller, rl: the shipped "
-        "residual, random) or policy folders (policy.json) / `scorbot-gym train` run folders; "
-        "differences are against scripted (else the first)",
+        "residual, learned: the shipped stand-alone imitation policy, random) or policy folders "
+        "(policy.json) / `scorbot-gym train` run folders; differences are against scripted "
+        "(else the first) (default scripted,rl)",
     )
     p.add_argument(
         "--pose",
         type=_names,
         default=["oracle"],
-        help="comma-separated pose conditions: oracle, noisy, manifold",
+        help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
+        "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
+        "images) (default oracle)",
     )
     p.add_argument(
         "--noise",
@@ -57,11 +65,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=[],
         help="pose-noise levels, each adds a noisy_oracle condition: S (position std in "
         "metres, heading std S*500 degrees: 1 cm with 5 deg) or S:Y (heading std Y degrees), "
-        "e.g. 0.01,0.02,0.02:20",
+        "e.g. 0.01,0:20,0.02:0",
     )
-    p.add_argument("--pose-model", type=Path, default=None, help="for --pose manifold")
-    p.add_argument("--episodes", type=int, default=50)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--pose-model",
+        type=Path,
+        default=None,
+        help="model file from `scorbot-gym pose train` for --pose manifold (default: the "
+        "default models for the top camera, trained on first use and cached)",
+    )
+    p.add_argument(
+        "--episodes", type=positive_int, default=50, help="episodes per arm (default 50)"
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="seed of the first episode; every arm runs the same"
+    )
     add_name_list(p, "--objects", CATALOGUE, "objects (default: the whole catalogue)")
     p.add_argument(
         "--action-type",
@@ -69,16 +87,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="cartesian",
         help="for scripted/random arms (a learned policy fixes its own)",
     )
-    p.add_argument("--estimate-every", type=int, default=1)
+    p.add_argument(
+        "--estimate-every",
+        type=non_negative_int,
+        default=1,
+        help="re-estimate the pose every K steps (0: once per episode, at reset; default 1)",
+    )
     p.add_argument(
         "--jobs",
         type=positive_int,
         default=1,
         help="run this many arms at a time, one process each (results do not depend on it)",
     )
-    p.add_argument("--json", type=Path, default=None)
-    p.add_argument("--png", type=Path, default=None)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
+    p.add_argument("--png", type=Path, default=None, help="write the comparison figure here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
@@ -123,6 +146,11 @@ def format_report(report: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.evaluation.compare import compare, plot_comparison
+
+    if args.pose_model is not None and not args.pose_model.is_file():
+        raise FileNotFoundError(f"--pose-model {args.pose_model}: no such file")
     report = compare(
         args.policies,
         args.pose,

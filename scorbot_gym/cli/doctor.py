@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from scorbot_gym import _gl
 
 
@@ -18,6 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import mujoco
+    import numpy as np
 
     from scorbot_gym.sim import Simulation
 

@@ -16,14 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 
-from pose.fileio import atomic_write_json
-from pose.model_set import PoseModelSet
 from scorbot_gym.cli._args import add_name_list
-from scorbot_gym.evaluation.pose import evaluate, format_tables
-from scorbot_gym.objects import CATALOGUE
-from scorbot_gym.perception.training import train_models
-from scorbot_gym.sim.scene import DEFAULT_CAMERAS
-from scorbot_gym.sim.simulation import MOVING_CAMERAS
 
 DEFAULT_MODEL = "pose_models.npz"
 
@@ -51,6 +44,8 @@ def _occlusion_list(text: str) -> list[float]:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from scorbot_gym.perception.training import train_models
+
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
     params = {"bunches__n_bunches": args.n_bunches}
     if args.no_refine:
@@ -69,6 +64,10 @@ def run_train(args: argparse.Namespace) -> int:
 
 
 def run_eval(args: argparse.Namespace) -> int:
+    from pose.fileio import atomic_write_json
+    from pose.model_set import PoseModelSet
+    from scorbot_gym.evaluation.pose import evaluate, format_tables
+
     models = PoseModelSet.load(args.model)
     if args.no_refine:
         for est in models.estimators.values():
@@ -164,13 +163,30 @@ def add_parser(subparsers) -> None:
     p = subparsers.add_parser("pose", help="train and evaluate the pose-manifold estimator")
     sub = p.add_subparsers(dest="pose_command", metavar="ACTION")
     sub.required = True
+    sub.add_parser("train", help="fit one estimator per object", fill=_add_train_arguments)
+    sub.add_parser("eval", help="score a model on held-out poses", fill=_add_eval_arguments)
+    sub.add_parser(
+        "ablate",
+        help="success@5deg vs occlusion for several estimators on one protocol",
+        description="Estimators are registered names, optionally with parameters: "
+        "manifold,manifold(refiner=None),pca-nn. Results are cached per trial (a rerun resumes).",
+        fill=_add_ablate_arguments,
+    )
 
-    common = argparse.ArgumentParser(add_help=False)
-    add_name_list(common, "--objects", CATALOGUE, "object names (default: the catalogue)")
-    common.add_argument("--cache-dir", default=None, help="view cache (default ~/.cache/...)")
-    common.add_argument("--quiet", action="store_true", help="no progress bars")
 
-    t = sub.add_parser("train", parents=[common], help="fit one estimator per object")
+def _add_common_arguments(p: argparse.ArgumentParser) -> None:
+    from scorbot_gym.objects import CATALOGUE
+
+    add_name_list(p, "--objects", CATALOGUE, "object names (default: the catalogue)")
+    p.add_argument("--cache-dir", default=None, help="view cache (default ~/.cache/...)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _add_train_arguments(t: argparse.ArgumentParser) -> None:
+    from scorbot_gym.sim.scene import DEFAULT_CAMERAS
+    from scorbot_gym.sim.simulation import MOVING_CAMERAS
+
+    _add_common_arguments(t)
     t.add_argument("--views", type=int, default=None, help="training views per object")
     t.add_argument("--out", default=DEFAULT_MODEL, help=f"model file (default {DEFAULT_MODEL})")
     t.add_argument(
@@ -192,7 +208,9 @@ def add_parser(subparsers) -> None:
     )
     t.set_defaults(func=run_train)
 
-    e = sub.add_parser("eval", parents=[common], help="score a model on held-out poses")
+
+def _add_eval_arguments(e: argparse.ArgumentParser) -> None:
+    _add_common_arguments(e)
     e.add_argument("--model", required=True, help="model file written by `pose train`")
     e.add_argument(
         "--occlusion",
@@ -206,15 +224,11 @@ def add_parser(subparsers) -> None:
     e.add_argument("--no-refine", action="store_true", help="score the pure manifold output")
     e.set_defaults(func=run_eval)
 
+
+def _add_ablate_arguments(a: argparse.ArgumentParser) -> None:
     from scorbot_gym.data.protocols import protocol_names
 
-    a = sub.add_parser(
-        "ablate",
-        parents=[common],
-        help="success@5deg vs occlusion for several estimators on one protocol",
-        description="Estimators are registered names, optionally with parameters: "
-        "manifold,manifold(refiner=None),pca-nn. Results are cached per trial (a rerun resumes).",
-    )
+    _add_common_arguments(a)
     a.add_argument("--protocol", required=True, choices=protocol_names())
     a.add_argument(
         "--estimators", type=_estimator_list, default=["manifold"],

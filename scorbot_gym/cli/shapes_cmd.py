@@ -10,10 +10,7 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from scorbot_gym.cli._args import add_name_list
-from scorbot_gym.objects import CATALOGUE
 
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -22,9 +19,17 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     )
     sub = parser.add_subparsers(dest="shapes_command", metavar="ACTION")
     sub.required = True
-    ev = sub.add_parser(
-        "eval", help="held-out accuracy of FLR, k-NN and SVM, with confusion matrices"
+    sub.add_parser(
+        "eval",
+        help="held-out accuracy of FLR, k-NN and SVM, with confusion matrices",
+        fill=add_eval_arguments,
     )
+    return parser
+
+
+def add_eval_arguments(ev: argparse.ArgumentParser) -> None:
+    from scorbot_gym.objects import CATALOGUE
+
     ev.add_argument("--data", metavar="DIR", help="MPEG-7 or ETH-80 folder (default: render)")
     ev.add_argument("--layout", choices=("auto", "mpeg7", "eth80"), default="auto")
     ev.add_argument("--json", metavar="PATH", help="write the figures as JSON here")
@@ -45,7 +50,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
         "--max-side", type=int, default=256, help="downscale dataset images to this side"
     )
     ev.set_defaults(func=run)
-    return parser
 
 
 def load_silhouettes(args: argparse.Namespace):
@@ -72,6 +76,8 @@ def load_silhouettes(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from pose.fileio import atomic_write_json
     from pose.shape.descriptors import shape_descriptors
     from pose.shape.evaluation import evaluate, plot_confusions

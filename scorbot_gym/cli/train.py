@@ -95,7 +95,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--algo", choices=hparams.ALGOS, default="sac")
     p.add_argument("--pose", choices=hparams.POSES, default="oracle", help="pose source")
     p.add_argument(
-        "--pose-model", type=_existing_file, default=None, help="model file, with --pose manifold"
+        "--pose-model",
+        type=_existing_file,
+        default=None,
+        help="model file, with --pose manifold (default: the top camera's default models, "
+        "trained on first use and cached)",
     )
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
     add_name_list(p, "--objects", CATALOGUE, "training objects (default: all)")

@@ -1,10 +1,18 @@
-"""Gymnasium environments and their registration."""
+"""Gymnasium environments and their registration.
+
+The registration needs Gymnasium only: :class:`ScorbotGraspEnv` (and with it MuJoCo) is imported
+when first used.
+"""
 
 from __future__ import annotations
 
+import importlib
+from typing import TYPE_CHECKING
+
 import gymnasium as gym
 
-from scorbot_gym.envs.grasp import ScorbotGraspEnv
+if TYPE_CHECKING:
+    from scorbot_gym.envs.grasp import ScorbotGraspEnv
 
 MAX_EPISODE_STEPS = 150  # 6 s of simulated time at 25 Hz control
 
@@ -25,6 +33,12 @@ def register_envs() -> None:
             max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=kwargs,
         )
+
+
+def __getattr__(name: str):
+    if name == "ScorbotGraspEnv":
+        return importlib.import_module("scorbot_gym.envs.grasp").ScorbotGraspEnv
+    raise AttributeError(f"module 'scorbot_gym.envs' has no attribute {name!r}")
 
 
 __all__ = ["ENV_IDS", "ScorbotGraspEnv", "register_envs"]

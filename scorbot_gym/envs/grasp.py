@@ -22,6 +22,7 @@ from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
+from scorbot_gym.tasks.grasp import REWARD_TERMS
 
 ACTION_TYPES = ("joint", "cartesian")
 # "privileged_segmentation" is the simulator's own object mask: for oracle and ablation
@@ -45,6 +46,17 @@ class ScorbotGraspEnv(gym.Env):
     - ``action_type="cartesian"``: TCP delta x, y, z (scaled by ``max_cartesian_step`` m), tool
       pitch and wrist roll deltas (scaled by ``max_angle_step`` rad), then the gripper command;
       joint targets come from damped-least-squares IK.
+
+    Reward (``reward_type="dense"``, designed for ``gamma = 0.99``): shaping for reaching the
+    grasp point (<= 1), grasping (1) and lifting (<= 2), at most 4 per step, plus a one-off
+    success bonus of ``1.5 * 4 / (1 - 0.99) = 600`` on the step that succeeds (which
+    terminates the episode). The bonus is larger than the discounted value of collecting the
+    largest shaping reward forever (``4 / (1 - 0.99) = 400``, what holding the object just
+    below the lift height is worth when the time limit is bootstrapped), so finishing is worth
+    more than any way of not finishing; see :func:`scorbot_gym.tasks.grasp.grasp_reward`.
+    ``info["reward_reach"]``, ``["reward_grasp"]``, ``["reward_lift"]``, ``["reward_success"]``
+    are the terms (Gymnasium MuJoCo v5 style; 0 at reset). ``reward_type="sparse"``: 1 on
+    success, else 0.
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
     reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,
@@ -225,6 +237,7 @@ class ScorbotGraspEnv(gym.Env):
             self._disturbance_info = None
         self._needs_reset = False
         info = self._info(None, None, calibration=True)
+        info.update({f"reward_{k}": 0.0 for k in REWARD_TERMS})
         if self.capture_background and self.cameras:
             info["camera_background"] = self._background_frames()
         return self._observation(), info
@@ -255,14 +268,16 @@ class ScorbotGraspEnv(gym.Env):
                 self.sim, self._elapsed, self.dt, touched
             )
         success = self.task.state.success and not unstable
-        reward = 0.0 if unstable else self.task.reward(facts)
+        reward, terms = (0.0, {}) if unstable else self.task.reward(facts)
         terminated = success or bool(facts["fell"])
         truncated = unstable  # the time limit is Gymnasium's TimeLimit wrapper (see make)
         # Defined on every step, so the final step carries it whoever ends the episode.
         cause = None if success else self.task.failure_cause(facts, unstable)
         if unstable:
             self.sim.reset()  # leave a finite state behind for observations and rendering
-        return self._observation(), reward, terminated, truncated, self._info(facts, cause)
+        info = self._info(facts, cause)
+        info.update({f"reward_{k}": terms.get(k, 0.0) for k in REWARD_TERMS})
+        return self._observation(), reward, terminated, truncated, info
 
     def _cartesian_target(self, q: np.ndarray, a: np.ndarray) -> np.ndarray:
         pos = self.robot.tcp_pos + a[:3] * self.max_cartesian_step
@@ -345,6 +360,15 @@ class ScorbotGraspEnv(gym.Env):
         if self.perturbation.active:
             return self._perturbers[self.sim.object_spec.name].nominal_camera_model(camera, w, h)
         return self.sim.camera_model(camera, w, h)
+
+    def object_visibility(self, camera: str) -> float:
+        """Ground truth for scoring (never for a policy): the share of the target object that
+        ``camera`` sees unhidden by the arm or another object, from rays to points of the object
+        (:mod:`scorbot_gym.sim.visibility`). 1.0 is a clear view."""
+        from scorbot_gym.sim.visibility import object_visibility
+
+        sim = self.sim
+        return object_visibility(sim.model, sim.data, sim.camera_id(camera), sim.object_geoms)
 
     def camera_params(self, camera: str) -> dict[str, Any]:
         """:meth:`camera_model` as plain arrays (``K``, ``world_from_camera``, ``width``,

@@ -9,14 +9,17 @@ exact test on the discordant episodes), steps to success, failure causes, per-ob
 Per policy: success against pose-noise level.
 
 **Policies** (arms) are names from :data:`BUILTIN_ARMS` (``scripted``, ``random``, ``rl``: the
-shipped residual; a new built-in is one entry there) or any policy folder (with
-``policy.json``), or a ``scorbot-gym train`` run folder (its final ``policy/``; not ``best/``,
-which was chosen on evaluation episodes that may share these seeds).
+shipped residual, ``learned``: the shipped stand-alone imitation policy; a new built-in is one
+entry there) or any policy folder (with ``policy.json``, loaded by
+:func:`scorbot_gym.policies.loading.load_policy`), or a ``scorbot-gym train`` run folder (its
+final ``policy/``; not ``best/``, which was chosen on evaluation episodes that may share these
+seeds).
 
 **Pose conditions**: ``oracle``; ``noisy@S`` (``noisy_oracle`` with x-y position noise S
 metres and heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees);
 ``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``manifold`` (the
-pose-manifold estimator from a ``scorbot-gym pose train`` model file).
+pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
+models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses).
 
 **The report** (what :func:`compare` returns and ``--json`` writes):
 
@@ -64,7 +67,8 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
+from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY
 from scorbot_gym.rl import runs
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
@@ -124,15 +128,16 @@ def pose_conditions(
     noise: Sequence[float | str | tuple[float, float]] = (),
     pose_model: str | Path | None = None,
 ) -> list[PoseCondition]:
-    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S[:Y]`` per noise level."""
+    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S[:Y]`` per noise level.
+
+    ``manifold`` without ``pose_model`` gets its models (the defaults) from :func:`compare`."""
     out: list[PoseCondition] = []
     for p in poses:
         if p == "oracle":
             out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
         elif p == "manifold":
-            if pose_model is None:
-                raise ValueError("pose 'manifold' needs a pose model (--pose-model PATH)")
-            out.append(PoseCondition("manifold", "manifold", {"models": str(pose_model)}, None))
+            kw = {} if pose_model is None else {"models": str(pose_model)}
+            out.append(PoseCondition("manifold", "manifold", kw, None))
         elif p == "noisy":
             noise = list(noise) or [0.01]
         else:
@@ -203,6 +208,7 @@ BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
     "scripted": _scripted_arm,
     "random": _random_arm,
     "rl": _shipped(SHIPPED_POLICY),
+    "learned": _shipped(SHIPPED_LEARNED_POLICY),
 }
 
 
@@ -277,9 +283,12 @@ def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
     )
 
 
-def load_policy(folder: str | Path) -> SB3Policy:
-    """The saved policy in ``folder`` (a policy folder; see :func:`policy_folder`)."""
-    return SB3Policy.load(folder)
+def load_policy(folder: str | Path) -> Any:
+    """The saved policy in ``folder`` (a policy folder; see :func:`policy_folder`), whatever
+    kind its ``policy.json`` says it is (SB3, imitation)."""
+    from scorbot_gym.policies.loading import load_policy as load_saved
+
+    return load_saved(folder, checkpoint="last")
 
 
 def saved_arm(path: str | Path, name: str | None = None) -> Arm:
@@ -453,6 +462,16 @@ def compare(
         raise ValueError(f"a policy is given twice: {', '.join(policies)}")
     conds = pose_conditions(poses, noise, pose_model)
     arms = {p: resolve_arm(p) for p in policies}  # bad names fail here, before any episode
+    if any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
+        from scorbot_gym.perception.training import default_pose_models
+
+        models = default_pose_models(progress=progress)  # once, for every arm
+        conds = [
+            PoseCondition(c.label, c.source, {"models": models}, c.noise_m)
+            if c.source == "manifold" and "models" not in c.kwargs
+            else c
+            for c in conds
+        ]
     reference = REFERENCE if REFERENCE in policies else policies[0]
     start = time.perf_counter()
     tasks = [

@@ -15,7 +15,7 @@ from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
-POLICIES = ("scripted", "random", "rl")
+POLICIES = ("scripted", "random", "rl", "learned")
 POSE_ALIASES = {"noisy": "noisy_oracle"}
 
 
@@ -32,9 +32,11 @@ class RolloutConfig:
     ``segmenter`` and ``recognizer`` name the source's components (defaults: background
     subtraction; FLR shortlisting three classes that appearance decides among).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
-    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 policy), a
-    policy folder or a ``scorbot-gym train`` run folder (its ``checkpoint``: ``best`` or
-    ``last`` exported policy, with its normalisation); ``action_type=None`` takes
+    ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 residual
+    policy: the scripted controller + a learned correction), ``learned`` (the shipped
+    stand-alone imitation policy, no scripted controller), a saved policy folder (``scorbot-gym
+    train`` or an imitation policy) or a ``scorbot-gym train`` run folder (its ``checkpoint``:
+    ``best`` or ``last`` exported policy, with its normalisation); ``action_type=None`` takes
     the learned policy's action type (joint for the others). ``perturbation`` is the env's
     perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
@@ -150,17 +152,13 @@ class RolloutConfig:
         )
 
     def _learned(self):
-        """The SB3 policy this configuration runs, if any (loaded once, with clear errors)."""
+        """The learned policy this configuration runs, if any (loaded once, clear errors)."""
         if self.policy in ("scripted", "random"):
             return None
         if "_loaded_policy" not in self.__dict__:  # not a field: stays out of to_dict()
-            from scorbot_gym.policies.sb3 import SHIPPED_POLICY, SB3Policy
-            from scorbot_gym.rl.runs import policy_dir
+            from scorbot_gym.policies.loading import load_policy
 
-            path = (
-                SHIPPED_POLICY if self.policy == "rl" else policy_dir(self.policy, self.checkpoint)
-            )
-            self.__dict__["_loaded_policy"] = SB3Policy.load(path)
+            self.__dict__["_loaded_policy"] = load_policy(self.policy, self.checkpoint)
         return self.__dict__["_loaded_policy"]
 
     def make_policy(self, env):

@@ -38,10 +38,15 @@ def perception_summary(results: list[EpisodeResult]) -> dict | None:
     if not recs:
         return None
     n_est = sum(p["estimates"] for p in recs)
+    n_clear = sum(p.get("clear_view_estimates", 0) for p in recs)
     recog = [p for p in recs if p["recognised"] is not None]
     return {
         "estimates": n_est,
         "valid_rate": sum(p["valid"] for p in recs) / n_est if n_est else 0.0,
+        "clear_view_estimates": n_clear,
+        "clear_view_valid_rate": (
+            sum(p.get("clear_view_valid", 0) for p in recs) / n_clear if n_clear else None
+        ),
         "first_estimate_valid_rate": float(np.mean([p["first_valid"] for p in recs])),
         "recognition_accuracy": (
             float(np.mean([p["recognised"] == p["true_class"] for p in recog])) if recog else None
@@ -96,8 +101,20 @@ def format_summary(summary: dict) -> str:
         def fmt(v, spec: str, unit: str = "") -> str:
             return "-" if v is None else f"{v:{spec}}{unit}"
 
+        clear = p.get("clear_view_valid_rate")
         rows += [
-            ("pose estimates valid", f"{p['valid_rate']:.1%}  ({p['estimates']} estimates)"),
+            (
+                "pose estimates valid",
+                f"{p['valid_rate']:.1%}  of {p['estimates']} estimates, one per estimating step "
+                "(the arm hides the object for much of the grasp)",
+            ),
+            (
+                "  with a clear view",
+                "-"
+                if clear is None
+                else f"{clear:.1%}  of the {p['clear_view_estimates']} estimates made while "
+                "nothing hid the object from the cameras",
+            ),
             ("recognition accuracy", fmt(p["recognition_accuracy"], ".1%")),
             ("median position error", fmt(p["median_pos_err_cm"], ".2f", " cm")),
             ("median rotation error", fmt(p["median_rot_err_deg"], ".2f", " deg")),

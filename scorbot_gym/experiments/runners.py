@@ -10,14 +10,13 @@ instance.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor
 from typing import Protocol
 
 from scorbot_gym.experiments.spec import SweepSpec
 from scorbot_gym.experiments.trial import ModelJob, default_cache_dir, run_model_job
+from scorbot_gym.experiments.workers import worker_pool
 
 Work = Callable[[ModelJob], dict]
 
@@ -48,8 +47,7 @@ class LocalRunner:
                 if self.progress:
                     self.progress(i + 1, len(jobs))
             return out
-        ctx = mp.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(self.jobs, len(jobs)), mp_context=ctx) as pool:
+        with worker_pool(min(self.jobs, len(jobs))) as pool:
             futures = [pool.submit(work, job) for job in jobs]
             for i, f in enumerate(futures):
                 out.append(f.result())

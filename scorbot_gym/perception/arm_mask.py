@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
-from dm_control import mjcf
 
 from pose.camera import CameraModel
+from scorbot_gym import _gl
 from scorbot_gym.robot.kinematics import ARM_PREFIX
 from scorbot_gym.sim.arm import ARM_JOINTS, build_arm
 from scorbot_gym.sim.simulation import mat_to_quat
+
+mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 
 
 class ArmMaskRenderer:
@@ -73,6 +75,7 @@ class ArmMaskRenderer:
         mujoco.mj_camlight(self.model, d)
         key = (int(camera.width), int(camera.height))
         if key not in self._renderers:
+            _gl.prepare_first_context()
             r = mujoco.Renderer(self.model, key[1], key[0])
             r.enable_segmentation_rendering()
             self._renderers[key] = r

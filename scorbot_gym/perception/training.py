@@ -9,12 +9,10 @@ from __future__ import annotations
 
 import hashlib
 import json
-import multiprocessing
 import os
 import time
 import warnings
 from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -101,8 +99,9 @@ def train_models(
     if min(jobs, len(names)) > 1:
         # Spawned, not forked: a forked child of a process that has rendered (EGL context, Mesa
         # threads) can deadlock on its first render.
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(max_workers=min(jobs, len(names)), mp_context=ctx) as pool:
+        from scorbot_gym.experiments.workers import worker_pool
+
+        with worker_pool(min(jobs, len(names))) as pool:  # spawned; they die with this process
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:

@@ -16,6 +16,7 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from pose.fileio import remove_orphaned_tmp
 from scorbot_gym.evaluation.episodes import run_episodes
 from scorbot_gym.evaluation.summary import summarize
 
@@ -131,6 +132,8 @@ class CheckpointCallback(BaseCallback):
 def atomic_save(path: Path, write: Callable[[Path], None]) -> None:
     """``write(tmp)`` then ``os.replace(tmp, path)``: a reader never sees half a file."""
     path = Path(path)
+    if path.parent.is_dir():
+        remove_orphaned_tmp(path.parent)  # left by a killed run of this folder
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
     try:
         write(tmp)

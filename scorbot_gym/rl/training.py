@@ -68,7 +68,7 @@ class TrainConfig:
 
     algo: str = "sac"
     pose: str = "oracle"
-    pose_model: str | None = None  # model file for pose="manifold"
+    pose_model: str | None = None  # model file for pose="manifold" (None: the default models)
     noise_pos_m: float = 0.01  # pose="noisy": x-y position noise (std)
     noise_yaw_deg: float = 5.0  # pose="noisy": heading noise (std)
     action_type: str = "cartesian"
@@ -97,8 +97,6 @@ class TrainConfig:
             raise ValueError(f"algo must be one of {ALGOS}, got {self.algo!r}")
         if self.pose not in POSES:
             raise ValueError(f"pose must be one of {POSES}, got {self.pose!r}")
-        if self.pose == "manifold" and not self.pose_model:
-            raise ValueError("pose='manifold' needs pose_model (from `scorbot-gym pose train`)")
         if self.pose != "manifold" and self.pose_model:
             raise ValueError(f"pose_model only applies to pose 'manifold', not {self.pose!r}")
         if self.action_type not in ("cartesian", "joint"):
@@ -176,7 +174,13 @@ class TrainConfig:
                 "yaw_sigma_deg": self.noise_yaw_deg,
             }
         if self.pose == "manifold":
-            return "manifold", {"models": self.pose_model}
+            if self.pose_model:
+                return "manifold", {"models": self.pose_model}
+            from scorbot_gym.perception.training import default_pose_models
+
+            # The top camera's default models, as `scorbot-gym rollout` uses: trained on first
+            # use and cached, so a resumed run and its evaluation read the same ones.
+            return "manifold", {"models": default_pose_models(progress=False)}
         return "oracle", {}
 
     def schedule(self) -> dict[str, Any]:
@@ -199,8 +203,8 @@ class TrainConfig:
 def check_pose_model(config: TrainConfig) -> None:
     """Load the pose model file once, before anything is written: a damaged or wrong file is
     a one-line error here rather than a traceback from an env worker."""
-    if config.pose != "manifold":
-        return
+    if config.pose != "manifold" or not config.pose_model:
+        return  # no file: the default models, trained on first use and cached
     from pose.model_set import PoseModelSet
 
     path = Path(config.pose_model)
@@ -253,6 +257,8 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
     with ``monitor_dir``, each env logs its episodes to ``monitor_dir/env_<i>.monitor.csv``."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
+    if config.n_envs > 1:
+        config.pose_args()  # default pose models are trained here once, not by every worker
     if monitor_dir is not None:
         Path(monitor_dir).mkdir(parents=True, exist_ok=True)
     fns = [
@@ -288,6 +294,7 @@ def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, 
         "format": FORMAT,
         "version": VERSION,
         "algo": config.algo,
+        "uses_scripted_controller": bool(config.residual),  # at test time (a residual's base)
         "action_type": config.action_type,
         "classes": config.class_names(),
         "observation_shapes": shapes,

@@ -13,9 +13,11 @@ from collections.abc import Sequence
 
 import mujoco
 import numpy as np
-from dm_control import mjcf
 
+from scorbot_gym import _gl
 from scorbot_gym.sim.arm import ARM_JOINTS, JOINT_RANGES_DEG, build_arm
+
+mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 
 JOINT_LOW = np.deg2rad([JOINT_RANGES_DEG[j][0] for j in ARM_JOINTS])
 JOINT_HIGH = np.deg2rad([JOINT_RANGES_DEG[j][1] for j in ARM_JOINTS])

@@ -14,7 +14,10 @@ its pose unpowered, so the servos track without the sag a pure P-controller woul
 from __future__ import annotations
 
 import numpy as np
-from dm_control import mjcf
+
+from scorbot_gym import _gl
+
+mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 
 SHOULDER_HEIGHT = 0.349
 SHOULDER_OFFSET = 0.016

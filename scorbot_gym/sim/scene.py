@@ -8,12 +8,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from dm_control import mjcf
-
+from scorbot_gym import _gl
 from scorbot_gym.assets.textures import encode_png
 from scorbot_gym.objects import ObjectSpec
 from scorbot_gym.sim.arm import build_arm
 from scorbot_gym.sim.cameras import CameraSpec
+
+mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 
 TABLE_HEIGHT = 0.75
 # Where objects are placed: reachable with a vertical grasp and inside the top camera's view.

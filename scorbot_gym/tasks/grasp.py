@@ -11,6 +11,47 @@ from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation, quat_to_mat
 
 FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
 
+#: The discount the dense reward is designed for (SB3's SAC/TQC/PPO default).
+REWARD_GAMMA = 0.99
+#: Largest shaping reward of one step: reaching (<= 1) + grasped (1) + lifted (<= 2).
+SHAPING_MAX = 4.0
+#: How much more than never finishing a success is worth (see :func:`grasp_reward`).
+SUCCESS_MARGIN = 1.5
+#: The one-off bonus on the step the task succeeds (the episode then terminates):
+#: ``SUCCESS_MARGIN * SHAPING_MAX / (1 - REWARD_GAMMA)`` = 1.5 * 4 / 0.01 = 600.
+SUCCESS_BONUS = SUCCESS_MARGIN * SHAPING_MAX / (1.0 - REWARD_GAMMA)
+#: The reward terms, as ``info["reward_<term>"]`` (Gymnasium MuJoCo v5 style).
+REWARD_TERMS = ("reach", "grasp", "lift", "success")
+
+
+def grasp_reward(
+    reach: float, grasped: bool, lift: float, success: bool, lift_height: float
+) -> tuple[float, dict[str, float]]:
+    """The dense reward of one step and its terms.
+
+    Shaping: ``reach = 1 - tanh(10 * distance TCP-grasp point)`` (in [0, 1]), ``grasp = 1``
+    while both fingers touch the object, ``lift = 2 * min(lift / lift_height, 1)`` while
+    grasped: at most ``SHAPING_MAX = 4`` per step. Success (lifted ``lift_height`` for the
+    task's hold time) pays ``SUCCESS_BONUS`` once and terminates the episode.
+
+    Why the bonus is that large: with bootstrapping at the time limit (SB3 treats truncation
+    as non-terminal), never finishing while holding the object just under ``lift_height`` is
+    worth up to ``SHAPING_MAX / (1 - gamma)`` = 4 / 0.01 = 400 at ``gamma = REWARD_GAMMA``.
+    A success on step ``T`` is worth ``sum_{t<T} gamma^t r_t + gamma^T * SUCCESS_BONUS``;
+    since ``SUCCESS_BONUS > SHAPING_MAX / (1 - gamma)``, it beats every continuation that
+    does not finish from the same step on (those collect at most ``gamma^T * 400``): success
+    on step T is worth more than anything the same prefix can be followed by. (The previous
+    bonus, 10, made holding worth ~400 against ~60 for succeeding.)
+    """
+    lift_frac = float(np.clip(lift / lift_height, 0.0, 1.0))
+    terms = {
+        "reach": float(1.0 - np.tanh(10.0 * reach)),
+        "grasp": float(grasped),
+        "lift": 2.0 * lift_frac * float(grasped),
+        "success": SUCCESS_BONUS * float(success),
+    }
+    return float(sum(terms.values())), terms
+
 
 @dataclass
 class EpisodeState:
@@ -95,14 +136,13 @@ class GraspTask:
         pairs = d.contact.geom[: d.ncon]
         return bool(np.isin(pairs, self._arm_geoms).all(axis=1).any())
 
-    def reward(self, facts: dict) -> float:
+    def reward(self, facts: dict) -> tuple[float, dict[str, float]]:
+        """The step's reward and its terms (see :func:`grasp_reward`); the sparse reward is
+        1 on success, its only term."""
         if self.reward_type == "sparse":
-            return float(self.state.success)
-        lift_frac = np.clip(facts["lift"] / self.lift_height, 0.0, 1.0)
-        return float(
-            (1.0 - np.tanh(10.0 * facts["reach"]))
-            + facts["grasped"] * (1.0 + 2.0 * lift_frac)
-            + 10.0 * self.state.success
+            return float(self.state.success), {"success": float(self.state.success)}
+        return grasp_reward(
+            facts["reach"], facts["grasped"], facts["lift"], self.state.success, self.lift_height
         )
 
     def failure_cause(self, facts: dict, unstable: bool) -> str:

@@ -1,0 +1,136 @@
+"""Train the stand-alone learned policy (BC with DART + DAgger, oracle pose) and measure it
+against the scripted controller on the same seeded episodes over the whole catalogue.
+
+The learned policy uses no scripted controller at test time (``policy.json`` says
+``"uses_scripted_controller": false``); the scripted controller labels its training states.
+Records the training cost (wall time, demonstrations, env steps) next to the success rates.
+
+    nice -n 5 python benchmarks/learned_policy.py [--demos 200] [--dagger-rounds 8]
+        [--dagger-episodes 80] [--episodes 110] [--out scorbot_gym/policies/data/...]
+        [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
+
+Writes ``benchmarks/results/learned_policy.json`` and saves the policy folder (``--out``,
+default: the shipped ``imitation_dagger_oracle``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+RESULTS = Path(__file__).parent / "results"
+
+
+def _evaluate(label: str, policy: str, episodes: int, seed: int) -> dict:
+    from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+
+    t0 = time.perf_counter()
+    config = RolloutConfig(
+        policy=policy, pose="oracle", action_type="cartesian", episodes=episodes, seed=seed
+    )
+    summary, _ = run_rollout(config, progress=False)
+    summary.pop("results", None)
+    summary.pop("perception", None)
+    summary["wall_s"] = time.perf_counter() - t0
+    lo, hi = summary["success_rate_ci95"]
+    print(
+        f"{label:>10}: success {summary['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
+        f"n={summary['episodes']} failures {summary['failure_causes']}",
+        flush=True,
+    )
+    return summary
+
+
+def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
+    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--demos", type=positive_int, default=200)
+    p.add_argument("--dart-sigma", type=non_negative_float, default=0.2)
+    p.add_argument("--dagger-rounds", type=non_negative_int, default=8)
+    p.add_argument("--dagger-episodes", type=positive_int, default=80)
+    p.add_argument("--fit-steps", type=positive_int, default=6000)
+    p.add_argument(
+        "--no-sync-expert",
+        action="store_true",
+        help="DAgger labels from the plain scripted controller (its phase timer runs on even "
+        "when the learner did not close the fingers)",
+    )
+    p.add_argument(
+        "--episodes", type=positive_int, default=110, help="evaluation episodes per policy"
+    )
+    p.add_argument("--eval-seed", type=int, default=50_000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
+    p.add_argument("--out", type=Path, default=SHIPPED_LEARNED_POLICY)
+    p.add_argument("--json", type=Path, default=RESULTS / "learned_policy.json")
+    p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
+    args = p.parse_args(argv)
+
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.envs.factory import make_env
+    from scorbot_gym.policies.imitation import ImitationPolicy
+    from scorbot_gym.rl.imitation import ImitationConfig, train_imitation
+
+    if not args.skip_training:
+        config = ImitationConfig(
+            demos=args.demos,
+            dart_sigma=args.dart_sigma,
+            dagger_rounds=args.dagger_rounds,
+            dagger_episodes=args.dagger_episodes,
+            fit_steps=args.fit_steps,
+            seed=args.seed,
+            sync_expert=not args.no_sync_expert,
+        )
+        demos = None
+        if args.dataset:
+            from scorbot_gym.rl.datasets import load_demonstrations
+
+            demos = load_demonstrations(args.dataset)
+        env = make_env("ScorbotGraspCartesian-v0", pose="oracle")
+        try:
+            policy, _ = train_imitation(env, config, demos, progress=print)
+        finally:
+            env.close()
+        policy.save(args.out)
+        print(f"policy saved to {args.out}")
+    policy = ImitationPolicy.load(args.out)
+    training = policy.meta["training"]
+    arms = {
+        "learned": _evaluate("learned", str(args.out), args.episodes, args.eval_seed),
+        "scripted": _evaluate("scripted", "scripted", args.episodes, args.eval_seed),
+    }
+    size_kb = sum(f.stat().st_size for f in Path(args.out).iterdir()) / 1024
+    out = {
+        "description": "stand-alone imitation policy (BC + DART + DAgger, oracle pose labels) "
+        "vs the scripted controller, same seeds, whole catalogue, oracle pose, cartesian actions",
+        "uses_scripted_controller": policy.meta["uses_scripted_controller"],
+        "eval_seeds": [args.eval_seed, args.eval_seed + args.episodes - 1],
+        "arms": arms,
+        "training": {
+            k: training[k]
+            for k in (
+                "demonstration_episodes",
+                "dagger_episodes",
+                "env_steps",
+                "labelled_steps",
+                "wall_time_s",
+                "rounds",
+                "config",
+            )
+        },
+        "policy_size_kb": round(size_kb, 1),
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
+    }
+    atomic_write_json(args.json, out)
+    print(f"results written to {args.json}")
+
+
+if __name__ == "__main__":
+    main()

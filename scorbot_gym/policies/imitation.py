@@ -1,0 +1,347 @@
+"""A stand-alone learned grasping policy (imitation + DAgger), with no scripted controller inside.
+
+The network sees what :class:`~scorbot_gym.wrappers.PoseEstimateObservation` gives (proprio-
+ception, the estimated object pose, ``pose_valid``/``pose_confidence``/``pose_age``, the
+``object_class`` one-hot) plus a short history of **its own executed actions**:
+
+- the previous ``previous_actions`` actions (6 each): how it was moving;
+- the gripper commands of the last ``gripper_commands`` steps (+1 open / -1 closed): how long
+  the fingers have been closing. The scripted controller lifts a fixed time after it starts
+  closing (an internal timer); behaviour cloning without this history cannot tell "closing"
+  from "closed, now lift" (the earlier probe's failures held the object and never lifted).
+
+A few features are computed from the observation, as a feature extractor would: the object
+relative to the TCP, and the object's heading relative to the base and wrist (sin/cos of twice
+the angle: a parallel gripper closes along the same line after a half turn).
+
+A saved policy is a folder: ``policy.json`` (format, ``"algo": "imitation"``,
+``"uses_scripted_controller": false``, the observation entries and shapes, the history spec,
+the feature normalisation, the network layout, how it was trained) and ``weights.npz`` (the
+MLP's weights as plain arrays, no pickle). Inference is numpy only: loading needs no torch.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from scorbot_gym.policies.scripted import yaw_from_quat
+
+FORMAT = "scorbot-gym-policy"
+VERSION = 1
+ALGO = "imitation"
+SHIPPED_LEARNED_POLICY = Path(__file__).parent / "data" / "imitation_dagger_oracle"
+#: pose_age is scaled as log1p(age) / log1p(AGE_SCALE): 0 fresh, 1 never estimated
+AGE_SCALE = 1000.0
+#: proprioception and pose entries the features read (besides ``object_class``)
+OBSERVATION_KEYS = (
+    "joint_pos",
+    "joint_vel",
+    "gripper_opening",
+    "ee_pos",
+    "ee_quat",
+    "object_pos",
+    "object_quat",
+    "pose_valid",
+    "pose_confidence",
+    "pose_age",
+)
+#: normalised features are clipped to this many standard deviations
+FEATURE_CLIP = 10.0
+#: a feature whose training std is below this never varied: it is pinned to 0
+CONSTANT_STD = 1e-3
+
+
+@dataclass(frozen=True)
+class HistorySpec:
+    """How much of its own past the policy sees (see the module docstring)."""
+
+    previous_actions: int = 2
+    gripper_commands: int = 20
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"history {name} must be an int >= 0, got {value!r}")
+
+
+def n_features(n_classes: int, history: HistorySpec) -> int:
+    return 47 + n_classes + 6 * history.previous_actions + history.gripper_commands
+
+
+class ActionHistory:
+    """The policy's memory of the actions executed so far in the episode."""
+
+    def __init__(self, spec: HistorySpec, action_dim: int = 6) -> None:
+        self.spec, self.action_dim = spec, action_dim
+        self.reset()
+
+    def reset(self) -> None:
+        self.actions = np.zeros((self.spec.previous_actions, self.action_dim), np.float32)
+        # before the first step the gripper was commanded open, as the env resets it
+        self.gripper = np.ones(self.spec.gripper_commands, np.float32)
+
+    def push(self, action: np.ndarray) -> None:
+        """Remember the action that was executed (whoever chose it)."""
+        a = np.asarray(action, np.float32)
+        if self.spec.previous_actions:
+            self.actions = np.roll(self.actions, 1, axis=0)
+            self.actions[0] = a
+        if self.spec.gripper_commands:
+            self.gripper = np.roll(self.gripper, 1)
+            self.gripper[0] = 1.0 if a[-1] > 0 else -1.0
+
+    def features(self) -> np.ndarray:
+        return np.r_[self.actions.ravel(), self.gripper].astype(np.float32)
+
+
+def observation_features(obs: dict[str, np.ndarray], onehot: np.ndarray) -> np.ndarray:
+    """The observation part of the features (47 + number of classes values)."""
+    q = np.asarray(obs["joint_pos"], float)
+    ee = np.asarray(obs["ee_pos"], float)
+    pos = np.asarray(obs["object_pos"], float)
+    yaw = yaw_from_quat(np.asarray(obs["object_quat"], float))
+    angles = np.array([yaw, yaw - q[0], yaw - q[0] - q[4], yaw - q[0] + q[4]])
+    age = np.log1p(float(obs["pose_age"][0])) / np.log1p(AGE_SCALE)
+    return np.concatenate(
+        [
+            q,
+            np.asarray(obs["joint_vel"], float),
+            np.asarray(obs["gripper_opening"], float),
+            ee,
+            np.asarray(obs["ee_quat"], float),
+            pos,
+            np.asarray(obs["object_quat"], float),
+            pos - ee,
+            np.sin(angles),
+            np.cos(angles),
+            np.sin(2 * angles),
+            np.cos(2 * angles),
+            np.asarray(obs["pose_valid"], float),
+            np.asarray(obs["pose_confidence"], float),
+            [age],
+            np.asarray(onehot, float),
+        ]
+    ).astype(np.float32)
+
+
+class MLP:
+    """ReLU MLP in numpy; the last layer gives 5 arm outputs (tanh) and 1 gripper logit."""
+
+    def __init__(self, weights: Sequence[np.ndarray], biases: Sequence[np.ndarray]) -> None:
+        self.weights = [np.asarray(w, np.float32) for w in weights]
+        self.biases = [np.asarray(b, np.float32) for b in biases]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        h = np.asarray(x, np.float32)
+        for i, (w, b) in enumerate(zip(self.weights, self.biases, strict=True)):
+            h = h @ w + b
+            if i < len(self.weights) - 1:
+                h = np.maximum(h, 0.0)
+        return h
+
+    @property
+    def n_inputs(self) -> int:
+        return self.weights[0].shape[0]
+
+
+def to_action(raw: np.ndarray) -> np.ndarray:
+    """Network output → env action: arm in (-1, 1) by tanh, gripper ±1 by the logit's sign
+    (the demonstrations' gripper is binary; a half-open command would drop the object)."""
+    raw = np.asarray(raw, np.float32)
+    arm = np.tanh(raw[..., :-1])
+    grip = np.where(raw[..., -1:] > 0, 1.0, -1.0).astype(np.float32)
+    return np.concatenate([arm, grip], axis=-1).astype(np.float32)
+
+
+class ImitationPolicy:
+    """The learned policy: features of (observation, own action history) → MLP → action.
+
+    ``meta`` is the content of ``policy.json``; ``mean``/``std`` normalise the features.
+    """
+
+    uses_scripted_controller = False
+
+    def __init__(self, net: MLP, mean: np.ndarray, std: np.ndarray, meta: dict[str, Any]) -> None:
+        self.net, self.meta = net, meta
+        self.mean = np.asarray(mean, np.float32)
+        self.std = np.asarray(std, np.float32)
+        self.history_spec = HistorySpec(**meta["history"])
+        self.classes = tuple(meta["classes"])
+        self.history = ActionHistory(self.history_spec)
+        self._env_classes: tuple[str, ...] | None = None
+        want = n_features(len(self.classes), self.history_spec)
+        if not (len(self.mean) == len(self.std) == net.n_inputs == want):
+            raise ValueError(
+                f"incompatible policy: {want} features from policy.json, normalisation has "
+                f"{len(self.mean)}, the network takes {net.n_inputs}"
+            )
+
+    # --- features --------------------------------------------------------------------------
+    def _onehot(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if "object_class" not in obs:
+            return np.zeros(len(self.classes))
+        onehot = np.asarray(obs["object_class"], float)
+        if self._env_classes is None:
+            return onehot
+        out = np.zeros(len(self.classes))
+        for name, v in zip(self._env_classes, onehot, strict=True):
+            if name in self.classes:
+                out[self.classes.index(name)] = v
+        return out
+
+    def features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
+        """Raw (unnormalised) features of an observation with a given history."""
+        return np.r_[observation_features(obs, self._onehot(obs)), history.features()]
+
+    def normalise(self, feats: np.ndarray) -> np.ndarray:
+        z = (feats - self.mean) / np.maximum(self.std, CONSTANT_STD)
+        z = np.where(self.std < CONSTANT_STD, 0.0, z)
+        return np.clip(z, -FEATURE_CLIP, FEATURE_CLIP).astype(np.float32)
+
+    def action_from_features(self, feats: np.ndarray) -> np.ndarray:
+        return to_action(self.net(self.normalise(feats)))
+
+    # --- Policy protocol -------------------------------------------------------------------
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> None:
+        self.history.reset()
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        action = self.action_from_features(self.features(obs, self.history))
+        self.history.push(action)
+        return action
+
+    replans = 0  # the episode runner's replan count: a learned policy does not plan
+
+    # --- env matching ----------------------------------------------------------------------
+    def bind(self, env) -> ImitationPolicy:
+        """Check that ``env`` gives what the policy reads and takes its actions; remember the
+        env's class names so that its ``object_class`` one-hot is re-ordered into the
+        policy's. Returns ``self``."""
+        env_type = env.get_wrapper_attr("action_type")
+        if env_type != self.meta["action_type"]:
+            raise ValueError(
+                f"the policy outputs {self.meta['action_type']} actions, the env takes "
+                f"{env_type} actions (use action_type={self.meta['action_type']!r})"
+            )
+        have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
+        want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
+        wrong = {
+            k: have.get(k) for k, v in want.items() if k != "object_class" and have.get(k) != v
+        }
+        if wrong:
+            raise ValueError(
+                f"wrong observation space for this policy: it reads {want}, the env gives "
+                f"{wrong} for those entries (wrap the env with PoseEstimateObservation, "
+                "rotation='quat')"
+            )
+        self._env_classes = None
+        if "object_class" in have:
+            names = tuple(env.get_wrapper_attr("class_names"))
+            self._env_classes = names if names != self.classes else None
+        return self
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations."""
+        cartesian = self.meta["action_type"] == "cartesian"
+        env_id = "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0"
+        return {"env_id": env_id, "classes": list(self.classes)}
+
+    # --- files -----------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write ``policy.json`` and ``weights.npz`` into the folder ``path`` (atomically)."""
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        meta = {
+            **self.meta,
+            "normalization": {"mean": self.mean.tolist(), "std": self.std.tolist()},
+        }
+        arrays = {f"w{i}": w for i, w in enumerate(self.net.weights)}
+        arrays.update({f"b{i}": b for i, b in enumerate(self.net.biases)})
+        _atomic(path / "weights.npz", lambda f: np.savez(f, **arrays))
+        _atomic(path / "policy.json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> ImitationPolicy:
+        """A policy folder; a missing, corrupt or incompatible file is a one-line error."""
+        path = Path(path)
+        if not path.is_dir():
+            raise FileNotFoundError(
+                f"no policy folder at {path} (expected policy.json and weights.npz)"
+            )
+        meta_path, weights_path = path / "policy.json", path / "weights.npz"
+        for p in (meta_path, weights_path):
+            if not p.is_file():
+                raise FileNotFoundError(f"policy {path} is missing {p.name}")
+        meta = read_policy_json(meta_path)
+        if meta.get("algo") != ALGO:
+            raise ValueError(f"{meta_path}: algo must be {ALGO!r}, got {meta.get('algo')!r}")
+        try:
+            norm = meta["normalization"]
+            mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
+            HistorySpec(**meta["history"])
+            meta["classes"], meta["action_type"], meta["observation_shapes"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{meta_path} is incomplete or malformed ({exc!r})") from None
+        try:
+            with np.load(weights_path, allow_pickle=False) as z:
+                n = sum(1 for k in z.files if k.startswith("w"))
+                weights = [z[f"w{i}"] for i in range(n)]
+                biases = [z[f"b{i}"] for i in range(n)]
+        except Exception as exc:  # numpy raises many kinds on a damaged archive
+            raise ValueError(
+                f"{weights_path} could not be read as policy weights: {type(exc).__name__}: {exc}"
+            ) from None
+        if (
+            not weights
+            or any(
+                w.ndim != 2 or b.shape != (w.shape[1],)
+                for w, b in zip(weights, biases, strict=True)
+            )
+            or any(a.shape[0] != w.shape[1] for w, a in zip(weights, weights[1:], strict=False))
+        ):
+            raise ValueError(f"{weights_path}: the layers' shapes do not chain into an MLP")
+        if weights[-1].shape[1] != 6:
+            raise ValueError(
+                f"{weights_path}: the network has {weights[-1].shape[1]} outputs, not 6"
+            )
+        try:
+            return cls(MLP(weights, biases), mean, std, meta)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+
+def read_policy_json(meta_path: Path) -> dict[str, Any]:
+    """``policy.json`` checked for format and version (one-line errors)."""
+    try:
+        meta = json.loads(Path(meta_path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{meta_path} is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{meta_path} is not a scorbot-gym policy description")
+    if meta.get("version") != VERSION:
+        raise ValueError(
+            f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
+            f"version {VERSION}"
+        )
+    return meta
+
+
+def _atomic(path: Path, write) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+        os.chmod(tmp, 0o644)  # mkstemp makes it private; a policy file is package data
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise

@@ -1,0 +1,47 @@
+"""Load any saved policy folder by what its ``policy.json`` says it is.
+
+``"algo": "imitation"`` → :class:`~scorbot_gym.policies.imitation.ImitationPolicy` (numpy MLP,
+stand-alone); ``sac``/``tqc``/``ppo`` → :class:`~scorbot_gym.policies.sb3.SB3Policy`. The names
+``rl`` (the shipped residual) and ``learned`` (the shipped stand-alone imitation policy) stand
+for the policies in the package.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from scorbot_gym.policies.imitation import ALGO, SHIPPED_LEARNED_POLICY, read_policy_json
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY
+
+SHIPPED = {"rl": SHIPPED_POLICY, "learned": SHIPPED_LEARNED_POLICY}
+
+
+def load_policy(path: str | Path, checkpoint: str = "best") -> Any:
+    """A saved policy (folder, ``rl`` / ``learned``, or a ``scorbot-gym train`` run folder whose
+    ``checkpoint``, ``best`` or ``last``, is loaded), with one-line errors for bad files."""
+    from scorbot_gym.rl.runs import policy_dir
+
+    if str(path) in SHIPPED:
+        path = SHIPPED[str(path)]
+    else:
+        path = Path(path)
+        path = policy_dir(path.parent if path.is_file() else path, checkpoint)
+    meta_path = path / "policy.json"
+    imitation = (path / "weights.npz").is_file() and not (path / "model.zip").is_file()
+    if imitation or (meta_path.is_file() and read_policy_json(meta_path).get("algo") == ALGO):
+        from scorbot_gym.policies.imitation import ImitationPolicy
+
+        return ImitationPolicy.load(path)
+    from scorbot_gym.policies.sb3 import SB3Policy
+
+    return SB3Policy.load(path)
+
+
+def uses_scripted_controller(policy: Any) -> bool:
+    """Whether a loaded policy runs the scripted controller inside it at test time."""
+    flag = getattr(policy, "uses_scripted_controller", None)
+    if flag is not None:
+        return bool(flag)
+    meta = getattr(policy, "meta", {}) or {}
+    return bool(meta.get("uses_scripted_controller", meta.get("residual") is not None))

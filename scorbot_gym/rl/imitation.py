@@ -1,0 +1,457 @@
+"""Imitation learning of a stand-alone grasping policy: behaviour cloning from scripted
+demonstrations with DART noise, then DAgger.
+
+- **Demonstrations** (:func:`collect_episodes` with ``learner=None``): the scripted controller
+  acts; with DART (Laskey et al. 2017) Gaussian noise of std ``dart_sigma`` is added to the
+  executed arm action while the *label* stays the controller's clean action, so the data
+  already contains small recoveries. Each step stores the observation, the executed action
+  and the label.
+- **DAgger** (Ross et al. 2011): round ``i`` runs the current learner, mixed per step with the
+  expert at probability ``beta_i = beta * beta_decay**i``; the scripted controller, given the
+  *oracle* pose (:func:`oracle_view`, from ``info["object_pose"]``), labels every visited
+  state; the union of all data trains the next policy.
+
+The expert is stateful (its phase and waypoint evolve with the states the learner visits); the
+learner is not given any of that state: its features are the observation plus its own
+executed-action history (:mod:`scorbot_gym.policies.imitation`).
+
+The data are :class:`LabelledEpisode` objects, which :mod:`scorbot_gym.rl.datasets` writes to
+and reads from Minari datasets (``scorbot-gym demos``), so :func:`train_imitation` can start
+from a recorded dataset.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from scorbot_gym.policies.imitation import (
+    ALGO,
+    FORMAT,
+    MLP,
+    OBSERVATION_KEYS,
+    VERSION,
+    ActionHistory,
+    HistorySpec,
+    ImitationPolicy,
+    n_features,
+    to_action,
+)
+from scorbot_gym.policies.scripted import ScriptedGraspPolicy
+from scorbot_gym.tasks.grasp import FAILURE_CAUSES
+
+
+@dataclass
+class LabelledEpisode:
+    """One episode: ``T + 1`` observations, ``T`` executed actions, ``T + 1`` expert labels
+    (the label of the last observation is recorded too), rewards, flags and flat infos."""
+
+    seed: int
+    observations: dict[str, np.ndarray]
+    actions: np.ndarray
+    labels: np.ndarray
+    rewards: np.ndarray
+    terminations: np.ndarray
+    truncations: np.ndarray
+    infos: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.infos["is_success"][-1])
+
+
+def oracle_view(obs: dict[str, np.ndarray], info: dict[str, Any], classes: Sequence[str]) -> dict:
+    """The observation with the true pose and class (from ``info``) in place of the estimate:
+    what the expert labels with, whatever pose source the learner sees."""
+    out = dict(obs)
+    out["object_pos"] = np.asarray(info["object_pose"]["position"], float)
+    out["object_quat"] = np.asarray(info["object_pose"]["quaternion"], float)
+    out["pose_valid"], out["pose_age"] = np.ones(1), np.zeros(1)
+    out["pose_confidence"] = np.ones(1)
+    onehot = np.zeros(len(classes))
+    if info["object_name"] in classes:
+        onehot[list(classes).index(info["object_name"])] = 1.0
+    out["object_class"] = onehot
+    return out
+
+
+def flat_info(info: dict[str, Any], classes: Sequence[str]) -> dict:
+    """The numeric facts of one ``info`` with the same keys at every step (what Minari stores):
+    outcome, true pose and class, reward terms, the estimator's record (NaN where it has
+    none); the caller adds the cameras' calibration."""
+    perc = info.get("perception") or {}
+
+    def num(key: str) -> float:
+        v = perc.get(key)
+        return float(v) if v is not None else float("nan")
+
+    cause = info.get("failure_cause")
+    out: dict[str, Any] = {
+        "is_success": np.int8(bool(info.get("is_success", False))),
+        "grasped": np.int8(bool(info.get("grasped", False))),
+        "held_time": float(info.get("held_time", 0.0)),
+        "failure_cause": np.int8(FAILURE_CAUSES.index(cause) if cause in FAILURE_CAUSES else -1),
+        "object_position": np.asarray(info["object_pose"]["position"], float),
+        "object_quaternion": np.asarray(info["object_pose"]["quaternion"], float),
+        "object_class": np.int16(
+            list(classes).index(info["object_name"]) if info["object_name"] in classes else -1
+        ),
+        "perception_valid": np.int8(bool(perc.get("valid", False))),
+        "perception_rot_err_deg": num("rot_err_deg"),
+        "perception_pos_err_cm": num("pos_err_cm"),
+        "perception_add_s_cm": num("add_s_cm"),
+        "perception_n_keypoints": np.int32(perc.get("n_keypoints", 0)),
+        "perception_n_inliers": np.int32(perc.get("n_inliers", 0)),
+        "perception_total_ms": num("total_ms"),
+    }
+    for k in ("reach", "grasp", "lift", "success"):
+        out[f"reward_{k}"] = float(info.get(f"reward_{k}", 0.0))
+    return out
+
+
+class ExecutedActionExpert:
+    """The scripted controller as a DAgger labeller that knows what was executed.
+
+    The controller lifts a fixed time after it *commands* the fingers closed. When the learner
+    drives, the controller's phase would run on although the fingers were never closed (its
+    timer, not the gripper, moves it on), and it would label "lift" in a state where the
+    learner's own gripper history says "not closed yet". After every executed action that
+    opens the gripper while the controller is closing, lifting or holding, the controller goes
+    back to its descent (where it re-plans from the pose, re-aligns and closes again): labels
+    consistent with the history the learner sees. In demonstrations (the controller acts) the
+    executed gripper is its own and nothing changes.
+    """
+
+    def __init__(self, base: ScriptedGraspPolicy) -> None:
+        self.base = base
+
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
+        self.base.reset(obs, info)
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        return self.base.act(obs)
+
+    def executed(self, action: np.ndarray) -> None:
+        b = self.base
+        if action[-1] > 0 and b.phase in ("close", "lift", "hold"):
+            b.phase, b._phase_time = "descend", 0.0
+
+    @classmethod
+    def for_env(cls, env: gym.Env) -> ExecutedActionExpert:
+        return cls(ScriptedGraspPolicy.for_env(env))
+
+
+def collect_episodes(
+    env: gym.Env,
+    seeds: Sequence[int],
+    *,
+    learner: ImitationPolicy | None = None,
+    beta: float = 1.0,
+    dart_sigma: float = 0.0,
+    rng: np.random.Generator | None = None,
+    expert_factory: Callable[[gym.Env], Any] | None = None,
+    sync_expert: bool = False,
+) -> list[LabelledEpisode]:
+    """Run one episode per seed; the expert labels every observation.
+
+    Who acts: with ``learner=None`` the expert (plus DART noise ``dart_sigma`` on the arm);
+    otherwise, at each step, the expert with probability ``beta`` and the learner otherwise.
+    The learner's features use the history of *executed* actions. ``sync_expert`` makes the
+    expert an :class:`ExecutedActionExpert` (the default expert: the scripted controller).
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    classes = tuple(env.get_wrapper_attr("class_names"))
+    default = ExecutedActionExpert.for_env if sync_expert else ScriptedGraspPolicy.for_env
+    make_expert = expert_factory or default
+    expert = make_expert(env)
+    history = ActionHistory(learner.history_spec) if learner is not None else None
+    episodes = []
+    for seed in seeds:
+        obs, info = env.reset(seed=int(seed))
+        calibration = _calibration(info)
+        expert.reset(oracle_view(obs, info, classes), info)
+        if history is not None:
+            history.reset()
+        rows, infos, actions, labels, rewards, terms, truncs = [obs], [info], [], [], [], [], []
+        while True:
+            label = np.asarray(expert.act(oracle_view(obs, info, classes)), np.float32)
+            labels.append(label)
+            if learner is None or rng.random() < beta:
+                action = label.copy()
+                if dart_sigma > 0:
+                    action[:-1] += rng.normal(0.0, dart_sigma, len(action) - 1)
+                action = np.clip(action, -1.0, 1.0).astype(np.float32)
+            else:
+                action = learner.action_from_features(learner.features(obs, history))
+            if history is not None:
+                history.push(action)
+            if hasattr(expert, "executed"):
+                expert.executed(action)
+            obs, reward, terminated, truncated, info = env.step(action)
+            rows.append(obs)
+            infos.append(info)
+            actions.append(action)
+            rewards.append(reward)
+            terms.append(terminated)
+            truncs.append(truncated)
+            if terminated or truncated:
+                break
+        labels.append(np.asarray(expert.act(oracle_view(obs, info, classes)), np.float32))
+        flat = [{**flat_info(i, classes), **calibration} for i in infos]
+        episodes.append(
+            LabelledEpisode(
+                seed=int(seed),
+                observations={k: np.stack([r[k] for r in rows]) for k in rows[0]},
+                actions=np.stack(actions),
+                labels=np.stack(labels),
+                rewards=np.asarray(rewards, np.float64),
+                terminations=np.asarray(terms, bool),
+                truncations=np.asarray(truncs, bool),
+                infos={k: np.stack([f[k] for f in flat]) for k in flat[0]},
+            )
+        )
+    return episodes
+
+
+def _calibration(info: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The fixed cameras' calibration from the reset's info (repeated at every step)."""
+    out = {}
+    for cam, params in info.get("camera_params", {}).items():
+        out[f"camera_{cam}_K"] = np.asarray(params["K"], float)
+        out[f"camera_{cam}_world_from_camera"] = np.asarray(params["world_from_camera"], float)
+        out[f"camera_{cam}_size"] = np.array([params["width"], params["height"]], np.int32)
+    return out
+
+
+# --- training ------------------------------------------------------------------------------
+
+
+def episode_features(
+    episode: LabelledEpisode, policy_like: ImitationPolicy
+) -> tuple[np.ndarray, np.ndarray]:
+    """Features (with the executed-action history) and labels of an episode's acted steps."""
+    history = ActionHistory(policy_like.history_spec)
+    keys = list(episode.observations)
+    feats = []
+    for t in range(len(episode)):
+        obs = {k: episode.observations[k][t] for k in keys}
+        feats.append(policy_like.features(obs, history))
+        history.push(episode.actions[t])
+    return np.stack(feats), episode.labels[: len(episode)]
+
+
+@dataclass
+class ImitationConfig:
+    """Everything that defines an imitation run (recorded in ``policy.json``)."""
+
+    demos: int = 150
+    dart_sigma: float = 0.2
+    dagger_rounds: int = 4
+    dagger_episodes: int = 60
+    beta: float = 0.5
+    beta_decay: float = 0.5
+    hidden: tuple[int, ...] = (256, 256)
+    fit_steps: int = 6000
+    batch_size: int = 512
+    learning_rate: float = 1e-3
+    weight_decay: float = 1e-5
+    history: HistorySpec = field(default_factory=HistorySpec)
+    seed: int = 0
+    torch_threads: int = 1
+    sync_expert: bool = True
+
+    def __post_init__(self) -> None:
+        if isinstance(self.history, dict):
+            self.history = HistorySpec(**self.history)
+        for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("dagger_rounds", "dagger_episodes"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
+            raise ValueError(
+                f"beta and beta_decay must be in [0, 1], got {self.beta}, {self.beta_decay}"
+            )
+        if self.dart_sigma < 0:
+            raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
+        self.hidden = tuple(int(h) for h in self.hidden)
+
+
+def _skeleton(env: gym.Env, config: ImitationConfig, extra: dict | None = None) -> ImitationPolicy:
+    """An untrained policy for ``env`` (for feature extraction and the metadata)."""
+    classes = tuple(env.get_wrapper_attr("class_names"))
+    shapes = {k: list(env.observation_space[k].shape) for k in OBSERVATION_KEYS}
+    shapes["object_class"] = [len(classes)]
+    meta = {
+        "format": FORMAT,
+        "version": VERSION,
+        "algo": ALGO,
+        "uses_scripted_controller": False,
+        "action_type": env.get_wrapper_attr("action_type"),
+        "classes": list(classes),
+        "observation_shapes": shapes,
+        "history": asdict(config.history),
+        "features": "observation_features + previous actions + gripper-command history "
+        "(scorbot_gym.policies.imitation)",
+        "network": {
+            "hidden": list(config.hidden),
+            "activation": "relu",
+            "outputs": "5 arm (tanh) + 1 gripper logit (sign)",
+        },
+        **(extra or {}),
+    }
+    n = n_features(len(classes), config.history)
+    sizes = [n, *config.hidden, 6]
+    weights = [np.zeros((a, b), np.float32) for a, b in zip(sizes, sizes[1:], strict=False)]
+    biases = [np.zeros(b, np.float32) for b in sizes[1:]]
+    return ImitationPolicy(MLP(weights, biases), np.zeros(n), np.ones(n), meta)
+
+
+def fit_policy(
+    policy: ImitationPolicy,
+    feats: np.ndarray,
+    labels: np.ndarray,
+    config: ImitationConfig,
+    seed: int,
+    warm_start: bool = False,
+) -> list[float]:
+    """Fit the policy's MLP (and its feature normalisation) to ``labels``: MSE on the arm's
+    tanh outputs, binary cross-entropy on the gripper logit. Returns the loss curve."""
+    import torch as th
+
+    th.set_num_threads(config.torch_threads)
+    th.manual_seed(seed)
+    rng = np.random.default_rng(seed)
+    policy.mean = feats.mean(axis=0).astype(np.float32)
+    policy.std = feats.std(axis=0).astype(np.float32)
+    x = th.as_tensor(policy.normalise(feats))
+    arm = th.as_tensor(np.clip(labels[:, :-1], -1.0, 1.0), dtype=th.float32)
+    grip = th.as_tensor((labels[:, -1] > 0).astype(np.float32))
+    sizes = [x.shape[1], *config.hidden, 6]
+    layers: list[th.nn.Module] = []
+    for i, (a, b) in enumerate(zip(sizes, sizes[1:], strict=False)):
+        layers.append(th.nn.Linear(a, b))
+        if i < len(sizes) - 2:
+            layers.append(th.nn.ReLU())
+    net = th.nn.Sequential(*layers)
+    linears = [m for m in net if isinstance(m, th.nn.Linear)]
+    if warm_start:
+        with th.no_grad():
+            for lin, w, b in zip(linears, policy.net.weights, policy.net.biases, strict=True):
+                lin.weight.copy_(th.as_tensor(w.T))
+                lin.bias.copy_(th.as_tensor(b))
+    opt = th.optim.AdamW(
+        net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    sched = th.optim.lr_scheduler.CosineAnnealingLR(opt, config.fit_steps)
+    losses = []
+    for _ in range(config.fit_steps):
+        idx = th.as_tensor(rng.integers(0, len(x), config.batch_size))
+        out = net(x[idx])
+        loss = th.nn.functional.mse_loss(th.tanh(out[:, :-1]), arm[idx])
+        loss = loss + th.nn.functional.binary_cross_entropy_with_logits(out[:, -1], grip[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        losses.append(float(loss.item()))
+    policy.net = MLP(
+        [lin.weight.detach().numpy().T.copy() for lin in linears],
+        [lin.bias.detach().numpy().copy() for lin in linears],
+    )
+    return losses
+
+
+def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarray) -> dict:
+    """How closely the policy reproduces the labels (arm RMSE, gripper sign agreement)."""
+    pred = to_action(policy.net(policy.normalise(feats)))
+    return {
+        "arm_rmse": float(np.sqrt(np.mean((pred[:, :-1] - np.clip(labels[:, :-1], -1, 1)) ** 2))),
+        "gripper_agreement": float(np.mean((pred[:, -1] > 0) == (labels[:, -1] > 0))),
+    }
+
+
+def train_imitation(
+    env: gym.Env,
+    config: ImitationConfig,
+    demonstrations: Sequence[LabelledEpisode] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[ImitationPolicy, dict[str, Any]]:
+    """BC on the demonstrations (recorded with :func:`collect_episodes`, or collected here with
+    ``config.demos`` seeds ``seed, seed + 1, ...``), then ``config.dagger_rounds`` DAgger
+    rounds on fresh seeds. Returns the policy and the training record (also in its meta)."""
+    say = progress or (lambda _msg: None)
+    start = time.perf_counter()
+    rng = np.random.default_rng(config.seed)
+    if demonstrations is None:
+        seeds = range(config.seed, config.seed + config.demos)
+        demonstrations = collect_episodes(env, seeds, dart_sigma=config.dart_sigma, rng=rng)
+    data = list(demonstrations)
+    policy = _skeleton(env, config)
+    pairs = [episode_features(ep, policy) for ep in data]
+    feats = np.concatenate([f for f, _ in pairs])
+    labels = np.concatenate([y for _, y in pairs])
+    losses = fit_policy(policy, feats, labels, config, seed=config.seed)
+    rounds = [
+        {
+            "round": 0,
+            "beta": 1.0,
+            "episodes": len(data),
+            "success": float(np.mean([ep.success for ep in data])),
+            "env_steps": int(sum(len(ep) for ep in data)),
+            "final_loss": float(np.mean(losses[-100:])),
+            **label_accuracy(policy, feats, labels),
+        }
+    ]
+    say(f"BC on {len(data)} demonstrations ({len(feats)} steps): {rounds[-1]}")
+    next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
+    for r in range(1, config.dagger_rounds + 1):
+        beta = config.beta * config.beta_decay ** (r - 1)
+        seeds = range(next_seed, next_seed + config.dagger_episodes)
+        next_seed += config.dagger_episodes
+        new = collect_episodes(
+            env, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
+        )
+        data += new
+        new_pairs = [episode_features(ep, policy) for ep in new]
+        feats = np.concatenate([feats, *[f for f, _ in new_pairs]])
+        labels = np.concatenate([labels, *[y for _, y in new_pairs]])
+        losses = fit_policy(policy, feats, labels, config, seed=config.seed + r, warm_start=True)
+        rounds.append(
+            {
+                "round": r,
+                "beta": beta,
+                "episodes": len(new),
+                "success": float(np.mean([ep.success for ep in new])),
+                "env_steps": int(sum(len(ep) for ep in new)),
+                "final_loss": float(np.mean(losses[-100:])),
+                **label_accuracy(policy, feats, labels),
+            }
+        )
+        say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
+    record = {
+        "config": {**asdict(config), "hidden": list(config.hidden)},
+        "demonstration_episodes": len(demonstrations),
+        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])),
+        "env_steps": int(sum(r["env_steps"] for r in rounds)),
+        "labelled_steps": int(len(feats)),
+        "wall_time_s": time.perf_counter() - start,
+        "rounds": rounds,
+        "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
+    }
+    policy.meta["training"] = record
+    policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
+        "residual_base": False,
+        "bc_demo_episodes": len(demonstrations),
+        "dagger_labelled_episodes": record["dagger_episodes"],
+    }
+    return policy, record
