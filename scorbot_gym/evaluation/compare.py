@@ -634,9 +634,8 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
     a.set_ylim(0, 1.12)
     a.set_ylabel("success rate (95 % Wilson interval)")
     a.set_title(
-        f"success per arm, {report['episodes']} paired episodes each\n"
-        f"Δ: paired difference to {report.get('reference', policies[0])} (Newcombe 95 % CI), "
-        "McNemar p",
+        f"success, {report['episodes']} paired episodes per arm\n"
+        f"Δ vs {report.get('reference', policies[0])}: paired 95 % CI (Newcombe), McNemar p",
         fontsize=9,
     )
     handles, labels = a.get_legend_handles_labels()
@@ -653,8 +652,8 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
                 _bar_with_ci(b, x, k, n, width, colors[name])
         b.set_xticks(range(len(groups)), groups, rotation=30, ha="right")
         b.set_ylim(0, 1.05)
-        note = f"; {len(pooled)} objects with < {min_n} episodes pooled" if pooled else ""
-        b.set_title(f"per object, {poses[0]}\n(own bar from {min_n} episodes{note})", fontsize=9)
+        note = f"{len(pooled)} objects with < {min_n} episodes pooled" if pooled else ""
+        b.set_title(f"per object, {poses[0]}\n{note}", fontsize=9)
 
     if "noise" in ax:
         c = ax["noise"]
