@@ -102,11 +102,16 @@ def test_how_each_arm_was_trained_comes_from_its_folder_never_guessed(cli_report
 
 @pytest.mark.slow
 def test_api_gives_the_cli_episodes_whatever_the_number_of_processes(cli_report):
-    """Same seeds, one process instead of two: the same episodes, episode by episode."""
-    report = cmp.compare(["scripted", "rl"], ["oracle"], 2, objects=["box"], progress=False)
+    """Same seeds, one process instead of two: the same episodes, episode by episode; the
+    shipped stand-alone policy is an arm by its name."""
+    policies = ["scripted", "rl", "learned"]
+    report = cmp.compare(policies, ["oracle"], 2, objects=["box"], progress=False)
     assert set(report) == TOP and all(set(r) == RECORD for r in report["results"])
+    learned = report["arms"]["learned"]["training"]  # the shipped stand-alone policy
+    assert learned["trained_from"] == "demonstrations"
+    assert learned["uses_scripted_controller"] is False and learned["algo"] == "imitation"
     cli = {(r["policy"], r["pose"]): r for r in cli_report["results"]}
-    for rec in report["results"]:
+    for rec in report["results"][:2]:
         other = cli[(rec["policy"], "oracle")]
         assert rec["episode_success"] == other["episode_success"]
         assert rec["steps_to_success"] == other["steps_to_success"]
