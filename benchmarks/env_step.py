@@ -2,7 +2,8 @@
 step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-place-v3 and
 robosuite Lift (Panda) in the same run.
 
-Run:  python benchmarks/env_step.py [--peers] [--repeats 5] [--out PATH.json]
+Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...]] [--repeats 5] [--cpu 0]
+      [--out PATH.json]
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
@@ -14,6 +15,11 @@ Repetitions interleave the environments (A, B, C, D, then D, C, B, A, ...) so th
 the machine's load hits all of them alike; every subprocess is pinned to the same core (the
 affinity is inherited) and Mesa's llvmpipe is asked for one rendering thread. Medians over
 repetitions are reported, with the load average before and after the run.
+
+scorbot-gym is also timed with Cartesian actions (``ScorbotGrasp-v0/cartesian``: IK every
+step; without images), paired with joint actions in the same repetitions; and ``profile``
+breaks its step into stages (physics, task bookkeeping, observation, rendering, IK, the rest;
+``time_env.py --profile``), the median over ``--repeats`` runs of each.
 """
 
 from __future__ import annotations
@@ -33,6 +39,9 @@ TIMER = HERE / "peers" / "time_env.py"
 SCORBOT = "ScorbotGrasp-v0"
 # Its default renders without shadows; the peers render theirs (see render_settings in the JSON).
 SCORBOT_SHADOWS = "ScorbotGrasp-v0/shadows"
+SCORBOT_CARTESIAN = "ScorbotGrasp-v0/cartesian"
+# (env, setting) pairs profiled stage by stage
+PROFILED = ((SCORBOT, "no_images"), (SCORBOT_CARTESIAN, "no_images"), (SCORBOT, "camera_320x240"))
 VENV_ROOT = Path.home() / ".cache" / "scorbot-gym" / "peer-venvs"
 # Each peer's venv and the pins it is built from (versions that install and run here).
 PEERS: dict[str, dict] = {
@@ -75,11 +84,15 @@ def peer_python(name: str, rebuild: bool = False) -> Path:
     return python
 
 
-def time_once(python: Path, env: str, image: bool, steps: int, seed: int) -> dict:
+def time_once(
+    python: Path, env: str, image: bool, steps: int, seed: int, profile: bool = False
+) -> dict:
     """One repetition: a fresh process runs the timing loop and prints its JSON line."""
     cmd = [str(python), str(TIMER), env, "--steps", str(steps), "--seed", str(seed)]
     if image:
         cmd.append("--image")
+    if profile:
+        cmd.append("--profile")
     proc = subprocess.run(cmd, capture_output=True, text=True, env=_child_env())
     if proc.returncode != 0:
         tail = proc.stderr.strip().splitlines()[-1:] or ["(no stderr)"]
@@ -111,6 +124,8 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
             for env in order if rep % 2 == 0 else order[::-1]:
                 if env == SCORBOT_SHADOWS and not image:
                     continue  # identical to SCORBOT when nothing is rendered
+                if env == SCORBOT_CARTESIAN and image:
+                    continue  # the IK's cost is measured where it is not drowned by rendering
                 r = time_once(envs[env], env, image, steps[setting], seed=rep)
                 runs[setting][env].append(r)
                 rate = r.get("steps_per_second")
@@ -143,7 +158,39 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
             for env, r in results[setting].items():
                 if not env.startswith(SCORBOT) and "steps_per_second_median" in r:
                     r.update(_paired_ratios(per_env.get(ours_name, []), per_env[env], prefix))
+        cartesian = results[setting].get(SCORBOT_CARTESIAN, {})
+        if "steps_per_second_median" in cartesian:  # Cartesian over joint actions
+            pairs = _paired_ratios(per_env[SCORBOT_CARTESIAN], per_env[SCORBOT], "vs_joint")
+            cartesian.update(pairs)
     return results
+
+
+def profile(python: Path, repeats: int, steps: dict[str, int]) -> dict:
+    """Stage-by-stage timing of scorbot's step (``time_env.py --profile``): per (env, setting),
+    the median over ``repeats`` fresh processes of each stage's mean microseconds per step."""
+    out: dict[str, dict] = {}
+    for env, setting in PROFILED:
+        runs = []
+        for rep in range(repeats):
+            r = time_once(python, env, SETTINGS[setting], steps[setting], rep, profile=True)
+            if "error" in r:
+                print(f"profile {env} {setting}: {r['error']}", flush=True)
+                continue
+            runs.append(r)
+        if not runs:
+            continue
+        parts = {k: _median([r["parts_us"].get(k, 0.0) for r in runs]) for k in runs[0]["parts_us"]}
+        step_us = _median([r["step_us"] for r in runs])
+        out[f"{env} {setting}"] = {
+            "step_us_median": step_us,
+            "parts_us_median": parts,
+            "physics_share_median": _median([r["physics_share"] for r in runs]),
+            "physics_share_runs": [r["physics_share"] for r in runs],
+            "runs": len(runs),
+        }
+        print(f"profile {env} {setting}: {step_us:.0f} us/step, physics share "
+              f"{out[f'{env} {setting}']['physics_share_median']:.0%}", flush=True)  # fmt: skip
+    return out
 
 
 def _paired_ratios(ours: list[dict], theirs: list[dict], prefix: str) -> dict:
@@ -202,6 +249,9 @@ def plot(report: dict, path: Path) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--peers", action="store_true", help="also time the peer envs")
+    parser.add_argument(
+        "--only-peers", nargs="+", choices=sorted(PEERS), help="with --peers: just these peers"
+    )
     parser.add_argument("--rebuild-peers", action="store_true", help="rebuild the peer venvs")
     parser.add_argument("--steps", type=int, default=2000, help="timed steps without images")
     parser.add_argument("--image-steps", type=int, default=200, help="timed steps with images")
@@ -217,12 +267,16 @@ def main(argv: list[str] | None = None) -> int:
     import scorbot_gym
     from pose.fileio import atomic_write_json
 
-    envs = {SCORBOT: Path(sys.executable), SCORBOT_SHADOWS: Path(sys.executable)}
+    ours = Path(sys.executable)
+    envs = {SCORBOT: ours, SCORBOT_CARTESIAN: ours, SCORBOT_SHADOWS: ours}
     if args.peers:
-        envs.update({name: peer_python(name, args.rebuild_peers) for name in PEERS})
+        peers = args.only_peers or list(PEERS)
+        envs.update({name: peer_python(name, args.rebuild_peers) for name in peers})
     load_before = os.getloadavg()
     t0 = time.time()
-    results = run(envs, args.repeats, {"no_images": args.steps, "camera_320x240": args.image_steps})
+    steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
+    results = run(envs, args.repeats, steps)
+    profiles = profile(ours, args.repeats, steps)
     report = {
         "benchmark": "env_step",
         "envs": list(envs),
@@ -233,6 +287,12 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "interleaved": "A,B,C,D then D,C,B,A ... per setting",
         "results": results,
+        "profile": {
+            "how": "benchmarks/peers/time_env.py --profile: the env's stages timed in place, "
+            "mean us per step over the timed steps; median over repeats (fresh processes)",
+            "physics": "MuJoCo mj_step (frame_skip substeps)",
+            "results": profiles,
+        },
         "load": {
             "loadavg_before": load_before,
             "loadavg_after": os.getloadavg(),
@@ -252,9 +312,14 @@ def main(argv: list[str] | None = None) -> int:
     plot(report, args.out.with_suffix(".png"))
     for setting, per_env in results.items():
         for env, r in per_env.items():
-            ratio = r.get("scorbot_ratio_steps_per_second")
-            cpu = r.get("scorbot_ratio_steps_per_cpu_second")
-            extra = f"  (scorbot {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
+            ratio = r.get("scorbot_ratio_steps_per_second") or r.get(
+                "vs_joint_ratio_steps_per_second"
+            )
+            cpu = r.get("scorbot_ratio_steps_per_cpu_second") or r.get(
+                "vs_joint_ratio_steps_per_cpu_second"
+            )
+            who = "cartesian/joint" if env == SCORBOT_CARTESIAN else "scorbot"
+            extra = f"  ({who} {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
             shown = r.get("error") or f"{r['steps_per_second_median']:8.1f} steps/s"
             print(f"{setting:>14} {env:>26}: {shown}{extra}")
     print(f"written {args.out} and {args.out.with_suffix('.png')}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Literal
 
@@ -33,6 +34,10 @@ class Symmetry:
     flips: tuple[tuple[float, float, float], ...] = ()
 
     def __post_init__(self) -> None:
+        # Tuples of floats whatever sequences were passed: hashable (the rotation sets are
+        # cached per symmetry) and equal by value.
+        object.__setattr__(self, "axis", tuple(float(v) for v in self.axis))
+        object.__setattr__(self, "flips", tuple(tuple(float(v) for v in f) for f in self.flips))
         if self.kind not in ("none", "axial", "discrete"):
             raise ValueError(
                 f"symmetry kind must be 'none', 'axial' or 'discrete', got {self.kind!r}"
@@ -46,18 +51,27 @@ class Symmetry:
         """All symmetry rotations as an ``(N, 3, 3)`` array; identity first.
 
         A continuous (axial) symmetry is discretized every ``step_deg`` degrees, as the BOP
-        toolkit does for its symmetry-aware error measures.
+        toolkit does for its symmetry-aware error measures. Built once per symmetry and step
+        (an axial set is 360 matrices, and pose scoring asks for it at every env step); the
+        array is shared, hence read-only.
         """
-        axis = np.asarray(self.axis, dtype=float)
-        if self.kind == "none":
-            base = [np.eye(3)]
-        elif self.kind == "axial":
-            n = max(1, int(round(360.0 / step_deg)))
-            base = [_axis_angle(axis, 2 * np.pi * i / n) for i in range(n)]
-        else:
-            base = [_axis_angle(axis, 2 * np.pi * i / self.order) for i in range(self.order)]
-        out = list(base)
-        for flip in self.flips:
-            f = _axis_angle(np.asarray(flip, dtype=float), np.pi)
-            out += [r @ f for r in base]
-        return np.stack(out)
+        return _rotations(self, float(step_deg))
+
+
+@functools.lru_cache(maxsize=256)
+def _rotations(symmetry: Symmetry, step_deg: float) -> np.ndarray:
+    axis = np.asarray(symmetry.axis, dtype=float)
+    if symmetry.kind == "none":
+        base = [np.eye(3)]
+    elif symmetry.kind == "axial":
+        n = max(1, int(round(360.0 / step_deg)))
+        base = [_axis_angle(axis, 2 * np.pi * i / n) for i in range(n)]
+    else:
+        base = [_axis_angle(axis, 2 * np.pi * i / symmetry.order) for i in range(symmetry.order)]
+    out = list(base)
+    for flip in symmetry.flips:
+        f = _axis_angle(np.asarray(flip, dtype=float), np.pi)
+        out += [r @ f for r in base]
+    rots = np.stack(out)
+    rots.flags.writeable = False
+    return rots

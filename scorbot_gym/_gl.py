@@ -19,13 +19,23 @@ Two process-level choices follow from software rendering:
   (``multiprocessing.parent_process()`` is set) unless ``LP_NUM_THREADS`` is set; a main
   process keeps Mesa's default.
 
-One library-level choice, too. Mesa's llvmpipe links the system's ``libLLVM`` and its loader opens
+A third, library-level choice. Mesa's llvmpipe links the system's ``libLLVM`` and its loader opens
 the driver with ``RTLD_GLOBAL``, so from the first frame on every LLVM symbol resolves to Mesa's
 copy first. Triton (pulled in by the CUDA build of torch; ``torch._dynamo`` imports it when SB3
 builds its Adam optimiser) bundles a different LLVM in ``libtriton.so`` and exports its symbols:
 loaded after the first frame, it binds some 12,000 of them to Mesa's LLVM and segfaults in its
 static initialisers. :func:`preload_bundled_llvm` loads such libraries before the first context,
 privately (``RTLD_LOCAL``) and fully bound (``RTLD_NOW``), so that each copy keeps its own symbols.
+
+A fourth follows from ``fork``: Mesa's EGL display keeps rasterizer threads and locks that a
+forked child inherits without the threads, so a child whose parent had rendered deadlocks on its
+first frame (``gymnasium.vector.AsyncVectorEnv`` forks by default on Linux). Every object that
+opens a GL context registers here (:func:`track_gl_owner`); just before this process forks,
+:func:`release_gl_before_fork` frees their contexts and terminates MuJoCo's EGL display, so
+the child opens a display of its own, and the owners rebuild their contexts lazily on their
+next frame (one context build, ~0.3 s in software GL). A ``mujoco.Renderer`` of your own in a
+process that forks after rendering is not ours to free: make it after the fork, or start
+workers with ``context="spawn"``.
 """
 
 from __future__ import annotations
@@ -37,6 +47,8 @@ import importlib.util
 import multiprocessing
 import os
 import sys
+import weakref
+from typing import Protocol
 
 VALID_BACKENDS = ("egl", "osmesa", "glfw")
 
@@ -92,8 +104,28 @@ def import_mjcf():
             os.environ["MUJOCO_GL"] = saved
 
 
+class GLOwner(Protocol):
+    def release_gl(self) -> None:
+        """Free every GL context held; the next frame builds them again."""
+
+
+_OWNERS: weakref.WeakSet = weakref.WeakSet()
+_rendered = False  # a GL context of ours was opened in this process (its display may be open)
+#: set in a forked child whose parent still had an EGL display open at the fork
+_FORKED_WITH_DISPLAY = False
+
+FORK_HINT = (
+    "this process was forked from one that had an OpenGL display open, and a forked child "
+    "cannot render with it; start the workers with context='spawn' (e.g. "
+    "gymnasium.vector.AsyncVectorEnv(env_fns, context='spawn'))"
+)
+
+
 def prepare_first_context() -> None:
-    """Settings read when the process opens its display (before the first GL context)."""
+    """Settings read when the process opens its display (before the first GL context), and
+    the check that a forked child can open one (see the module docstring)."""
+    if _FORKED_WITH_DISPLAY:
+        raise RenderingUnavailableError(FORK_HINT)
     if multiprocessing.parent_process() is not None:
         os.environ.setdefault("LP_NUM_THREADS", "0")
     preload_bundled_llvm()
@@ -127,3 +159,43 @@ def preload_bundled_llvm() -> tuple[str, ...]:
                 loaded.append(path)
                 break
     return tuple(loaded)
+
+
+def track_gl_owner(owner: GLOwner) -> None:
+    """``owner`` holds GL contexts now: they are released before this process forks."""
+    global _rendered
+    _rendered = True
+    _OWNERS.add(owner)
+
+
+def _egl_display_open() -> bool:
+    egl = sys.modules.get("mujoco.egl")
+    return egl is not None and getattr(egl, "EGL_DISPLAY", None) is not None
+
+
+def release_gl_before_fork() -> None:
+    """Free every tracked GL context and MuJoCo's EGL display (run by ``os.fork``)."""
+    if not _rendered:
+        return  # nothing of ours ever rendered here: leave other libraries' displays alone
+    for owner in list(_OWNERS):
+        try:
+            owner.release_gl()
+        except Exception:  # noqa: BLE001 - a fork must not fail; the child then refuses GL
+            continue
+        _OWNERS.discard(owner)
+    if _OWNERS or not _egl_display_open():
+        return
+    egl = sys.modules["mujoco.egl"]
+    try:  # eglTerminate; MuJoCo's next context initialises the display again
+        egl._terminate_display()
+    except Exception:  # noqa: BLE001 - as above
+        pass
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_WITH_DISPLAY
+    _FORKED_WITH_DISPLAY = _egl_display_open()
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(before=release_gl_before_fork, after_in_child=_after_fork_in_child)

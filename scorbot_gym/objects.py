@@ -14,8 +14,10 @@ import functools
 import hashlib
 import importlib.metadata
 import importlib.util
+import math
 import os
 import pickle
+import re
 import subprocess
 import sys
 from collections.abc import Sequence
@@ -41,6 +43,25 @@ _X_UP = (0.7071067811865476, 0.0, -0.7071067811865476, 0.0)  # object x axis poi
 _Y_UP = (0.7071067811865476, 0.7071067811865476, 0.0, 0.0)  # object y axis points up
 
 
+# Names become MJCF names and cache file names (with a digest): bounded well below the 255
+# bytes a file name may have.
+MAX_NAME_LENGTH = 64
+_NAME = re.compile(rf"[A-Za-z0-9_]{{1,{MAX_NAME_LENGTH}}}")
+
+
+def check_object_name(name: object) -> None:
+    """One-line ``ValueError`` unless ``name`` is 1-64 characters of ``[A-Za-z0-9_]``."""
+    if not isinstance(name, str) or not _NAME.fullmatch(name):
+        shown = (
+            repr(name[:40]) + f"... ({len(name)} characters)"
+            if isinstance(name, str) and len(name) > 40
+            else repr(name)
+        )
+        raise ValueError(
+            f"object name must be 1-{MAX_NAME_LENGTH} characters of [A-Za-z0-9_], got {shown}"
+        )
+
+
 @dataclass(frozen=True)
 class ObjectSpec:
     """What the simulator needs to know about one object.
@@ -61,14 +82,15 @@ class ObjectSpec:
     description: str = ""
 
     def __post_init__(self) -> None:
-        if not self.name or not self.name.replace("_", "").isalnum():
-            raise ValueError(f"object name must be non-empty [A-Za-z0-9_], got {self.name!r}")
+        check_object_name(self.name)
         if not (0.0 < self.mass <= 5.0):
             raise ValueError(f"mass must be in (0, 5] kg, got {self.mass}")
         if not (0.0 < self.friction <= 5.0):
             raise ValueError(f"friction must be in (0, 5], got {self.friction}")
-        if self.scale <= 0:
-            raise ValueError(f"scale must be positive, got {self.scale}")
+        if isinstance(self.scale, bool) or not isinstance(self.scale, (int, float, np.number)):
+            raise ValueError(f"scale must be a finite number > 0, got {self.scale!r}")
+        if not (math.isfinite(self.scale) and self.scale > 0):
+            raise ValueError(f"scale must be a finite number > 0, got {self.scale}")
         if not self.resting_quats:
             raise ValueError("an object needs at least one resting orientation")
 
@@ -460,6 +482,7 @@ def register_object(
     texture image is used on every face of the object's cube map; without one, a procedural
     texture seeded by ``name`` is generated.
     """
+    check_object_name(name)
     if name in CATALOGUE and not overwrite:
         raise ValueError(
             f"object {name!r} is already registered; pass overwrite=True to replace it"
@@ -489,3 +512,30 @@ def register_object(
         )
     CATALOGUE[name] = spec
     return spec
+
+
+_BUILTIN_SPECS: dict[str, ObjectSpec] = {spec.name: spec for spec in _BUILTIN}
+
+
+def user_objects() -> tuple[ObjectSpec, ...]:
+    """The catalogue entries :func:`register_object` added (or replaced) in this process.
+
+    A spawned worker process imports a fresh catalogue (the built-in objects only): pass these to
+    :func:`install_objects` as its pool initializer, or a job naming a user object fails there
+    with ``KeyError: unknown object``. Specs are small frozen dataclasses (paths, not meshes),
+    so they pickle cheaply; a worker reads the mesh from the same path.
+    """
+    return tuple(s for name, s in CATALOGUE.items() if _BUILTIN_SPECS.get(name) is not s)
+
+
+def install_objects(specs: Sequence[ObjectSpec]) -> None:
+    """Put ``specs`` (from :func:`user_objects` in the parent) into this process's catalogue.
+
+    Meant as a ``ProcessPoolExecutor(initializer=install_objects, initargs=(user_objects(),))``
+    initializer. The specs were checked by :func:`register_object` in the parent, so they are
+    installed as they are (no second mesh load per worker).
+    """
+    for spec in specs:
+        if not isinstance(spec, ObjectSpec):
+            raise TypeError(f"install_objects takes ObjectSpecs, got {type(spec).__name__}")
+        CATALOGUE[spec.name] = spec

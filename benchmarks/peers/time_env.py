@@ -64,17 +64,78 @@ def _gym_env(env, dt: float, image: bool, packages: tuple[str, ...], note: str) 
     return Timed(step, reset, env.action_space.sample, dt, packages, note)
 
 
-def scorbot(image: bool, shadows: bool = False) -> Timed:
+def scorbot(
+    image: bool, shadows: bool = False, action_type: str = "joint", pose: str | None = None
+) -> Timed:
+    """``ScorbotGrasp-v0`` as ``gym.make`` gives it; ``pose="oracle"`` wraps it in
+    ``PoseEstimateObservation`` with that source (scoring ``info["perception"]`` every step)."""
     import gymnasium as gym
 
     import scorbot_gym  # noqa: F401  (registers the ids)
 
     kw = {"cameras": ["top"], "image_width": WIDTH, "image_height": HEIGHT} if image else {}
-    env = gym.make("ScorbotGrasp-v0", object_name="tomato_soup_can", shadows=shadows, **kw)
+    env = gym.make(
+        "ScorbotGrasp-v0",
+        object_name="tomato_soup_can",
+        shadows=shadows,
+        action_type=action_type,
+        **kw,
+    )
     note = "image = the 'top' camera's RGB in the observation (rendered inside step)"
+    if pose is not None:
+        from scorbot_gym.wrappers import PoseEstimateObservation
+
+        env = PoseEstimateObservation(env, pose, keep_images=True)
+        note += f"; wrapped in PoseEstimateObservation({pose!r})"
     timed = _gym_env(env, env.unwrapped.dt, False, ("scorbot-gym", "mujoco", "gymnasium"), note)
     timed.render_settings = render_settings(env.unwrapped.sim.model, shadows)
+    timed.env = env
     return timed
+
+
+def profile_scorbot(timed: Timed, steps: int, seed: int, warmup: int) -> dict:
+    """Where a scorbot step's time goes: the env's own stages timed in place (each wraps one
+    method of the unwrapped env: a fraction of a microsecond per call), the rest of
+    ``env.step`` (action checks, instability test, info, Gymnasium's wrappers) as ``other``.
+    Mean microseconds per step over ``steps`` steps; ``physics`` is MuJoCo's ``mj_step``."""
+    env = timed.env.unwrapped
+    spent: dict[str, float] = {}
+
+    def clocked(part: str, fn):
+        def run(*args, **kwargs):
+            t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                spent[part] = spent.get(part, 0.0) + time.perf_counter() - t0
+
+        return run
+
+    for sim, _, task in env._sims.values():  # every scene the env has compiled
+        sim.step = clocked("physics", sim.step)
+        sim.render = clocked("rendering", sim.render)
+        task.update = clocked("task (contacts, bookkeeping)", task.update)
+        task.reward = clocked("task (contacts, bookkeeping)", task.reward)
+        task.failure_cause = clocked("task (contacts, bookkeeping)", task.failure_cause)
+    env._cartesian_target = clocked("action mapping (IK)", env._cartesian_target)
+    wrapper = timed.env
+    if hasattr(wrapper, "_estimate"):  # PoseEstimateObservation: its estimate and scoring
+        wrapper._estimate = clocked("pose wrapper (estimate, scoring)", wrapper._estimate)
+    env._observation = clocked("observation (incl. rendering)", env._observation)
+    total = time_steps(timed, steps, seed, warmup, spent)[2]
+    # the stages ran during warm-up too: time_steps cleared them when timing began
+    parts = {k: 1e6 * v / steps for k, v in spent.items()}
+    if "rendering" in parts:  # shown on its own: the observation's share is the rest of it
+        parts["observation (incl. rendering)"] -= parts["rendering"]
+        parts["observation (excl. rendering)"] = parts.pop("observation (incl. rendering)")
+    step_us = 1e6 * total / steps
+    parts["other (action checks, info, wrappers)"] = step_us - sum(parts.values())
+    return {
+        "step_us": step_us,
+        "parts_us": parts,
+        "shares": {k: v / step_us for k, v in parts.items()},
+        "physics_share": parts.get("physics", 0.0) / step_us,
+    }
 
 
 def fetch(image: bool) -> Timed:
@@ -149,21 +210,28 @@ def robosuite_lift(image: bool) -> Timed:
 ENVS: dict[str, Callable[[bool], Timed]] = {
     "ScorbotGrasp-v0": scorbot,
     "ScorbotGrasp-v0/shadows": lambda image: scorbot(image, shadows=True),
+    "ScorbotGrasp-v0/cartesian": lambda image: scorbot(image, action_type="cartesian"),
+    "ScorbotGrasp-v0/pose-oracle": lambda image: scorbot(image, pose="oracle"),
     "FetchPickAndPlace-v4": fetch,
     "Meta-World/pick-place-v3": metaworld,
     "robosuite/Lift-Panda": robosuite_lift,
 }
 
 
-def time_steps(env: Timed, steps: int, seed: int, warmup: int) -> tuple[float, float]:
+def time_steps(
+    env: Timed, steps: int, seed: int, warmup: int, clear: dict | None = None
+) -> tuple[float, float, float]:
     """Steps per wall second and per CPU second (this process, all threads: the rendering
-    threads too) over ``steps`` timed steps after ``warmup`` untimed ones. On a machine shared
-    with other work the wall figure depends on the load; the CPU figure much less."""
+    threads too) over ``steps`` timed steps after ``warmup`` untimed ones, and the timed
+    seconds. On a machine shared with other work the wall figure depends on the load; the CPU
+    figure much less. ``clear`` (a profile's accumulators) is emptied when timing begins."""
     env.reset(seed)
     actions = [env.sample() for _ in range(steps + warmup)]
     for a in actions[:warmup]:
         if env.step(a):
             env.reset(None)
+    if clear is not None:
+        clear.clear()
     elapsed = cpu = 0.0
     for a in actions[warmup:]:
         c0, t0 = time.process_time(), time.perf_counter()
@@ -172,7 +240,7 @@ def time_steps(env: Timed, steps: int, seed: int, warmup: int) -> tuple[float, f
         cpu += time.process_time() - c0
         if done:
             env.reset(None)
-    return steps / elapsed, steps / cpu
+    return steps / elapsed, steps / cpu, elapsed
 
 
 def _version(pkg: str) -> str | None:
@@ -189,12 +257,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--warmup", type=int, default=50)
     parser.add_argument("--image", action="store_true", help="one 320x240 RGB image per step")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--profile", action="store_true", help="scorbot envs: time the step's stages instead"
+    )
     args = parser.parse_args(argv)
     if args.steps < 1 or args.warmup < 0:
         raise SystemExit(f"--steps must be >= 1 and --warmup >= 0, got {args.steps}, {args.warmup}")
+    if args.profile and not args.env.startswith("ScorbotGrasp"):
+        raise SystemExit(f"--profile times scorbot-gym's stages only, not {args.env}")
 
     env = ENVS[args.env](args.image)
-    rate, cpu_rate = time_steps(env, args.steps, args.seed, args.warmup)
+    if args.profile:
+        print(json.dumps(profile_scorbot(env, args.steps, args.seed, args.warmup)))
+        return 0
+    rate, cpu_rate, _ = time_steps(env, args.steps, args.seed, args.warmup)
     out = {
         "env": args.env,
         "image": f"{WIDTH}x{HEIGHT}" if args.image else None,

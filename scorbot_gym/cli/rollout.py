@@ -135,6 +135,25 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="perturb the env, redrawn every episode: lighting, surfaces, camera_pos_m, "
         "camera_rot_deg, blur_sigma, noise_sigma, seed (e.g. surfaces=1.0,noise_sigma=4)",
     )
+    p.add_argument(
+        "--distractors",
+        type=non_negative_int,
+        default=0,
+        help="other objects on the table beside the target, drawn per episode from --objects "
+        "(default: 0, the target alone)",
+    )
+    p.add_argument(
+        "--target",
+        default=None,
+        metavar="NAME",
+        help="the object to grasp in every episode (default: drawn from --objects)",
+    )
+    p.add_argument(
+        "--tilt-deg",
+        type=non_negative_float,
+        default=0.0,
+        help="prop the target on a stand, tilted this many degrees out of its resting pose",
+    )
     p.add_argument("--episodes", type=positive_int, default=20)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
@@ -204,6 +223,9 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         seed=args.seed,
         perturbation=args.perturb or None,
         checkpoint=args.checkpoint,
+        distractors=args.distractors,
+        target=args.target,
+        tilt_deg=args.tilt_deg,
     )
 
 

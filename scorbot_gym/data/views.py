@@ -27,7 +27,7 @@ from tqdm import tqdm
 from pose.camera import CameraModel
 from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
 from pose.view import View
-from scorbot_gym.data import default_cache_dir
+from scorbot_gym.data import cache_folder, default_cache_dir  # noqa: F401  (re-exported)
 from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
 from scorbot_gym.data.perturbations import code_fingerprint as perturbation_code_fingerprint
 
@@ -240,7 +240,7 @@ def render_views(
     if perturbation is not None and perturbation.active:  # keys of unperturbed views unchanged
         payload["perturbation"] = perturbation.to_dict()
         payload["perturbation_code"] = perturbation_code_fingerprint()
-    folder = Path(cache_dir or default_cache_dir()) / "views"
+    folder = cache_folder(cache_dir) / "views"
     if folder.is_dir():
         remove_orphaned_tmp(folder)
     path = folder / f"{_cache_key(payload)}.npz"

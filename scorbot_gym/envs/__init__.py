@@ -29,7 +29,8 @@ def register_envs() -> None:
             continue
         gym.register(
             id=env_id,
-            entry_point="scorbot_gym.envs.grasp:ScorbotGraspEnv",
+            # ScorbotGraspEnv, whose errors in a vector-env worker reach the main process
+            entry_point="scorbot_gym.envs.worker:make_grasp_env",
             max_episode_steps=MAX_EPISODE_STEPS,
             kwargs=kwargs,
         )

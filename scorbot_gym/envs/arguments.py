@@ -8,13 +8,13 @@ line naming the argument and what it accepts, instead of deep inside MuJoCo, num
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from numbers import Real
 from typing import Any
 
 import numpy as np
 
-from scorbot_gym.objects import CATALOGUE, get_object
+from scorbot_gym.objects import CATALOGUE, ObjectSpec, get_object
 
 # Physics substeps per control step: 1 s of simulated time per step at the 2 ms timestep.
 MAX_FRAME_SKIP = 500
@@ -63,6 +63,36 @@ def name_list(name: str, value: Any, example: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+RESET_OPTIONS = ("object_name", "target", "resting_index")
+
+
+def reset_options(options: Any) -> dict:
+    """``reset``'s ``options`` as a dict (``None``: no options); anything else is refused."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise ValueError(
+            f"options must be a dict or None (keys: {', '.join(RESET_OPTIONS)}), got {options!r}"
+        )
+    return dict(options)
+
+
+def resting_index(value: Any, spec: ObjectSpec) -> int:
+    """``options["resting_index"]``: an int that numbers one of ``spec``'s resting faces."""
+    n_resting, object_name = len(spec.resting_quats), spec.name
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(
+            f"options['resting_index'] must be an int in [0, {n_resting - 1}] ({object_name} has "
+            f"{n_resting} resting faces), got {value!r}"
+        )
+    if not 0 <= value < n_resting:
+        raise ValueError(
+            f"options['resting_index'] must be in [0, {n_resting - 1}] ({object_name} has "
+            f"{n_resting} resting faces), got {value}"
+        )
+    return int(value)
+
+
 def object_names(object_name: str | None, objects: Sequence[str] | None) -> tuple[str, ...]:
     """Canonical catalogue names from ``object_name`` or ``objects`` (None: whole catalogue)."""
     if object_name is not None and objects is not None:
@@ -80,3 +110,33 @@ def object_names(object_name: str | None, objects: Sequence[str] | None) -> tupl
                 "objects must name at least one catalogue object (None means all of them)"
             )
     return tuple(get_object(n).name for n in names)  # KeyError lists the valid names
+
+
+def distractors(value: Any, objects: Sequence[str], explicit: bool) -> int | tuple[str, ...]:
+    """``distractors``: how many of ``objects`` to put beside the target (drawn per episode), or
+    a list of catalogue names always on the table (canonical names). Named distractors may not
+    be possible targets when ``objects`` were given (``explicit``); otherwise the env leaves them
+    out of its targets."""
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        if not 0 <= value < len(objects):
+            raise ValueError(
+                f"distractors must be in [0, {len(objects) - 1}] (drawn from the env's "
+                f"{len(objects)} objects beside the target), got {value}"
+            )
+        return int(value)
+    names = name_list("distractors", value, "banana")
+    names = tuple(get_object(n).name for n in names)  # KeyError lists the valid names
+    both = sorted(set(names) & set(objects))
+    if both and explicit:
+        raise ValueError(
+            f"distractors {both} are also possible targets (objects); name targets with "
+            "objects=[...] and distractors with distractors=[...], or give distractors=K"
+        )
+    return names
+
+
+def tilt_deg(value: Any, high: float) -> float:
+    """``tilt_deg``: the target's tilt on the stand, degrees in [0, high]."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0.0 <= value <= high:
+        raise ValueError(f"tilt_deg must be a number of degrees in [0, {high:g}], got {value!r}")
+    return float(value)

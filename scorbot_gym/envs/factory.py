@@ -28,6 +28,7 @@ def make_env(
     classes: list[str] | None = None,
     identity: str = "given",
     keep_images: bool = False,
+    timings_in_info: bool = False,
     pose_cameras: Sequence[str] | None = None,
     **env_kwargs: Any,
 ) -> gym.Env:
@@ -37,8 +38,9 @@ def make_env(
     setting given by the caller is an error, not silently overridden. ``identity="recognize"``
     withholds the object's identity from the source (it recognises it); ``pose_cameras`` are
     the cameras a named source may use (``cameras=`` of its factory, e.g. ``["top", "side"]``
-    for recognition fused over both). Examples: ``pose_kwargs={"models": path, "segmenter":
-    "background", "recognizer": "appearance"}``.
+    for recognition fused over both); ``timings_in_info`` puts the wrapper's wall-clock
+    ``perception_timings`` in ``info["perception"]`` too. Examples: ``pose_kwargs={"models":
+    path, "segmenter": "background", "recognizer": "appearance"}``.
     """
     pose_kwargs = dict(pose_kwargs or {})
     if pose_cameras is not None:
@@ -73,4 +75,5 @@ def make_env(
         classes=classes,
         identity=identity,
         keep_images=keep_images,
+        timings_in_info=timings_in_info,
     )

@@ -21,6 +21,7 @@ from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
+from scorbot_gym.tasks.clutter import MAX_TILT_DEG, ClutterTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 from scorbot_gym.tasks.grasp import REWARD_TERMS
 
@@ -28,11 +29,14 @@ ACTION_TYPES = ("joint", "cartesian")
 # "privileged_segmentation" is the simulator's own object mask: for oracle and ablation
 # experiments only (a real camera gives no such image), hence the name.
 IMAGE_TYPES = ("rgb", "depth", "privileged_segmentation")
-_INSTABILITY_WARNINGS = (
-    mujoco.mjtWarning.mjWARN_BADQPOS,
-    mujoco.mjtWarning.mjWARN_BADQVEL,
-    mujoco.mjtWarning.mjWARN_BADQACC,
-    mujoco.mjtWarning.mjWARN_BADCTRL,
+_INSTABILITY_WARNINGS = np.array(
+    [
+        mujoco.mjtWarning.mjWARN_BADQPOS,
+        mujoco.mjtWarning.mjWARN_BADQVEL,
+        mujoco.mjtWarning.mjWARN_BADQACC,
+        mujoco.mjtWarning.mjWARN_BADCTRL,
+    ],
+    dtype=np.intp,
 )
 
 
@@ -87,6 +91,18 @@ class ScorbotGraspEnv(gym.Env):
     redraws lighting, table/floor look and fixed-camera extrinsics error at every reset and adds
     blur/noise to every RGB frame, all from the reset seed; ``camera_model`` / ``camera_params``
     keep reporting the nominal calibration.
+
+    ``distractors`` puts other objects on the table beside the target: ``K`` drawn per episode
+    from ``objects`` (the target excluded), or a list of names on the table in every episode
+    (then not targets). ``tilt_deg`` props the target on a stand so that it rests that many
+    degrees out of its resting pose. The target is drawn from ``objects`` at reset, or named by
+    ``options={"target": name}``; with either option on, the observation gains
+    ``target_class`` (one-hot over :attr:`target_classes`, the task command), ``info`` gains
+    ``target_name``, ``objects`` (every object's ground truth: role, pose, tilt, knocked over),
+    ``distractors_knocked_over`` and ``wrong_object``, and ``failure_cause`` can be
+    ``wrong_object`` (a distractor lifted between the fingers). Objects are placed seeded and
+    without interpenetration (:class:`~scorbot_gym.tasks.clutter.ClutterTask`). With both off
+    (the default) the env is the single-object one, observation and physics unchanged.
     """
 
     metadata = {"render_modes": ["rgb_array", "depth_array"], "render_fps": 25}
@@ -114,6 +130,8 @@ class ScorbotGraspEnv(gym.Env):
         disturbance: str | Disturbance | None = None,
         capture_background: bool = False,
         perturbation: Perturbation | None = None,
+        distractors: int | Sequence[str] = 0,
+        tilt_deg: float = 0.0,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -127,6 +145,16 @@ class ScorbotGraspEnv(gym.Env):
         if bad or not image_types:
             raise ValueError(f"image_types must be a non-empty subset of {IMAGE_TYPES}, got {bad}")
         self.object_names = args.object_names(object_name, objects)
+        explicit = object_name is not None or objects is not None
+        self.distractors = args.distractors(distractors, self.object_names, explicit)
+        if isinstance(self.distractors, tuple):  # named distractors are never targets
+            self.object_names = tuple(n for n in self.object_names if n not in self.distractors)
+        self.tilt_deg = args.tilt_deg(tilt_deg, MAX_TILT_DEG)
+        #: the classes a target can be, in the order of the ``target_class`` one-hot
+        self.target_classes = self.object_names
+        self._cluttered = bool(self.distractors) or self.tilt_deg > 0
+        self._clutter: ClutterTask | None = None
+        self._target_onehot = np.zeros(len(self.target_classes))
         self.cameras = args.name_list("cameras", cameras, "top")
         check_render_size(image_width, image_height, "image size")
         check_render_size(render_width, render_height, "render size")
@@ -162,7 +190,10 @@ class ScorbotGraspEnv(gym.Env):
         )
         self._needs_reset = True
         self._sims: dict[str, tuple[Simulation, Robot, GraspTask]] = {}
-        derive_missing_models([get_object(n) for n in self.object_names])  # first run only
+        scene_names = self.object_names + (
+            self.distractors if isinstance(self.distractors, tuple) else ()
+        )
+        derive_missing_models([get_object(n) for n in scene_names])  # first run only
         self._activate(self.object_names[0])
         for cam in (*self.cameras, render_camera):
             self.sim.camera_id(cam)  # ValueError listing the valid cameras
@@ -178,6 +209,9 @@ class ScorbotGraspEnv(gym.Env):
         if observe_object_pose:
             obs_spaces["object_pos"] = spaces.Box(-3.0, 3.0, shape=(3,), dtype=np.float64)
             obs_spaces["object_quat"] = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float64)
+        if self._cluttered:
+            n = len(self.target_classes)
+            obs_spaces["target_class"] = spaces.Box(0.0, 1.0, shape=(n,), dtype=np.float64)
         shape = (image_height, image_width)
         for cam in self.cameras:
             if "rgb" in self.image_types:
@@ -191,12 +225,17 @@ class ScorbotGraspEnv(gym.Env):
                     0, 1, (*shape, 1), np.uint8
                 )
         self.observation_space = spaces.Dict(obs_spaces)
+        # Looked up once: the readings are clipped to them every step.
+        self._obs_bounds = {key: (space.low, space.high) for key, space in obs_spaces.items()}
 
     # --- plumbing ------------------------------------------------------------------------
     def _activate(self, name: str) -> None:
         """Switch to the scene holding ``name``: compiled on first use and kept (~8 MB each),
         as recompiling takes longer than a reset should; all scenes share one renderer and
-        one arm kinematics model."""
+        one arm kinematics model. With distractors or tilt, one scene holds every object."""
+        if self._cluttered:
+            self._activate_cluttered(name)
+            return
         if name not in self._sims:
             sim = Simulation(
                 name,
@@ -210,6 +249,39 @@ class ScorbotGraspEnv(gym.Env):
             self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
             self._perturbers[name] = ScenePerturber(sim)
         self.sim, self.robot, self.task = self._sims[name]
+        self._perturber = self._perturbers[name]
+
+    def _activate_cluttered(self, target: str) -> None:
+        if not self._sims:
+            names = self.object_names
+            others = names[1:] + (self.distractors if isinstance(self.distractors, tuple) else ())
+            sim = Simulation(
+                names[0],
+                render_width=self.image_width,
+                render_height=self.image_height,
+                shadows=self.shadows,
+                renderer=self._renderer,
+                others=others,
+            )
+            robot = Robot(sim)
+            task = GraspTask(sim, robot, self.reward_type)
+            self._sims["clutter"] = (sim, robot, task)
+            self._perturbers["clutter"] = ScenePerturber(sim)
+            self._clutter = ClutterTask(sim, robot, task, tilt_deg=self.tilt_deg)
+        self.sim, self.robot, self.task = self._sims["clutter"]
+        self._perturber = self._perturbers["clutter"]
+        if target not in self.target_classes:
+            raise ValueError(
+                f"target {target!r} is not one of this env's targets {list(self.target_classes)}"
+            )
+        self.sim.select_object(target)
+
+    def _draw_distractors(self, target: str) -> tuple[str, ...]:
+        if isinstance(self.distractors, tuple):
+            return self.distractors
+        pool = [n for n in self.object_names if n != target]
+        picked = self.np_random.choice(len(pool), size=self.distractors, replace=False)
+        return tuple(pool[int(i)] for i in picked)
 
     @property
     def dt(self) -> float:
@@ -218,18 +290,26 @@ class ScorbotGraspEnv(gym.Env):
     # --- gym API -------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        options = options or {}
-        name = options.get("object_name")
+        options = args.reset_options(options)
+        name = options.get("target", options.get("object_name"))
         if name is None:
             name = self.object_names[int(self.np_random.integers(len(self.object_names)))]
-        self._activate(get_object(name).name)
+        spec = get_object(name)
+        name = spec.name
+        resting_index = args.resting_index(options.get("resting_index", 0), spec)  # before use
+        self._activate(name)
         self.sim.reset()
-        self.task.place_object(self.np_random, int(options.get("resting_index", 0)))
+        if self._clutter is not None:
+            self.sim.unpark(name)
+        self.task.place_object(self.np_random, resting_index)
         self.robot.set_gripper_target(GRIPPER_MAX_OPENING)
         self.sim.data.qpos[self.robot.finger_qpos] = GRIPPER_MAX_OPENING / 2
+        if self._clutter is not None:  # distractors, and the target on its stand, then settle
+            self._clutter.place(self.np_random, name, self._draw_distractors(name), resting_index)
+            self._target_onehot = (np.array(self.target_classes) == name).astype(np.float64)
         if self.perturbation.active:  # drawn only when on: unperturbed episodes keep their seeds
             self._episode, self._frame = int(self.np_random.integers(2**31)), 0
-            self._perturbers[self.sim.object_spec.name].apply(self.perturbation, self._episode)
+            self._perturber.apply(self.perturbation, self._episode)
         self.sim.forward()
         self._elapsed = 0
         if self._disturbance is not None:  # drawn after placement: placements stay the same
@@ -248,9 +328,9 @@ class ScorbotGraspEnv(gym.Env):
         a = np.asarray(action, dtype=np.float64)
         if a.shape != self.action_space.shape:
             raise ValueError(f"action must have shape {self.action_space.shape}, got {a.shape}")
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError(f"action contains NaN or inf: {a.tolist()}")
-        a = np.clip(a, -1.0, 1.0)
+        a = np.minimum(np.maximum(a, -1.0), 1.0)  # np.clip's result without its ~5 us overhead
         q = self.robot.joint_pos
         if self.action_type == "joint":
             target = q + a[:5] * self.max_joint_step
@@ -261,6 +341,8 @@ class ScorbotGraspEnv(gym.Env):
 
         unstable = self._simulate()
         facts = self.task.update(self.dt) if not unstable else {"fell": False, "grasped": False}
+        if self._clutter is not None and not unstable:
+            self._clutter.update()
         self._elapsed += 1
         if self._disturbance is not None and not unstable:
             touched = facts["touched"] or facts["lift"] > 0.005  # contacts found by the task
@@ -273,6 +355,8 @@ class ScorbotGraspEnv(gym.Env):
         truncated = unstable  # the time limit is Gymnasium's TimeLimit wrapper (see make)
         # Defined on every step, so the final step carries it whoever ends the episode.
         cause = None if success else self.task.failure_cause(facts, unstable)
+        if cause not in (None, "unstable") and self._clutter and self._clutter.wrong_object:
+            cause = "wrong_object"
         if unstable:
             self.sim.reset()  # leave a finite state behind for observations and rendering
         info = self._info(facts, cause)
@@ -291,8 +375,8 @@ class ScorbotGraspEnv(gym.Env):
         d = self.sim.data
         self.sim.step(self.frame_skip)
         # MuJoCo resets the state itself on bad qpos/qvel/qacc and only leaves a warning count.
-        warned = any(d.warning[w].number > 0 for w in _INSTABILITY_WARNINGS)
-        return bool(warned or not np.all(np.isfinite(d.qpos)) or not np.all(np.isfinite(d.qvel)))
+        warned = (d.warning.number[_INSTABILITY_WARNINGS] > 0).any()
+        return bool(warned or not np.isfinite(d.qpos).all() or not np.isfinite(d.qvel).all())
 
     def _observation(self) -> dict[str, np.ndarray]:
         r = self.robot
@@ -305,12 +389,14 @@ class ScorbotGraspEnv(gym.Env):
         }
         if self.observe_object_pose:
             obs["object_pos"], obs["object_quat"] = self.sim.object_pose()
+        if self._cluttered:
+            obs["target_class"] = self._target_onehot.copy()
         # MuJoCo's joint limits and contacts are soft: pushed hard (the hand folded onto the
         # column) a joint passes its stop by up to ~1 mrad and the fingers by ~1 mm. Readings
         # are clipped to the space, as the real controller's encoders stop at the limits.
         for key, value in obs.items():
-            space = self.observation_space[key]
-            np.clip(value, space.low, space.high, out=value)
+            low, high = self._obs_bounds[key]
+            np.minimum(np.maximum(value, low, out=value), high, out=value)
         self._frame += 1
         for i, cam in enumerate(self.cameras):  # rendered once per control step, when asked for
             if "rgb" in self.image_types:
@@ -329,7 +415,11 @@ class ScorbotGraspEnv(gym.Env):
         the same camera as the observations: under a blur/noise perturbation it is blurred
         too and has noise of its own (frame 0 of the episode's stream)."""
         pos, quat = self.sim.object_pose()
-        self.sim.set_object_pose(pos + np.array([50.0, 50.0, -50.0]), quat)
+        on_table = self.sim.on_table() if self._clutter is not None else ()
+        if on_table:  # hidden where they are (the scene keeps no free space to move them to)
+            self.sim.set_objects_visible(on_table, False)
+        else:
+            self.sim.set_object_pose(pos + np.array([50.0, 50.0, -50.0]), quat)
         self.sim.forward()
         try:
             arm = {"joint_pos": self.robot.joint_pos}
@@ -344,7 +434,10 @@ class ScorbotGraspEnv(gym.Env):
                 for i, cam in enumerate(self.cameras)
             }
         finally:
-            self.sim.set_object_pose(pos, quat)
+            if on_table:
+                self.sim.set_objects_visible(on_table, True)
+            else:
+                self.sim.set_object_pose(pos, quat)
             self.sim.forward()
         return frames
 
@@ -358,7 +451,7 @@ class ScorbotGraspEnv(gym.Env):
         miscalibrated real camera."""
         w, h = width or self.image_width, height or self.image_height
         if self.perturbation.active:
-            return self._perturbers[self.sim.object_spec.name].nominal_camera_model(camera, w, h)
+            return self._perturber.nominal_camera_model(camera, w, h)
         return self.sim.camera_model(camera, w, h)
 
     def object_visibility(self, camera: str) -> float:
@@ -396,6 +489,9 @@ class ScorbotGraspEnv(gym.Env):
             "failure_cause": cause,
             "held_time": st.held_time,
         }
+        if self._clutter is not None:
+            info["target_name"] = self.sim.object_spec.name
+            info.update(self._clutter.info())
         if self._disturbance_info is not None:
             info["disturbance"] = self._disturbance_info
         # Calibration travels with the images (as ManiSkill's sensor_param): at reset for every

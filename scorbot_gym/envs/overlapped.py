@@ -26,6 +26,8 @@ import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space, create_empty_array
 
+from scorbot_gym.envs.worker import WorkerEnvFn
+
 
 class OverlappedVectorEnv(gym.vector.VectorEnv):
     """``env_fns[0]`` runs in this process, ``env_fns[1:]`` in an ``AsyncVectorEnv``.
@@ -57,7 +59,10 @@ class OverlappedVectorEnv(gym.vector.VectorEnv):
         # Workers first: a forked worker then inherits no env (and no GL context) from here.
         # Our concatenation copies the workers' observations out of shared memory.
         self.workers = AsyncVectorEnv(
-            env_fns[1:], copy=False, autoreset_mode=self.autoreset_mode, **worker_kwargs
+            [WorkerEnvFn(fn) for fn in env_fns[1:]],  # their errors reach us as themselves
+            copy=False,
+            autoreset_mode=self.autoreset_mode,
+            **worker_kwargs,
         )
         try:
             self.local = SyncVectorEnv(env_fns[:1], copy=False, autoreset_mode=self.autoreset_mode)

@@ -16,6 +16,9 @@ to give each job its own).
     )
 
 The same functions work with stable-baselines3's ``SubprocVecEnv``.
+
+A worker whose env function fails reports that error (:class:`~scorbot_gym.envs.worker.
+WorkerEnvFn`, which the pinned functions wrap).
 """
 
 from __future__ import annotations
@@ -26,6 +29,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gymnasium as gym
+
+from scorbot_gym.envs.worker import WorkerEnvFn
 
 
 @dataclass(frozen=True)
@@ -42,7 +47,7 @@ class PinnedEnvFn:
     def __call__(self) -> gym.Env:
         if multiprocessing.parent_process() is not None:
             os.sched_setaffinity(0, {self.core})
-        return self.env_fn()
+        return WorkerEnvFn(self.env_fn)()
 
 
 def pin_env_fns(

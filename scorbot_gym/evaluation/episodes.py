@@ -2,8 +2,8 @@
 
 ``run_episode(env, policy, seed)`` is the one loop: reset with the seed, ``policy.reset(obs,
 info)``, then ``policy.act(obs)`` until the episode ends. Whatever the env's wrappers put in
-``info["perception"]`` (errors against the ground truth, recognition, timings) is collected
-for the record; the policy never sees it.
+``info["perception"]`` (errors against the ground truth, recognition), with the wrapper's
+wall-clock ``perception_timings``, is collected for the record; the policy never sees it.
 """
 
 from __future__ import annotations
@@ -62,11 +62,39 @@ def _perception_record(records: list[dict[str, Any]]) -> dict[str, Any] | None:
         ),
         "median_estimate_ms": median("total_ms", ran),
         "median_stage_ms": {
-            k: float(np.median([r["timings_ms"][k] for r in ran if k in r["timings_ms"]]))
+            k: float(np.median([r["timings_ms"][k] for r in ran if k in r.get("timings_ms", {})]))
             for k in sorted({k for r in ran for k in r.get("timings_ms", {})})
         },
         "privileged": bool(first.get("privileged")),
+        **_clutter_record(ran),
     }
+
+
+def _clutter_record(ran: list[dict[str, Any]]) -> dict[str, Any]:
+    """On a cluttered table: how often the blob taken for the target was the target, and the
+    recognition of the blobs of the first view (``info["perception"]["objects"]`` at reset,
+    before the arm moves in and splits or hides them)."""
+    if not any("objects" in r for r in ran):
+        return {}  # not a source that splits a cluttered table
+    picks = [r["target_recognised"] for r in ran if r.get("target_recognised") is not None]
+    first = next((r["objects"] for r in ran if r.get("objects")), [])
+    blobs = [b for b in first if b.get("recognised") is not None]
+    return {
+        "target_recognised_rate": float(np.mean(picks)) if picks else 0.0,  # never found: 0
+        "blob_recognition_correct": (
+            float(np.mean([b["recognised"] == b["true_class"] for b in blobs])) if blobs else None
+        ),
+    }
+
+
+def _perception(env: gym.Env, info: dict) -> dict[str, Any]:
+    """This step's ``info["perception"]`` with the pose wrapper's timings (kept out of ``info``
+    so that a seeded episode's info is reproducible)."""
+    try:
+        timings = env.get_wrapper_attr("perception_timings")
+    except AttributeError:
+        timings = None
+    return {**info["perception"], **timings} if timings else info["perception"]
 
 
 def run_episode(
@@ -90,7 +118,7 @@ def run_episode(
     def record(info: dict) -> dict:
         """The step's perception record, with whether every camera saw the object unhidden
         (ground truth for the summary: estimates with a clear view)."""
-        rec = dict(info["perception"])
+        rec = _perception(env, info)
         if visibility is not None and rec.get("estimated"):
             rec["clear_view"] = all(visibility(c) >= 1.0 for c in cameras)
         return rec
@@ -110,6 +138,8 @@ def run_episode(
         if terminated or truncated:
             break
     extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    if "distractors_knocked_over" in info:  # a table with distractors
+        extra["distractors_knocked_over"] = int(info["distractors_knocked_over"])
     return EpisodeResult(
         seed,
         info["object_name"],

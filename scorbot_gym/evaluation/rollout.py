@@ -40,7 +40,9 @@ class RolloutConfig:
     the learned policy's action type (joint for the others). ``perturbation`` is the env's
     perturbation in the CLI form (``"lighting=0.5,noise_sigma=4"``, see
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
-    pose models stay the unperturbed ones.
+    pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
+    ``objects``) share the table with the target, which is ``target`` in every episode or
+    drawn; ``tilt_deg`` props the target on a stand, tilted that much.
     """
 
     policy: str = "scripted"
@@ -62,6 +64,9 @@ class RolloutConfig:
     seed: int = 0
     perturbation: str | None = None
     checkpoint: str = "best"
+    distractors: int = 0
+    target: str | None = None
+    tilt_deg: float = 0.0
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -79,6 +84,14 @@ class RolloutConfig:
             self.action_type = learned.meta["action_type"] if learned else "joint"
         if self.episodes < 1:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
+        if self.distractors < 0:
+            raise ValueError(f"distractors must be >= 0, got {self.distractors}")
+        if self.target is not None:
+            from scorbot_gym.objects import get_object
+
+            self.target = get_object(self.target).name  # KeyError lists the valid names
+            if self.objects and self.target not in self.objects:
+                raise ValueError(f"target {self.target!r} is not one of objects {self.objects}")
         if self.estimate_every < 0:
             raise ValueError(
                 f"estimate_every must be >= 0 (0: once per episode), got {self.estimate_every}"
@@ -86,6 +99,11 @@ class RolloutConfig:
         if self.noise and self.pose != "noisy_oracle":
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
+            )
+        if self.pose == "manifold_clutter" and self.recognize:
+            raise ValueError(
+                "pose 'manifold_clutter' is told the target (the task command) and recognises "
+                "every blob itself: drop recognize"
             )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
@@ -113,6 +131,8 @@ class RolloutConfig:
     def pose_kwargs(self, progress: bool = False) -> dict[str, Any]:
         if self.pose == "noisy_oracle":
             return dict(self.noise)
+        if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
+            return {"models": self._models(progress), "recognizer": self.recognizer}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models
@@ -135,12 +155,25 @@ class RolloutConfig:
             ]
         return kwargs
 
+    def _models(self, progress: bool) -> Any:
+        """The pose model file, or the default models for the first pose camera."""
+        if self.pose_model is not None:
+            return self.pose_model
+        from scorbot_gym.perception.training import default_pose_models
+
+        w, h = self.pose_size
+        return default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""
         if self.objects:
             env_kwargs.setdefault("objects", list(self.objects))
         if self.perturbation:
             env_kwargs.setdefault("perturbation", Perturbation.parse(self.perturbation))
+        if self.distractors:
+            env_kwargs.setdefault("distractors", self.distractors)
+        if self.tilt_deg:
+            env_kwargs.setdefault("tilt_deg", self.tilt_deg)
         return make_env(
             self.env_id,
             pose=self.pose,
@@ -171,6 +204,11 @@ class RolloutConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def reset_options(self) -> dict[str, Any] | None:
+        """What every episode's ``reset`` gets: the named target, if any."""
+        return {"target": self.target} if self.target else None
+
 
 def run_rollout(
     config: RolloutConfig, progress: bool = False
@@ -179,7 +217,9 @@ def run_rollout(
     env = config.make_env(progress=progress)
     try:
         policy = config.make_policy(env)
-        results = run_episodes(env, policy, config.episodes, config.seed, progress=progress)
+        results = run_episodes(
+            env, policy, config.episodes, config.seed, config.reset_options, progress
+        )
     finally:
         env.close()
     summary = summarize(results)

@@ -60,6 +60,21 @@ def perception_summary(results: list[EpisodeResult]) -> dict | None:
             for k in sorted({k for p in recs for k in p["median_stage_ms"]})
         },
         "privileged": any(p["privileged"] for p in recs),
+        **_clutter_summary(recs),
+    }
+
+
+def _clutter_summary(recs: list[dict]) -> dict:
+    """On cluttered tables: the share of episodes whose estimates mostly took the target's
+    blob for the target, and the mean share of right blob recognitions in the first view."""
+    rates = [p["target_recognised_rate"] for p in recs if "target_recognised_rate" in p]
+    if not rates:
+        return {}
+    blobs = [p.get("blob_recognition_correct") for p in recs]
+    blobs = [b for b in blobs if b is not None]
+    return {
+        "target_recognition_accuracy": float(np.mean([r > 0.5 for r in rates])),
+        "blob_recognition_accuracy": float(np.mean(blobs)) if blobs else None,
     }
 
 
@@ -73,7 +88,7 @@ def summarize(results: list[EpisodeResult]) -> dict:
         o = per_object.setdefault(r.object_name, {"episodes": 0, "successes": 0})
         o["episodes"] += 1
         o["successes"] += int(r.success)
-    return {
+    summary = {
         "episodes": n,
         "successes": len(wins),
         "success_rate": len(wins) / n if n else 0.0,
@@ -84,6 +99,11 @@ def summarize(results: list[EpisodeResult]) -> dict:
         "perception": perception_summary(results),
         "results": [asdict(r) for r in results],
     }
+    if any("distractors_knocked_over" in r.extra for r in results):
+        summary["distractors_knocked_over"] = sum(
+            r.extra.get("distractors_knocked_over", 0) for r in results
+        )
+    return summary
 
 
 def format_summary(summary: dict) -> str:
@@ -95,6 +115,8 @@ def format_summary(summary: dict) -> str:
         ("mean steps to success", "-" if steps is None else f"{steps:.1f}"),
     ]
     rows += [(f"failures: {c}", str(k)) for c, k in summary["failure_causes"].items()]
+    if "distractors_knocked_over" in summary:
+        rows.append(("distractors knocked over", str(summary["distractors_knocked_over"])))
     p = summary.get("perception")
     if p is not None:
 

@@ -14,8 +14,9 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Protocol
 
+from scorbot_gym.data import cache_folder
 from scorbot_gym.experiments.spec import SweepSpec
-from scorbot_gym.experiments.trial import ModelJob, default_cache_dir, run_model_job
+from scorbot_gym.experiments.trial import ModelJob, run_model_job
 from scorbot_gym.experiments.workers import worker_pool
 
 Work = Callable[[ModelJob], dict]
@@ -91,7 +92,7 @@ class RayRunner:
 
 def make_jobs(spec: SweepSpec, cache_dir: str | None = None) -> list[ModelJob]:
     """One job per (estimator, object): each fits one model and runs all occlusion levels."""
-    cache = str(cache_dir or default_cache_dir())
+    cache = str(cache_folder(cache_dir))
     pert = tuple(sorted(spec.perturbation.to_dict().items()))
     return [
         ModelJob(

@@ -5,6 +5,8 @@ shutdown): they sit re-parented to PID 1, holding hundreds of MB, waiting on a q
 feeds. :func:`worker_pool` starts spawned workers whose initializer makes the kernel kill them
 when the parent dies (``prctl(PR_SET_PDEATHSIG)`` on Linux) and, everywhere, starts a thread
 that ends the worker once its parent process id changes (re-parenting), checked twice a second.
+A spawned worker imports the built-in object catalogue only, so the initializer also installs the
+objects the parent registered (:func:`scorbot_gym.objects.user_objects`).
 """
 
 from __future__ import annotations
@@ -44,12 +46,21 @@ def die_with_parent(parent_pid: int) -> None:
 _parent_gone = threading.Event()  # never set: the watcher's sleep
 
 
+def _start_worker(parent_pid: int, objects: tuple) -> None:
+    from scorbot_gym.objects import install_objects
+
+    die_with_parent(parent_pid)
+    install_objects(objects)
+
+
 def worker_pool(max_workers: int) -> ProcessPoolExecutor:
     """``max_workers`` spawned processes (no GL context or thread pool is inherited) that die
-    with this process."""
+    with this process and know the objects registered in it."""
+    from scorbot_gym.objects import user_objects
+
     return ProcessPoolExecutor(
         max_workers=max_workers,
         mp_context=multiprocessing.get_context("spawn"),
-        initializer=die_with_parent,
-        initargs=(os.getpid(),),
+        initializer=_start_worker,
+        initargs=(os.getpid(), user_objects()),
     )

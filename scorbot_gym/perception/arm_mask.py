@@ -77,6 +77,7 @@ class ArmMaskRenderer:
         if key not in self._renderers:
             _gl.prepare_first_context()
             r = mujoco.Renderer(self.model, key[1], key[0])
+            _gl.track_gl_owner(self)  # released before a fork (see scorbot_gym._gl)
             r.enable_segmentation_rendering()
             self._renderers[key] = r
         r = self._renderers[key]
@@ -85,9 +86,22 @@ class ArmMaskRenderer:
         return (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0)
 
     def close(self) -> None:
+        """Free the GL contexts (the next :meth:`render` makes them again)."""
         for r in self._renderers.values():
             r.close()
         self._renderers.clear()
+
+    def release_gl(self) -> None:
+        """Free the GL contexts before this process forks (:mod:`scorbot_gym._gl`)."""
+        self.close()
+
+    def __getstate__(self) -> dict:
+        """GL contexts cannot be pickled or copied: they are dropped and made again lazily."""
+        return {k: v for k, v in self.__dict__.items() if k != "_renderers"}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._renderers = {}
 
     def __del__(self) -> None:
         try:

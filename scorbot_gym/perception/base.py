@@ -56,6 +56,9 @@ class WorldPose:
     timings_ms: dict[str, float] = field(default_factory=dict)
     reason: str = ""
     camera: str | None = None
+    #: what the source saw beyond the pose, for the record (e.g. ``"blobs"``: per-object
+    #: recognitions on a cluttered table); never enters the observation
+    details: dict[str, Any] = field(default_factory=dict)
 
     @classmethod
     def invalid(cls, reason: str, **kwargs: Any) -> WorldPose:

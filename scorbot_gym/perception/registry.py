@@ -8,6 +8,7 @@ PoseSource`, or a plain function ``frame -> WorldPose`` (wrapped in :class:`Func
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -43,10 +44,19 @@ def _model_set_source(**kwargs: Any) -> PoseSource:
     return ModelSetPoseSource(**kwargs)
 
 
+def _clutter_source(**kwargs: Any) -> PoseSource:
+    """The pose-manifold source for tables with several objects (blobs split, each recognised,
+    the target's pose estimated), imported on first use like ``manifold``."""
+    from scorbot_gym.perception.clutter import ClutterPoseSource
+
+    return ClutterPoseSource(**kwargs)
+
+
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
     "manifold": _model_set_source,
+    "manifold_clutter": _clutter_source,
 }
 
 
@@ -92,4 +102,6 @@ def make_pose_source(source: str | PoseSource, **kwargs: Any) -> PoseSource:
         made = FunctionPoseSource(made)
     if getattr(made, "name", None) is None:
         made.name = source  # how records and summaries refer to it
+    with contextlib.suppress(AttributeError):  # how an env's spec records it (see the wrapper)
+        made.made_from = (source, dict(kwargs))
     return made

@@ -101,7 +101,7 @@ def train_models(
         # threads) can deadlock on its first render.
         from scorbot_gym.experiments.workers import worker_pool
 
-        with worker_pool(min(jobs, len(names))) as pool:  # spawned; they die with this process
+        with worker_pool(min(jobs, len(names))) as pool:  # die with us, know user objects
             futures = [pool.submit(train_object, *a) for a in args]
             results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
     else:

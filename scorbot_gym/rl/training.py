@@ -239,9 +239,14 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     return env
 
 
-def _monitored(config: TrainConfig, filename: str | None) -> gym.Env:
+def _monitored(config: TrainConfig, filename: str | None, objects: tuple = ()) -> gym.Env:
+    """A monitored training env; ``objects`` (user-registered ObjectSpecs) are installed first,
+    as a spawned ``SubprocVecEnv`` worker imports the built-in catalogue only."""
     from stable_baselines3.common.monitor import Monitor
 
+    from scorbot_gym.objects import install_objects
+
+    install_objects(objects)
     # a resumed run appends to its CSV (SB3 writes the header only when it starts a file)
     fresh = filename is None or not Path(f"{filename}.{Monitor.EXT}").exists()
     return Monitor(
@@ -261,9 +266,15 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
         config.pose_args()  # default pose models are trained here once, not by every worker
     if monitor_dir is not None:
         Path(monitor_dir).mkdir(parents=True, exist_ok=True)
+    from scorbot_gym.objects import user_objects
+
+    objects = user_objects()
     fns = [
         functools.partial(
-            _monitored, config, str(Path(monitor_dir) / f"env_{i}") if monitor_dir else None
+            _monitored,
+            config,
+            str(Path(monitor_dir) / f"env_{i}") if monitor_dir else None,
+            objects,
         )
         for i in range(config.n_envs)
     ]

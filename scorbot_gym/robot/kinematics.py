@@ -9,6 +9,7 @@ uses, and it is cheap to build (a few milliseconds).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import mujoco
@@ -22,6 +23,31 @@ mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 JOINT_LOW = np.deg2rad([JOINT_RANGES_DEG[j][0] for j in ARM_JOINTS])
 JOINT_HIGH = np.deg2rad([JOINT_RANGES_DEG[j][1] for j in ARM_JOINTS])
 ARM_PREFIX = "scorbot/"
+_LOW4, _HIGH4 = JOINT_LOW[:4], JOINT_HIGH[:4]  # the joints IK moves
+_EYE4 = np.eye(4)
+_EYE4.flags.writeable = False
+
+
+def _as_slice(index: np.ndarray) -> slice | np.ndarray:
+    """``index`` as the equal slice when its entries run consecutively, else as it is."""
+    start = int(index[0])
+    consecutive = np.array_equal(index, np.arange(start, start + len(index)))
+    return slice(start, start + len(index)) if consecutive else index
+
+
+try:  # the LAPACK gufunc that np.linalg.solve calls
+    from numpy.linalg._umath_linalg import solve1 as _lapack_solve1
+except ImportError:  # a numpy without it: the public function, the same result
+    _lapack_solve1 = None
+
+
+def _solve(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.linalg.solve(a, b)`` for one square ``a`` and vector ``b`` without its ~4 us of
+    argument checks (IK solves a 4x4 a few times per env step; ``a`` is J J^T + damping^2 I,
+    never singular)."""
+    if _lapack_solve1 is None:
+        return np.linalg.solve(a, b)
+    return _lapack_solve1(a, b, signature="dd->d")
 
 
 def wrap_half_turn(angle: float) -> float:
@@ -57,6 +83,9 @@ class ArmKinematics:
         self._dof = np.array([m.joint(ARM_PREFIX + j).dofadr[0] for j in ARM_JOINTS])
         self._tcp = m.site(ARM_PREFIX + "tcp").id
         self._jacp = np.zeros((3, m.nv))
+        # Slices where the indices run in order (a fancy index costs IK ~4 us per iteration).
+        self._qpos_at = _as_slice(self._qpos)
+        self._dof4 = _as_slice(self._dof[:4])  # the joints IK moves (the wrist roll is kept)
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation matrix for joint angles ``q``."""
@@ -84,21 +113,35 @@ class ArmKinematics:
         Returns the joint angles and the remaining position error (metres).
         """
         m, d = self.model, self.data
-        q = np.clip(np.array(q_init, dtype=float), JOINT_LOW, JOINT_HIGH)
+        q = np.minimum(np.maximum(np.array(q_init, dtype=float), JOINT_LOW), JOINT_HIGH)
+        target = np.asarray(target_pos, dtype=float)
+        # The textbook loop's arithmetic, operation for operation (the same joint angles to the
+        # last bit), in buffers made once per call: an env with Cartesian actions runs this
+        # every step, and numpy's per-call overheads were most of its cost.
+        tcp, jacp = d.site_xpos[self._tcp], self._jacp  # views, refreshed by MuJoCo
+        e = np.empty(4)
+        e_pos, q_arm = e[:3], q[:4]
+        J = np.empty((4, 4), order="F")  # the memory layout np.vstack gave it: same sums
+        J[3] = (0.0, 1.0, 1.0, 1.0)  # tool pitch = q1 + q2 + q3
+        J_pos = J[:3]
+        reg = damping**2 * _EYE4
         err = np.inf
         for _ in range(iterations):
-            d.qpos[self._qpos] = q
+            d.qpos[self._qpos_at] = q
             mujoco.mj_kinematics(m, d)
-            mujoco.mj_comPos(m, d)
-            e = np.r_[target_pos - d.site_xpos[self._tcp], pitch - tool_pitch(q)]
-            err = float(np.linalg.norm(e[:3]))
+            np.subtract(target, tcp, out=e_pos)
+            e[3] = pitch - tool_pitch(q)
+            err = math.sqrt(e_pos @ e_pos)  # np.linalg.norm's arithmetic
             if err < tol and abs(e[3]) < 1e-3:
                 break
-            mujoco.mj_jacSite(m, d, self._jacp, None, self._tcp)
-            J = np.vstack([self._jacp[:, self._dof[:4]], [0.0, 1.0, 1.0, 1.0]])
-            dq = J.T @ np.linalg.solve(J @ J.T + damping**2 * np.eye(4), e)
-            scale = min(1.0, 0.3 / (np.abs(dq).max() + 1e-12))  # limit the step: stay on branch
-            q[:4] = np.clip(q[:4] + scale * dq, JOINT_LOW[:4], JOINT_HIGH[:4])
+            mujoco.mj_comPos(m, d)  # what the Jacobian needs, once it is needed
+            mujoco.mj_jacSite(m, d, jacp, None, self._tcp)
+            J_pos[...] = jacp[:, self._dof4]
+            dq = J.T @ _solve(J @ J.T + reg, e)
+            biggest = max(map(abs, dq.tolist()))  # np.abs(dq).max(), for 4 numbers
+            scale = min(1.0, 0.3 / (biggest + 1e-12))  # limit the step: stay on the branch
+            q_arm += scale * dq  # then np.clip's arithmetic, in place:
+            np.minimum(np.maximum(q_arm, _LOW4, out=q_arm), _HIGH4, out=q_arm)
         return q, err
 
     def roll_for_closing_yaw(self, q: np.ndarray, yaw: float, near: float | None = None) -> float:

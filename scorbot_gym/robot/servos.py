@@ -35,6 +35,16 @@ class Robot:
         arm_bodies = [m.body(ARM_PREFIX + b).id for b in ("upper_arm", "forearm", "wrist", "hand")]
         self.link_geoms = np.flatnonzero(np.isin(m.geom_bodyid, arm_bodies))
         self.kinematics = kinematics or ArmKinematics()
+        self._geom_sets: dict[bytes, frozenset[int]] = {}
+        # Per geom, the parts it belongs to, as bits: left finger 1, right finger 2, link 4.
+        parts = np.zeros(m.ngeom, dtype=int)
+        for bit, geoms in (
+            (1, self.finger_geoms[0]),
+            (2, self.finger_geoms[1]),
+            (4, self.link_geoms),
+        ):
+            parts[geoms] |= bit
+        self._parts = parts.tolist()
 
     # --- state ---------------------------------------------------------------------------
     @property
@@ -61,24 +71,34 @@ class Robot:
 
     # --- commands ------------------------------------------------------------------------
     def set_joint_targets(self, q: np.ndarray) -> None:
-        self.sim.data.ctrl[self.actuator_idx] = np.clip(q, JOINT_LOW, JOINT_HIGH)
+        # np.clip's result, without its ~5 us of Python overhead (called every step)
+        self.sim.data.ctrl[self.actuator_idx] = np.minimum(np.maximum(q, JOINT_LOW), JOINT_HIGH)
 
     def set_gripper_target(self, opening: float) -> None:
-        self.sim.data.ctrl[self.gripper_actuator] = np.clip(opening, 0.0, GRIPPER_MAX_OPENING)
+        self.sim.data.ctrl[self.gripper_actuator] = min(max(opening, 0.0), GRIPPER_MAX_OPENING)
 
     # --- contacts ------------------------------------------------------------------------
+    def geom_set(self, geoms: np.ndarray) -> frozenset[int]:
+        """``geoms`` as a set of ids, cached per set of ids (it is asked for every step)."""
+        key = np.asarray(geoms, dtype=np.intp).tobytes()
+        found = self._geom_sets.get(key)
+        if found is None:
+            found = self._geom_sets[key] = frozenset(np.asarray(geoms).ravel().tolist())
+        return found
+
     def contacts_with(self, geoms: np.ndarray) -> tuple[bool, bool, bool]:
-        """Whether the left finger, right finger and arm links touch any of ``geoms``."""
+        """Whether the left finger, right finger and arm links touch any of ``geoms``.
+
+        A plain loop over the contacts: there are a handful (2-12 in a grasp), and per-call
+        overheads made array tests (``np.isin``: ~13 us a call) cost as much as the physics."""
         d = self.sim.data
-        pairs = d.contact.geom[: d.ncon]  # (ncon, 2): one array test instead of a Python loop
-        if not len(pairs):
+        if not d.ncon:
             return False, False, False
-        g1, g2 = pairs[:, 0], pairs[:, 1]
-        in1, in2 = np.isin(g1, geoms), np.isin(g2, geoms)
-        other = np.where(in1, g2, np.where(in2, g1, -1))  # the geom touching one of ``geoms``
-        other = other[other >= 0]
-        return (
-            bool(np.isin(other, self.finger_geoms[0]).any()),
-            bool(np.isin(other, self.finger_geoms[1]).any()),
-            bool(np.isin(other, self.link_geoms).any()),
-        )
+        members, parts = self.geom_set(geoms), self._parts
+        touching = 0  # bits of the parts touching one of ``geoms``
+        for g1, g2 in d.contact.geom[: d.ncon].tolist():
+            if g1 in members:
+                touching |= parts[g2]
+            elif g2 in members:
+                touching |= parts[g1]
+        return bool(touching & 1), bool(touching & 2), bool(touching & 4)

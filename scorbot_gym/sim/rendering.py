@@ -14,7 +14,9 @@ of GL state per object held; the least recently shown assets beyond ``max_cached
 freed. A scene with another layout rebuilds the context.
 
 GL state cannot be pickled or copied: :meth:`SceneRenderer.__getstate__` drops it and the next
-:meth:`render` rebuilds it, as Gymnasium's MuJoCo environments do with their renderers.
+:meth:`render` rebuilds it, as Gymnasium's MuJoCo environments do with their renderers. Nor can it
+be inherited by a forked child: it is freed just before the process forks and rebuilt on the next
+frame (:mod:`scorbot_gym._gl`).
 """
 
 from __future__ import annotations
@@ -163,6 +165,7 @@ class SceneRenderer:
         from mujoco.rendering.classic import gl_context
 
         self._gl = gl_context.GLContext(self.width, self.height)
+        _gl.track_gl_owner(self)  # released before a fork (see scorbot_gym._gl)
         self._gl.make_current()
         vis = model.vis
         saved = (vis.global_.offwidth, vis.global_.offheight, vis.quality.shadowsize)
@@ -271,6 +274,8 @@ class SceneRenderer:
             with contextlib.suppress(Exception):
                 self.close()
             self._reset_handles()
+            if isinstance(exc, _gl.RenderingUnavailableError):
+                raise  # says what is wrong already (a forked child, see scorbot_gym._gl)
             raise _gl.RenderingUnavailableError(
                 f"{_gl.INSTALL_HINT} (MUJOCO_GL={_gl.backend_in_use()}: {exc})"
             ) from exc
@@ -345,6 +350,10 @@ class SceneRenderer:
                 self._con.free()
             self._gl.free()
         self._reset_handles()
+
+    def release_gl(self) -> None:
+        """Free the GL state before this process forks (:mod:`scorbot_gym._gl`)."""
+        self.close()
 
     def __getstate__(self) -> dict[str, Any]:
         keep = ("width", "height", "shadows", "max_cached_assets")

@@ -179,3 +179,62 @@ def build_scene(
     frame.pos = [WORKSPACE_X[0] + 0.06, 0.0, TABLE_HEIGHT + 0.1]
     frame.add("freejoint", name="free")
     return arena
+
+
+# --- scenes with several objects ---------------------------------------------------------------
+#: geom group of an object that is out of the scene: not drawn (MuJoCo's default visual option
+#: shows groups 0-2), so a parked object appears in no image, background frames included
+HIDDEN_GROUP = 3
+VISIBLE_OBJECT_GROUP = 1
+SUPPORT_NAME = "support"
+
+
+def parking_position(index: int) -> tuple[float, float, float]:
+    """Where object ``index`` of a multi-object scene waits while it is not on the table: under
+    the floor (no camera sees below it) and 0.4 m from the next one, so parked objects never
+    touch anything."""
+    return (-1.5 + 0.4 * index, 2.0, -0.5)
+
+
+def _support(arena: mjcf.RootElement) -> None:
+    """A kinematic (mocap) stand: an inclined plate with a lip at its lower edge, on which an
+    object rests tilted, like a part leaning in a fixture. Parked under the floor until a task
+    puts it on the table; its plate and lip sizes are set per episode in the compiled model."""
+    arena.asset.add("material", name="support_mat", rgba=[0.45, 0.42, 0.38, 1], specular=0.1)
+    body = arena.worldbody.add("body", name=SUPPORT_NAME, mocap=True, pos=[-1.5, -2.0, -0.5])
+    common = {"type": "box", "material": "support_mat", "friction": [1.0, 0.01, 0.0005]}
+    body.add("geom", name="support_plate", size=[0.06, 0.06, 0.004], condim=4, **common)
+    # off the body's origin, so MuJoCo does not compile it as sharing the body's frame (a
+    # geom_sameframe geom ignores the geom_pos a task sets per episode)
+    lip = {"size": [0.004, 0.06, 0.01], "pos": [0.064, 0.0, 0.006]}
+    body.add("geom", name="support_lip", condim=4, **lip, **common)
+
+
+def build_multi_scene(
+    objects: Sequence[ObjectSpec], cameras: Sequence[CameraSpec] = DEFAULT_CAMERAS
+) -> mjcf.RootElement:
+    """Arena + arm + several free objects and a support stand, for tables with clutter.
+
+    Every object starts parked (:func:`parking_position`), floating there with gravity
+    compensated (``body_gravcomp``, which a task sets to 0 when it puts the object on the table),
+    so one compiled scene serves every choice of target and distractors among ``objects`` without
+    recompiling at reset. The scene knows nothing of targets: which object is which is the
+    task's business.
+    """
+    names = [o.name for o in objects]
+    if len(set(names)) != len(names) or not names:
+        raise ValueError(f"a multi-object scene needs distinct objects, got {names}")
+    cam_names = [c.name for c in cameras]
+    if len(set(cam_names)) != len(cam_names):
+        raise ValueError(f"camera names must be unique, got {cam_names}")
+    arena = _arena(cameras)
+    base = arena.worldbody.add("site", name="robot_base", pos=[0, 0, TABLE_HEIGHT], group=5)
+    base.attach(build_arm())
+    for i, spec in enumerate(objects):
+        obj = _object(spec)
+        obj.find("body", "object").gravcomp = 1.0  # floats where parked until a task drops it
+        frame = arena.worldbody.attach(obj)
+        frame.pos = list(parking_position(i))
+        frame.add("freejoint", name="free")
+    _support(arena)
+    return arena

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Literal
 
 import mujoco  # the package's __init__ has already chosen the GL backend
@@ -16,11 +17,15 @@ from scorbot_gym.sim.arm import ARM_JOINTS, HOME_QPOS
 from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.scene import (
     DEFAULT_CAMERAS,
+    HIDDEN_GROUP,
     MAX_RENDER_HEIGHT,
     MAX_RENDER_WIDTH,
+    SUPPORT_NAME,
     TABLE_HEIGHT,
+    VISIBLE_OBJECT_GROUP,
     WORKSPACE_X,
     WORKSPACE_Y,
+    build_multi_scene,
     build_scene,
 )
 
@@ -80,8 +85,39 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class SceneObject:
+    """Where one free object of a compiled scene lives in ``qpos``/``qvel`` and its geoms;
+    ``parkable``: in a multi-object scene, where it floats out of sight until placed."""
+
+    spec: ObjectSpec
+    body: int
+    qpos: slice
+    qvel: slice
+    geoms: np.ndarray
+    parkable: bool
+
+    @classmethod
+    def find(cls, m: mujoco.MjModel, spec: ObjectSpec, multi: bool) -> SceneObject:
+        body = m.body(f"{spec.name}/object").id
+        free = m.body_jntadr[m.body_rootid[body]]  # on the attachment frame
+        return cls(
+            spec,
+            body,
+            slice(m.jnt_qposadr[free], m.jnt_qposadr[free] + 7),
+            slice(m.jnt_dofadr[free], m.jnt_dofadr[free] + 6),
+            np.flatnonzero(m.geom_bodyid == body),
+            multi,
+        )
+
+
 class Simulation:
     """One scene (arena, SCORBOT arm, one object) and its renderer.
+
+    ``others`` adds more free objects (a scene for clutter, see
+    :func:`~scorbot_gym.sim.scene.build_multi_scene`): all parked at reset; a task puts some on
+    the table with :meth:`unpark` and picks the one the ``object_*`` members refer to with
+    :meth:`select_object`.
 
     ``shadows=True`` turns on the key light's shadow map (slower in software rendering).
 
@@ -98,6 +134,7 @@ class Simulation:
         render_height: int = 480,
         shadows: bool = False,
         renderer: SceneRenderer | None = None,
+        others: Sequence[str | ObjectSpec] = (),
     ) -> None:
         spec = object_name if isinstance(object_name, ObjectSpec) else get_object(object_name)
         check_render_size(render_width, render_height)
@@ -105,7 +142,11 @@ class Simulation:
         self.camera_specs = {c.name: c for c in cameras}
         self.render_width, self.render_height = render_width, render_height
         self.shadows = shadows
-        mjcf_model = build_scene(spec, cameras)
+        other_specs = [o if isinstance(o, ObjectSpec) else get_object(o) for o in others]
+        if other_specs:  # several objects: parked until placed (see build_multi_scene)
+            mjcf_model = build_multi_scene([spec, *other_specs], cameras)
+        else:
+            mjcf_model = build_scene(spec, cameras)
         self.model = mujoco.MjModel.from_xml_string(
             mjcf_model.to_xml_string(), mjcf_model.get_assets()
         )
@@ -116,13 +157,22 @@ class Simulation:
         self.renderer = renderer or SceneRenderer(render_width, render_height, shadows)
 
         m = self.model
-        self.object_body = m.body(f"{spec.name}/object").id
-        free = m.body_jntadr[m.body_rootid[self.object_body]]  # on the attachment frame
-        self.object_qpos = slice(m.jnt_qposadr[free], m.jnt_qposadr[free] + 7)
-        self.object_qvel = slice(m.jnt_dofadr[free], m.jnt_dofadr[free] + 6)
-        self.object_geoms = np.flatnonzero(m.geom_bodyid == self.object_body)
+        self.objects = {
+            s.name: SceneObject.find(m, s, multi=bool(other_specs)) for s in [spec, *other_specs]
+        }
+        self.select_object(spec.name)
         self.arm_qpos = np.array([m.joint(ARM_PREFIX + j).qposadr[0] for j in ARM_JOINTS])
         self.reset()
+
+    def select_object(self, name: str) -> None:
+        """Make ``name`` the object that ``object_pose``, ``set_object_pose``, ``resting_pose``,
+        ``object_geoms`` and the segmentation render refer to (in a scene of several objects;
+        a task's target, say)."""
+        if name not in self.objects:
+            raise ValueError(f"object {name!r} is not in this scene; it has {list(self.objects)}")
+        o = self.objects[name]
+        self.object_spec, self.object_body = o.spec, o.body
+        self.object_qpos, self.object_qvel, self.object_geoms = o.qpos, o.qvel, o.geoms
 
     # --- state -----------------------------------------------------------------------------
     @property
@@ -147,8 +197,13 @@ class Simulation:
         return float(self.model.opt.timestep)
 
     def reset(self) -> None:
-        """Arm at home with servos holding it, object at its default place."""
+        """Arm at home with servos holding it, object at its default place (in a scene of
+        several objects: every object parked and hidden)."""
         mujoco.mj_resetData(self.model, self.data)
+        for o in self.objects.values():
+            if o.parkable:
+                self.model.geom_group[o.geoms] = HIDDEN_GROUP
+                self.model.body_gravcomp[o.body] = 1.0
         self.data.qpos[self.arm_qpos] = HOME_QPOS
         self.data.ctrl[: len(ARM_JOINTS)] = HOME_QPOS
         self.forward()
@@ -170,15 +225,73 @@ class Simulation:
         return q[:3].copy(), q[3:].copy()
 
     def resting_pose(
-        self, xy: Sequence[float], yaw: float, resting_index: int = 0
+        self, xy: Sequence[float], yaw: float, resting_index: int = 0, name: str | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Pose of the object resting on the table at ``xy`` with heading ``yaw`` (radians)."""
-        rests = self.object_spec.resting_quats
+        """Pose of the object (or object ``name``) resting on the table at ``xy`` with heading
+        ``yaw`` (radians)."""
+        spec = self.object_spec if name is None else self.objects[name].spec
+        rests = spec.resting_quats
         if not 0 <= resting_index < len(rests):
             raise ValueError(f"resting_index must be in [0, {len(rests)}), got {resting_index}")
         quat = quat_mul(quat_from_yaw(yaw), np.asarray(rests[resting_index], float))
-        lowest = (self.object_spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
+        lowest = (spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
         return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
+
+    # --- several objects ---------------------------------------------------------------------
+    def pose_of(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """Position and unit quaternion of object ``name`` (any object of the scene)."""
+        q = self.data.qpos[self.objects[name].qpos]
+        return q[:3].copy(), q[3:].copy()
+
+    def set_pose_of(self, name: str, pos: np.ndarray, quat: np.ndarray) -> None:
+        o = self.objects[name]
+        q = np.asarray(quat, dtype=float)
+        self.data.qpos[o.qpos] = np.r_[np.asarray(pos, float), q / np.linalg.norm(q)]
+        self.data.qvel[o.qvel] = 0.0
+
+    def unpark(self, name: str) -> None:
+        """Give object ``name`` its weight back and show it (a multi-object scene); the caller
+        then puts it somewhere with :meth:`set_pose_of`."""
+        o = self.objects[name]
+        if not o.parkable:
+            raise ValueError(f"object {name!r} is not parked (a single-object scene)")
+        self.model.body_gravcomp[o.body] = 0.0
+        self.model.geom_group[o.geoms] = VISIBLE_OBJECT_GROUP
+
+    def on_table(self) -> tuple[str, ...]:
+        """The objects not parked (every object of a single-object scene)."""
+        return tuple(n for n, o in self.objects.items() if not self.model.body_gravcomp[o.body])
+
+    def set_objects_visible(self, names: Sequence[str], visible: bool) -> None:
+        """Show or hide objects in every image without moving them (e.g. for a background
+        frame of the empty workspace)."""
+        group = VISIBLE_OBJECT_GROUP if visible else HIDDEN_GROUP
+        for n in names:
+            self.model.geom_group[self.objects[n].geoms] = group
+
+    def set_support(
+        self, pos: np.ndarray, quat: np.ndarray, half_size: tuple[float, float], lip: float
+    ) -> None:
+        """Put the support stand (multi-object scenes) at ``pos``/``quat`` (its plate's centre
+        and orientation; the plate's top face is its local +z face), with a plate of half
+        length x width ``half_size`` and a lip ``lip`` m high along the plate's +x edge."""
+        m, d = self.model, self.data
+        plate, lip_geom = m.geom("support_plate"), m.geom("support_lip")
+        thick = float(plate.size[2])
+        plate.size[:2] = half_size
+        lip_geom.size[:] = (0.004, half_size[1], lip / 2 + thick)
+        lip_geom.pos[:] = (half_size[0] + 0.004, 0.0, lip / 2)
+        mocap = m.body_mocapid[m.body(SUPPORT_NAME).id]
+        d.mocap_pos[mocap] = pos
+        d.mocap_quat[mocap] = quat
+        for g in (plate, lip_geom):  # the collision bounds (sphere and box) follow the sizes
+            m.geom_rbound[g.id] = float(np.linalg.norm(g.size))
+            m.geom_aabb[g.id] = np.r_[0.0, 0.0, 0.0, g.size]
+
+    def park_support(self) -> None:
+        m = self.model
+        mocap = m.body_mocapid[m.body(SUPPORT_NAME).id]
+        self.data.mocap_pos[mocap] = m.body_pos[m.body(SUPPORT_NAME).id]
 
     # --- cameras and rendering -------------------------------------------------------------
     def camera_id(self, camera: str) -> int:

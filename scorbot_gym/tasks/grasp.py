@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -9,7 +10,8 @@ import numpy as np
 from scorbot_gym.robot import Robot
 from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation, quat_to_mat
 
-FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable")
+# "wrong_object" (a distractor lifted instead of the target) is decided by the ClutterTask.
+FAILURE_CAUSES = ("missed", "dropped", "collision", "timeout", "unstable", "wrong_object")
 
 #: The discount the dense reward is designed for (SB3's SAC/TQC/PPO default).
 REWARD_GAMMA = 0.99
@@ -89,6 +91,9 @@ class GraspTask:
         self._arm_geoms = np.array(
             [g for g in range(m.ngeom) if m.geom(g).name.startswith(ARM_PREFIX)]
         )
+        self._arm_set = robot.geom_set(self._arm_geoms)
+        # Where the fingers close, in the object frame (z = 0): fixed for the scene's object.
+        self._grasp_offset = np.r_[sim.object_spec.model.grasp_point, 0.0]
 
     def place_object(self, rng: np.random.Generator, resting_index: int = 0) -> None:
         (x0, x1), (y0, y1) = self.sim.workspace_xy_bounds
@@ -101,7 +106,7 @@ class GraspTask:
 
     def grasp_point_world(self) -> np.ndarray:
         pos, quat = self.sim.object_pose()
-        return pos + quat_to_mat(quat) @ np.r_[self.sim.object_spec.model.grasp_point, 0.0]
+        return pos + quat_to_mat(quat) @ self._grasp_offset
 
     def update(self, dt: float) -> dict:
         """Advance the episode bookkeeping after ``dt`` seconds; return the step's facts."""
@@ -121,7 +126,8 @@ class GraspTask:
         st.closed_empty |= opening < 0.004 and not grasped
         st.success |= st.held_time >= self.hold_time - 1e-9
         fell = pos[2] < self.sim.table_height - 0.05
-        reach = float(np.linalg.norm(self.robot.tcp_pos - self.grasp_point_world()))
+        gap = self.robot.tcp_pos - self.grasp_point_world()
+        reach = math.sqrt(gap @ gap)  # np.linalg.norm's arithmetic, without its overhead
         return {
             "grasped": grasped,
             "touched": bool(left or right or link_obj),
@@ -132,9 +138,9 @@ class GraspTask:
 
     def self_collision(self) -> bool:
         """Whether two parts of the arm touch now (e.g. the hand folded onto the column)."""
-        d = self.sim.data
-        pairs = d.contact.geom[: d.ncon]
-        return bool(np.isin(pairs, self._arm_geoms).all(axis=1).any())
+        d, arm = self.sim.data, self._arm_set
+        # a loop: a handful of contacts (see Robot.contacts_with)
+        return any(g1 in arm and g2 in arm for g1, g2 in d.contact.geom[: d.ncon].tolist())
 
     def reward(self, facts: dict) -> tuple[float, dict[str, float]]:
         """The step's reward and its terms (see :func:`grasp_reward`); the sparse reward is

@@ -13,8 +13,14 @@ At reset and then every ``estimate_every`` steps the wrapper hands the step's ob
 
 ``info["perception"]`` carries, at every step, what the estimate was worth against the ground
 truth (rotation error, position error, ADD-S, success@5°), the recognised and the true class,
-keypoint and inlier counts and per-stage timings. These are measured for the record and never
-enter the observation.
+keypoint and inlier counts. These are measured for the record and never enter the observation.
+
+The per-stage wall-clock timings are not in ``info`` by default: they differ between two runs
+of the same seed and actions, and ``info`` is part of what a seeded episode reproduces
+(Gymnasium's ``check_env`` compares it). They are the wrapper's ``perception_timings``
+(``{"total_ms", "timings_ms"}`` of the last step, ``None`` where no estimate ran), as
+``RecordEpisodeStatistics`` keeps its wall-clock times in ``time_queue``; ``timings_in_info=True``
+adds them to ``info["perception"]`` as well.
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ from gymnasium import spaces
 
 from pose.camera import CameraModel
 from pose.metrics import add_s, rotation_error_deg
+from scorbot_gym.envs.arguments import name_list
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.registry import make_pose_source
@@ -60,6 +67,9 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     keep_images
         Keep the observation entries the source consumed (camera images); dropped by default,
         so a policy sees only the estimate.
+    timings_in_info
+        Also put the step's wall-clock timings (``total_ms``, ``timings_ms``) in
+        ``info["perception"]``; they are always in :attr:`perception_timings`.
     """
 
     def __init__(
@@ -73,19 +83,29 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         classes: Sequence[str] | None = None,
         identity: str = "given",
         keep_images: bool = False,
+        timings_in_info: bool = False,
         **source_kwargs: Any,
     ) -> None:
-        # The spec records how to rebuild the wrapper; a source given as an object (a loaded
-        # model set, say) is recorded by its name only, as deep-copying it would copy the model.
+        # The spec records how to rebuild the wrapper: the registered name and the plain
+        # arguments a source was made with (by us or by make_pose_source: a model file's path,
+        # say); an object argument (a loaded model set) is left out, as deep-copying the spec
+        # would copy the model.
+        if not isinstance(source, str):
+            name, made_with = getattr(source, "made_from", (getattr(source, "name", None), {}))
+            source_kwargs_recorded = {k: v for k, v in made_with.items() if _is_plain(v)}
+        else:
+            name, source_kwargs_recorded = source, {}
         gym.utils.RecordConstructorArgs.__init__(
             self,
-            source=source if isinstance(source, str) else getattr(source, "name", None),
+            source=name,
             estimate_every=estimate_every,
             rotation=rotation,
             include_class=include_class,
             classes=classes,
             identity=identity,
             keep_images=keep_images,
+            timings_in_info=timings_in_info,
+            **source_kwargs_recorded,
             **{k: v for k, v in source_kwargs.items() if _is_plain(v)},
         )
         gym.Wrapper.__init__(self, env)
@@ -99,13 +119,22 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
         if identity not in ("given", "recognize"):
             raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
+        if not isinstance(timings_in_info, bool):
+            raise ValueError(f"timings_in_info must be True or False, got {timings_in_info!r}")
+        self.timings_in_info = timings_in_info
+        #: the last step's wall-clock timings: ``{"total_ms", "timings_ms"}``, or ``None``
+        self.perception_timings: dict[str, Any] | None = None
         self.source = make_pose_source(source, **source_kwargs)
         self.source_name = getattr(self.source, "name", None) or type(self.source).__name__
         self.estimate_every = int(estimate_every)
         self.rotation, self.include_class, self.identity = rotation, include_class, identity
         self.class_names = (
-            tuple(classes) if classes is not None else tuple(env.get_wrapper_attr("object_names"))
+            name_list("classes", classes, "banana")
+            if classes is not None
+            else tuple(env.get_wrapper_attr("object_names"))
         )
+        if not self.class_names:
+            raise ValueError("classes must name at least one catalogue object (None: the env's)")
         for name in self.class_names:
             get_object(name)  # KeyError listing the valid names
         base = env.observation_space
@@ -149,7 +178,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._update_cameras(info)
         frame = self._frame(obs, info)
         self.source.reset(frame, self._rng)
-        record = self._estimate(frame, info)
+        record = self._split_timings(self._estimate(frame, info))
         return self._observation(obs), {**info, "perception": record}
 
     def step(self, action):
@@ -162,9 +191,16 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         else:
             self._age = min(self._age + 1, MAX_AGE)
             record = self._record(info, None)
+        record = self._split_timings(record)
         return self._observation(obs), reward, terminated, truncated, {**info, "perception": record}
 
     # --- internals ---------------------------------------------------------------------------
+    def _split_timings(self, record: dict[str, Any]) -> dict[str, Any]:
+        """Move the wall-clock timings out of ``record`` into :attr:`perception_timings`."""
+        timings = {"total_ms": record.pop("total_ms"), "timings_ms": record.pop("timings_ms")}
+        self.perception_timings = timings if record["estimated"] else None
+        return {**record, **timings} if self.timings_in_info else record
+
     def _update_cameras(self, info: dict) -> None:
         """Keep each camera's calibration: from the reset's info, replaced whenever a step's info
         carries it again (an env with a moving camera sends it every step)."""
@@ -184,7 +220,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     def _estimate(self, frame: PerceptionFrame, info: dict) -> dict[str, Any]:
         est = self.source.estimate(frame)
         ok = bool(
-            est.valid and np.all(np.isfinite(est.position)) and np.all(np.isfinite(est.quaternion))
+            est.valid and np.isfinite(est.position).all() and np.isfinite(est.quaternion).all()
         )
         self._last_valid = ok
         if ok:
@@ -227,17 +263,19 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             reason=est.reason,
             camera=est.camera,
         )
+        if "blobs" in est.details and "objects" in info:  # a cluttered table
+            rec.update(_score_blobs(est.details, info, self._cameras.get(est.camera)))
         if rec["valid"]:
             spec = get_object(true_name)
             gt_pos = np.asarray(info["object_pose"]["position"], float)
             gt_R = quat_to_mat(info["object_pose"]["quaternion"])
             R = est.rotation
             rot = rotation_error_deg(R, gt_R, spec.symmetry)
-            pts = _model_points(true_name)
+            pts, tree = _model_points(true_name)
             rec.update(
                 rot_err_deg=float(rot),
                 pos_err_cm=float(100 * np.linalg.norm(est.position - gt_pos)),
-                add_s_cm=float(100 * add_s(R, est.position, gt_R, gt_pos, pts)),
+                add_s_cm=float(100 * add_s(R, est.position, gt_R, gt_pos, pts, tree)),
                 success_5deg=bool(rot <= 5.0),
             )
         return rec
@@ -247,7 +285,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         held = self._held
         pos = held.position if held is not None else np.zeros(3)
         quat = held.quaternion if held is not None else np.array([1.0, 0.0, 0.0, 0.0])
-        out["object_pos"] = np.clip(pos, -3.0, 3.0).astype(np.float64)
+        out["object_pos"] = np.minimum(np.maximum(np.asarray(pos, np.float64), -3.0), 3.0)
         if self.rotation == "quat":
             out["object_quat"] = np.asarray(quat, np.float64).copy()
         else:
@@ -256,7 +294,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             out["object_yaw"] = np.array([np.sin(yaw), np.cos(yaw)])
         out["pose_valid"] = np.array([1.0 if self._last_valid else 0.0])
         conf = float(held.confidence) if held is not None else 0.0
-        out["pose_confidence"] = np.array([np.clip(conf, 0.0, 1.0)])
+        out["pose_confidence"] = np.array([min(max(conf, 0.0), 1.0)])
         out["pose_age"] = np.array([float(self._age)])
         if self.include_class:
             onehot = np.zeros(len(self.class_names))
@@ -264,6 +302,23 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
                 onehot[self.class_names.index(held.object_name)] = 1.0
             out["object_class"] = onehot
         return out
+
+
+def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[str, Any]:
+    """Each blob's true class (the object whose projected centre is nearest the blob's
+    centroid) beside its recognition, and whether the blob taken for the target is it."""
+    names = list(info["objects"])
+    out: dict[str, Any] = {"objects": [], "target_recognised": None}
+    if camera is None or not names:
+        return out
+    centres = camera.project(np.array([info["objects"][n]["position"] for n in names]))
+    for blob in details["blobs"]:
+        d = np.linalg.norm(centres - np.asarray(blob["centroid_px"]), axis=1)
+        out["objects"].append({**blob, "true_class": names[int(np.argmin(d))]})
+    chosen = details.get("chosen")
+    if chosen is not None:
+        out["target_recognised"] = out["objects"][chosen]["true_class"] == info["object_name"]
+    return out
 
 
 def _is_plain(value: Any) -> bool:
@@ -276,12 +331,16 @@ def _is_plain(value: Any) -> bool:
 # Stages a pose source reports at top level; their sum is the estimator's time for one step.
 _TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback", "motion")
 
-_POINTS: dict[str, np.ndarray] = {}
+_POINTS: dict[str, tuple[np.ndarray, Any]] = {}
 
 
-def _model_points(name: str) -> np.ndarray:
-    """About 500 of the object's mesh vertices, for ADD-S."""
+def _model_points(name: str) -> tuple[np.ndarray, Any]:
+    """About 500 of the object's mesh vertices, for ADD-S, and their k-d tree (object frame):
+    both built once per object, as the wrapper scores every step."""
     if name not in _POINTS:
+        from scipy.spatial import cKDTree  # here: scipy costs an oracle-only env ~20 MB
+
         pts = get_object(name).mesh_vertices()
-        _POINTS[name] = pts[:: max(1, len(pts) // 500)]
+        pts = pts[:: max(1, len(pts) // 500)]
+        _POINTS[name] = (pts, cKDTree(pts))
     return _POINTS[name]

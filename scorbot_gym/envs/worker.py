@@ -1,0 +1,112 @@
+"""A vector-env worker that cannot build its env reports why, instead of a broken pipe.
+
+Gymnasium's ``AsyncVectorEnv`` worker calls its env function before its error handling starts:
+an exception there ends the worker, and the main process only sees ``ConnectionResetError`` or
+``BrokenPipeError`` on its next call. Here such a worker is handed a stand-in env that raises
+the original exception at its first use, which the worker does send back, so the main process
+raises the real error (``KeyError: unknown object 'nope' ...``). Only in Gymnasium's workers
+(told by their process name): stable-baselines3's ``SubprocVecEnv`` sends no worker errors back
+at all, so there, as in any other process, the env function raises as it would.
+
+- :class:`WorkerEnvFn` wraps any env function (``pin_env_fns`` and
+  :class:`~scorbot_gym.envs.overlapped.OverlappedVectorEnv` use it):
+  ``gymnasium.vector.AsyncVectorEnv([WorkerEnvFn(fn) for fn in env_fns])``;
+- :func:`make_grasp_env`, the entry point of the registered ids, does the same, so
+  ``AsyncVectorEnv([lambda: gym.make("scorbot_gym:ScorbotGrasp-v0", ...), ...])`` reports it
+  too.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+# How Gymnasium's AsyncVectorEnv names its worker processes ("Worker<AsyncVectorEnv>-0").
+_GYMNASIUM_WORKER = "Worker<"
+
+
+class _UnbuiltSpace(gym.spaces.Dict):
+    """The observation space of an env that could not be built: comparing it raises the error.
+
+    ``AsyncVectorEnv`` first asks each worker whether its spaces equal the main process's env's
+    (``main_space == worker_space``). Python tries the right operand's ``__eq__`` first when
+    its type subclasses the left's, so for a ``Dict`` observation space (every scorbot-gym env)
+    this raises the worker's error there, inside the worker's error handling."""
+
+    def __init__(self, error: Exception) -> None:
+        super().__init__({"unbuilt": gym.spaces.Discrete(1)})  # gym.make's checker wants one
+        self.error = error
+
+    def __eq__(self, other: object) -> bool:
+        raise self.error
+
+    __hash__ = None
+
+
+class _FailedEnv(gym.Env):
+    """What a worker holds when its env could not be built: every use raises that error (an
+    attribute it lacks too, so a wrapper built on it fails with the same error)."""
+
+    def __init__(self, error: Exception, action_space: gym.Space | None = None) -> None:
+        self.error = error
+        self.observation_space = _UnbuiltSpace(error)
+        self.action_space = action_space
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("_") or name == "error":  # pickling and copying probe these
+            raise AttributeError(name)
+        raise self.error
+
+    def reset(self, **kwargs):
+        raise self.error
+
+    def step(self, action):
+        raise self.error
+
+    def render(self):
+        raise self.error
+
+    def close(self) -> None:
+        pass
+
+
+def _in_gymnasium_worker() -> bool:
+    return multiprocessing.current_process().name.startswith(_GYMNASIUM_WORKER)
+
+
+@dataclass(frozen=True)
+class WorkerEnvFn:
+    """``env_fn``, whose exception in a Gymnasium vector-env worker reaches the main process
+    unchanged instead of a broken pipe; anywhere else it just calls ``env_fn``."""
+
+    env_fn: Callable[[], gym.Env]
+
+    def __call__(self) -> gym.Env:
+        if not _in_gymnasium_worker():
+            return self.env_fn()
+        try:
+            return self.env_fn()
+        except Exception as error:  # noqa: BLE001 - any: it is raised again where it is seen
+            traceback.print_exc()  # where it happened, for envs whose error cannot be sent
+            return _FailedEnv(error)
+
+
+def make_grasp_env(**kwargs: Any) -> gym.Env:
+    """``ScorbotGraspEnv(**kwargs)``, the registered ids' entry point; in a Gymnasium vector-env
+    worker, a failure is handed back as a stand-in env that raises it (module docstring)."""
+    from scorbot_gym.envs.grasp import ScorbotGraspEnv
+
+    if not _in_gymnasium_worker():
+        return ScorbotGraspEnv(**kwargs)
+    try:
+        return ScorbotGraspEnv(**kwargs)
+    except Exception as error:  # noqa: BLE001 - raised again in the main process
+        traceback.print_exc()
+        # the action space every scorbot-gym env has, which gym.make's checker reads
+        return _FailedEnv(error, gym.spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32))

@@ -1,0 +1,266 @@
+"""The target's pose on a table with several objects (pose source ``manifold_clutter``).
+
+Background subtraction on a cluttered table changes many pixels: one blob per object, or one
+for objects that touch in the image. The single-object source takes the largest blob, which is
+as often a distractor as the target. This source splits the foreground (minus the arm, rendered
+from its model) into connected components, recognises each (FLR shortlist + appearance, as the
+single-object source does, on that blob's silhouette and pixels), and estimates the pose of the
+**target** (the task command, ``frame.object_name``) on the blob recognised as it. Where no
+blob is recognised as the target, the blob on which the target's model explains the most
+RANSAC inliers is taken (keypoint-to-model assignment). Once a valid estimate exists the target's
+blob is followed from step to step (the blob nearest the last estimate's projection, within a
+gate), so the full recognition runs only when the target is lost: during the grasp the arm splits
+and hides blobs, and recognising every blob at every step would cost one estimate per class. For
+the same reason a blob at about the place and size of one recognised earlier in the episode keeps
+that label.
+
+A wrong pick is counted, never hidden: ``details["blobs"]`` lists every blob's recognition
+(``PoseEstimateObservation`` scores them against the ground truth in ``info["perception"]``).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from pose.model_set import PoseModelSet
+from pose.segmentation import BackgroundSubtractionSegmenter, components
+from pose.view import View
+from scorbot_gym.perception.base import PerceptionFrame, WorldPose
+from scorbot_gym.perception.model_set import _load, _world_pose
+from scorbot_gym.perception.recognizers import make_recognizer
+from scorbot_gym.perception.segmenters import BackgroundSegmenter
+
+#: pixels (at 320 x 240) a blob needs to count as an object
+MIN_BLOB_AREA = 120
+#: how far (pixels) the target's blob may be from the last estimate's projection to be followed
+TRACK_GATE_PX = 25.0
+
+
+class BlobSegmenter(BackgroundSegmenter):
+    """Background subtraction minus the arm, split into blobs (largest first).
+
+    ``segment`` stays the largest blob (the :class:`Segmenter` contract), so the class also
+    serves the single-object sources.
+    """
+
+    def __init__(
+        self,
+        subtractor: BackgroundSubtractionSegmenter | None = None,
+        min_area: int = MIN_BLOB_AREA,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(subtractor, **kwargs)
+        self.min_area = int(min_area)
+
+    def blobs(self, frame: PerceptionFrame, camera: str) -> list[np.ndarray]:
+        if camera not in self._fitted:
+            raise RuntimeError(f"BlobSegmenter.blobs before reset for camera {camera!r}")
+        t0 = time.perf_counter()
+        excluded = self._arm_now(frame, camera) | self._reference_arm[camera]
+        t1 = time.perf_counter()
+        fitted = self._fitted[camera]
+        rgb = np.asarray(frame.observation[f"{camera}_rgb"])
+        fg = fitted.foreground(rgb, excluded)
+        out = components(fg, self.min_area, fitted.fill_holes, excluded)
+        self._excluded[camera] = excluded
+        t2 = time.perf_counter()
+        self.timings_ms = {"arm_mask": 1e3 * (t1 - t0), "subtract": 1e3 * (t2 - t1)}
+        return out
+
+    def segment(self, frame: PerceptionFrame, camera: str) -> np.ndarray | None:
+        found = self.blobs(frame, camera)
+        return found[0] if found else None
+
+
+class ClutterPoseSource:
+    """The target's pose among several objects, from one fixed camera's images.
+
+    ``models`` (a :class:`PoseModelSet` or its file) must hold every class that may be on the
+    table: recognition decides among them. ``recognizer`` is a name from
+    :mod:`scorbot_gym.perception.recognizers` or an object (reading one camera's silhouette and
+    view). The target's identity is the task command, so the wrapper must pass it
+    (``identity="given"``, the env's ``target_class`` / ``info["object_name"]``).
+    """
+
+    privileged = False
+
+    def __init__(
+        self,
+        models: PoseModelSet | str | os.PathLike,
+        recognizer: str | Any = "flr+appearance",
+        segmenter: BlobSegmenter | None = None,
+        cameras: Sequence[str] | None = None,
+        track_gate_px: float = TRACK_GATE_PX,
+    ) -> None:
+        self.models = _load(models)
+        meta = self.models.meta
+        self.camera = str(meta.get("camera", "top"))
+        self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
+        if cameras is not None and list(cameras) not in ([], [self.camera]):
+            raise ValueError(
+                f"manifold_clutter estimates from its models' camera {self.camera!r} only, got "
+                f"cameras={list(cameras)}"
+            )
+        self.segmenter = segmenter if segmenter is not None else BlobSegmenter()
+        self.recognizer = recognizer
+        self.track_gate_px = float(track_gate_px)
+        self._recognizer: Any = None
+        self._last: WorldPose | None = None
+        self._known: list[tuple[dict, str]] = []  # (blob record, label) recognised this episode
+
+    @property
+    def required_keys(self) -> tuple[str, ...]:
+        return (f"{self.camera}_rgb",)
+
+    @property
+    def env_requirements(self) -> dict:
+        return {
+            "cameras": [self.camera],
+            "image_width": self.width,
+            "image_height": self.height,
+            "image_types": ["rgb"],
+            **self.segmenter.env_kwargs,
+        }
+
+    def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
+        self._last, self._known = None, []
+        self.segmenter.reset(frame, self.camera)
+        if self._recognizer is None and len(self.models.object_names) > 1:
+            self._recognizer = make_recognizer(
+                self.recognizer, self.models, [self.camera], self.width, self.height
+            )
+
+    # --- estimate ------------------------------------------------------------------------------
+    def estimate(self, frame: PerceptionFrame) -> WorldPose:
+        target = frame.object_name
+        if target is None:
+            raise ValueError(
+                "manifold_clutter estimates the target named by the task command: wrap the env "
+                "with identity='given'"
+            )
+        cam = frame.cameras[self.camera]
+        image = np.asarray(frame.observation[f"{self.camera}_rgb"])
+        t0 = time.perf_counter()
+        blobs = self.segmenter.blobs(frame, self.camera)
+        timings = {"segment": (time.perf_counter() - t0) * 1e3}
+        timings.update({f"segment_{k}": v for k, v in self.segmenter.timings_ms.items()})
+        if not blobs:
+            return WorldPose.invalid("no object in view", object_name=target, timings_ms=timings)
+        records = [_blob_record(b) for b in blobs]
+        t0 = time.perf_counter()
+        chosen, est = self._follow(blobs, cam, image, target)
+        how = "followed"
+        if est is None:
+            chosen, est = self._recognise_all(blobs, records, cam, image, target)
+            how = "recognised"
+        timings["recognise"] = (time.perf_counter() - t0) * 1e3
+        timings["estimate"] = 0.0  # made while choosing, timed under "recognise"
+        if est is None:
+            pose = WorldPose.invalid(
+                "target not found among the blobs",
+                object_name=target,
+                timings_ms=timings,
+                camera=self.camera,
+            )
+        else:
+            pose = _world_pose(est, cam, target, timings, self.camera)
+        pose.details = {"blobs": records, "chosen": chosen, "how": how}
+        if pose.valid:
+            self._last = pose
+        return pose
+
+    def _follow(
+        self, blobs: list[np.ndarray], cam: Any, image: np.ndarray, target: str
+    ) -> tuple[int | None, Any]:
+        """The blob nearest the last valid estimate's projection, if within the gate and the
+        target's model gives a valid estimate on it."""
+        if self._last is None:
+            return None, None
+        uv = cam.project(self._last.position[None])[0]
+        dists = [_distance_to_blob(b, uv) for b in blobs]
+        i = int(np.argmin(dists))
+        if dists[i] > self.track_gate_px:
+            return None, None
+        est = self.models.predict(View(image, cam, blobs[i], target))
+        return (i, est) if est.valid else (None, None)
+
+    def _recognise_all(
+        self,
+        blobs: list[np.ndarray],
+        records: list[dict],
+        cam: Any,
+        image: np.ndarray,
+        target: str,
+    ) -> tuple[int | None, Any]:
+        """Recognise every blob; the target's blob is the one recognised as it with the most
+        inliers, else an unrecognised one where the target's model explains the most inliers;
+        ``(None, None)`` when the target is not found."""
+        best: tuple[int, Any] | None = None
+        for i, blob in enumerate(blobs):
+            view = View(image, cam, blob, None)
+            label, est = None, None
+            if self._recognizer is not None:
+                label = self._remembered(records[i])
+                if label is None:
+                    rec = self._recognize(blob, view)
+                    label = rec.label
+                    est = rec.estimates.get(target) if rec.estimates else None
+                    if label is not None:
+                        self._known.append((records[i], label))
+            records[i]["recognised"] = label if self._recognizer is not None else target
+            if label == target or self._recognizer is None:
+                est = est or self.models.predict(View(image, cam, blob, target))
+                if est.valid and (best is None or est.n_inliers > best[1].n_inliers):
+                    best = (i, est)
+        if best is not None:
+            return best
+        # No blob recognised as the target: the unrecognised blob where the target's model
+        # explains the most inliers. Blobs recognised as other objects are not tried: while
+        # the arm hides the target, its model would otherwise be fitted to a neighbour.
+        unknown = [i for i, r in enumerate(records) if r["recognised"] is None]
+        fits = {i: self.models.predict(View(image, cam, blobs[i], target)) for i in unknown}
+        valid = {i: f for i, f in fits.items() if f.valid}
+        if not valid:
+            return None, None
+        i = max(valid, key=lambda k: valid[k].n_inliers)
+        return i, valid[i]
+
+    def _remembered(self, record: dict) -> str | None:
+        """The label of a blob recognised earlier in the episode at about the same place and
+        size: objects other than the target stay put while the arm works, and recognising each
+        of them again at every step would cost one estimate per shortlisted class."""
+        c, area = np.asarray(record["centroid_px"]), record["area"]
+        for known, label in self._known:
+            near = np.linalg.norm(c - known["centroid_px"]) <= self.track_gate_px
+            if near and 0.5 <= area / known["area"] <= 2.0:
+                return label
+        return None
+
+    def _recognize(self, blob: np.ndarray, view: View) -> Any:
+        rec = self._recognizer
+        reads = getattr(rec, "reads", "view")
+        if reads == "silhouettes":
+            return rec.recognize({self.camera: blob})
+        if reads == "silhouettes+view":
+            return rec.recognize({self.camera: blob}, view)
+        return rec.recognize(view)
+
+
+def _blob_record(blob: np.ndarray) -> dict[str, Any]:
+    ys, xs = np.nonzero(blob)
+    return {
+        "area": int(len(xs)),
+        "centroid_px": [float(xs.mean()), float(ys.mean())],
+        "recognised": None,
+    }
+
+
+def _distance_to_blob(blob: np.ndarray, uv: np.ndarray) -> float:
+    """Pixels from ``uv`` to the nearest pixel of ``blob`` (0 inside it)."""
+    ys, xs = np.nonzero(blob)
+    return float(np.sqrt(((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2).min()))
