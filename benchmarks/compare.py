@@ -29,7 +29,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
-        "--policies", default="rl", help="learned arms, comma-separated (scripted is added)"
+        "--policies", default="rl,learned", help="learned arms, comma-separated (scripted is added)"
     )
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
