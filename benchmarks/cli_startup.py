@@ -1,9 +1,10 @@
 """Start-up cost of the ``scorbot-gym`` command line, and of the GL preload.
 
 Each command runs ``--runs`` times in a fresh interpreter (``python -m scorbot_gym.cli ...``);
-reported per command: the median wall time, its exit code, and which of torch, SB3, OpenCV and
-MuJoCo the command imported (a second process, the same arguments, lists ``sys.modules``):
-``--help`` and argument errors should import none of them. ``--baseline DIR`` times another
+reported per command: the median wall time, its exit code, and which of torch, SB3, OpenCV,
+MuJoCo, dm_control, scikit-learn and ``scipy.stats`` the command imported (a second process,
+the same arguments, lists ``sys.modules``): ``--help`` and argument errors, of every
+sub-command too, should import none of them. ``--baseline DIR`` times another
 checkout's package the same way, command by command in the same run (the machine's load is
 shared, so compare the two columns, not runs). The GL preload
 (``scorbot_gym._gl.preload_bundled_llvm``: loading triton's ``libtriton.so`` before the first GL
@@ -13,7 +14,7 @@ torch).
 
     python benchmarks/cli_startup.py              # writes benchmarks/results/cli_startup.json
     python benchmarks/cli_startup.py --runs 3 --out /tmp/cli.json
-    mkdir /tmp/before && git archive 69eafee | tar -x -C /tmp/before
+    mkdir /tmp/before && git archive febf072 | tar -x -C /tmp/before
     python benchmarks/cli_startup.py --baseline /tmp/before   # the same commands, side by side
     python benchmarks/cli_startup.py --preload-only --out benchmarks/results/gl_preload_cuda.json
 """
@@ -38,13 +39,22 @@ from pose.fileio import atomic_write_json  # noqa: E402
 COMMANDS = (
     ("--help",),
     ("teleport",),  # an unknown command: an argument error
-    ("pose", "ablate", "--jobs", "0"),  # a sub-command's argument error
-    ("compare", "--help"),
-    ("pose", "ablate", "--help"),
     ("rollout", "--help"),
+    ("rollout", "--episodes", "0"),  # a sub-command's argument error
     ("train", "--help"),
+    ("train", "--algo", "dqn"),
+    ("compare", "--help"),
+    ("compare", "--episodes", "0"),
+    ("pose", "ablate", "--help"),
+    ("pose", "ablate", "--jobs", "0"),
+    ("pose", "train", "--help"),
+    ("pose", "train", "--camera", "ceiling"),
+    ("shapes", "eval", "--help"),
+    ("demos", "--help"),
+    ("demos", "--out", "x", "--episodes", "0"),
+    ("doctor", "--help"),
 )
-HEAVY = ("torch", "stable_baselines3", "cv2", "mujoco")
+HEAVY = ("torch", "stable_baselines3", "cv2", "mujoco", "dm_control", "sklearn", "scipy.stats")
 
 _IMPORTED = f"""
 import sys

@@ -6,6 +6,10 @@ bounding box. The catalogue's YCB meshes are stored resting on the table (z up),
 resting orientation is the identity. A *grasp* (closing point and direction in the object frame)
 is derived from the footprint, so the scripted controller needs no per-object tuning and objects
 that users add get one too.
+
+OpenCV is imported by the functions that derive geometry and textures, not with the module: the
+command line lists the catalogue's names as option choices, and its ``--help`` should not pay
+for OpenCV (issue 35).
 """
 
 from __future__ import annotations
@@ -25,7 +29,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import cv2
 import numpy as np
 
 from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
@@ -106,6 +109,8 @@ class ObjectSpec:
         """The object's cube-map grid image (RGB uint8, 768 x 1024), made on each call: it is
         only read when a scene is compiled, and kept per object it would hold ~2.4 MB each."""
         if self.texture_path is not None:
+            import cv2
+
             face = cv2.resize(load_texture_image(self.texture_path), (256, 256))
             return np.tile(face, (3, 4, 1))
         return cube_texture(self.name)
@@ -173,6 +178,8 @@ def _footprint(
     vertices: np.ndarray, faces: np.ndarray, res: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Top-down silhouette raster of a mesh (``res`` metres per pixel) and its xy origin."""
+    import cv2
+
     xy = vertices[:, :2]
     lo = xy.min(0) - 4 * res
     size = np.ceil((xy.max(0) + 4 * res - lo) / res).astype(int)
@@ -185,6 +192,8 @@ def _footprint(
 
 def _canonicalize(mesh: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
     """Align the footprint rectangle with x (long side) and y; centre the bounding box."""
+    import cv2
+
     v = np.asarray(mesh.vertices, dtype=np.float64)
     (_, _), (w, h), angle = cv2.minAreaRect(v[:, :2].astype(np.float32))
     theta = np.deg2rad(angle) + (np.pi / 2 if h > w else 0.0)
@@ -202,6 +211,8 @@ def _grasp(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, float, 
     the lift. For a curved object (the banana) the footprint's most interior point lies off to
     one side of it, and the fruit twisted out of the fingers there.
     """
+    import cv2
+
     res = 0.0005
     img, lo = _footprint(vertices, faces, res)
     dist = cv2.distanceTransform(img, cv2.DIST_L2, 5)

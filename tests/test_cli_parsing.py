@@ -9,7 +9,8 @@ import pytest
 
 from scorbot_gym.cli import build_parser, main
 
-HEAVY = ("torch", "stable_baselines3", "cv2", "mujoco")
+# the learners, OpenCV, the simulator and scikit-learn / SciPy's statistics: seconds of imports
+HEAVY = ("torch", "stable_baselines3", "cv2", "mujoco", "dm_control", "sklearn", "scipy.stats")
 
 _IMPORTS_AFTER = f"""
 import json, sys
@@ -38,11 +39,83 @@ def test_help_and_argument_errors_import_no_simulator_learner_or_opencv(argv, co
     assert _imports_after(*argv) == {"code": code, "imported": []}
 
 
-def test_compare_help_and_its_argument_errors_import_no_learner():
-    for argv in (["compare", "--help"], ["compare", "--episodes", "0"]):
-        out = _imports_after(*argv)
-        assert out["code"] in (0, 2)
-        assert not {"torch", "stable_baselines3", "mujoco"} & set(out["imported"]), argv
+@pytest.mark.parametrize(
+    "argv, code",
+    [
+        (["rollout", "--help"], 0),
+        (["rollout", "--episodes", "0"], 2),
+        (["rollout", "--pose", "sonar"], 2),
+        (["train", "--help"], 0),
+        (["train", "--algo", "dqn"], 2),
+        (["compare", "--help"], 0),
+        (["compare", "--episodes", "0"], 2),
+        (["pose", "ablate", "--help"], 0),
+        (["pose", "ablate", "--jobs", "0"], 2),
+        (["pose", "ablate"], 2),  # --protocol missing
+        (["pose", "train", "--help"], 0),
+        (["pose", "train", "--camera", "ceiling"], 2),
+        (["pose", "eval", "--help"], 0),
+        (["shapes", "eval", "--help"], 0),
+        (["doctor", "--help"], 0),
+        (["demos", "--help"], 0),
+        (["demos", "--episodes", "0"], 2),
+    ],
+)
+def test_sub_command_help_and_argument_errors_import_nothing_heavy(argv, code):
+    """The option choices come from :mod:`scorbot_gym.names`; the work is imported by ``run``."""
+    assert _imports_after(*argv) == {"code": code, "imported": []}
+
+
+def test_pose_ablate_without_occlusion_sweeps_the_default_levels(monkeypatch):
+    """The default levels are parsed when the sweep starts (not while parsing): still 0:95:5."""
+    import scorbot_gym.experiments as experiments
+    from scorbot_gym.experiments.spec import parse_occlusions
+
+    class Started(Exception):
+        pass
+
+    def ablate(spec, runner, cache_dir):
+        raise Started(spec)
+
+    monkeypatch.setattr(experiments, "ablate", ablate)
+    with pytest.raises(Started) as started:
+        main(["pose", "ablate", "--protocol", "top-resting", "--objects", "box", "--jobs", "1"])
+    assert started.value.args[0].occlusions == parse_occlusions("0:95:5")
+
+
+_REGISTERED_NAMES = """
+import json
+from scorbot_gym.data.protocols import protocol_names
+from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES
+from scorbot_gym.perception import pose_source_names, segmenter_names
+from scorbot_gym.perception.motion import motion_names
+from scorbot_gym.perception.recognizers import RECOGNIZERS
+from scorbot_gym.sim.scene import DEFAULT_CAMERAS
+from scorbot_gym.sim.simulation import MOVING_CAMERAS
+from scorbot_gym.tasks.disturbance import DISTURBANCES
+
+print(json.dumps({
+    "POLICIES": POLICIES, "POSE_ALIASES": POSE_ALIASES, "POSE_SOURCES": pose_source_names(),
+    "FIXED_CAMERAS": [c.name for c in DEFAULT_CAMERAS], "MOVING_CAMERAS": MOVING_CAMERAS,
+    "SEGMENTERS": segmenter_names(), "RECOGNIZERS": RECOGNIZERS, "MOTIONS": motion_names(),
+    "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(),
+}))
+"""
+
+
+def test_the_command_lines_names_are_the_registries_names():
+    """One source of truth: every registry the options name agrees with scorbot_gym.names
+    (asked in a fresh interpreter, where no test has registered a pose source of its own)."""
+    from scorbot_gym import names
+
+    proc = subprocess.run(
+        [sys.executable, "-c", _REGISTERED_NAMES], capture_output=True, text=True, timeout=300
+    )
+    registered = json.loads(proc.stdout.strip().splitlines()[-1])
+    light = {k: v for k, v in vars(names).items() if k.isupper()}
+    assert light.keys() == registered.keys()
+    light = {k: list(v) if isinstance(v, tuple) else v for k, v in light.items()}
+    assert light == registered
 
 
 def _subparser(*path: str):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import zlib
 
-import cv2
 import numpy as np
 
 # MuJoCo cube textures from one file: a 4x3 grid of faces (``gridsize="3 4"``).
@@ -25,6 +24,8 @@ def stable_seed(name: str) -> int:
 def pattern(size: int, rng: np.random.Generator) -> np.ndarray:
     """One ``size`` x ``size`` RGB face: a smooth colour field under many small, high-contrast
     marks. The marks are small (a 43 mm golf ball still shows ~70 SIFT keypoints at 640x480)."""
+    import cv2  # here, not at the top: the object catalogue imports this module
+
     low = rng.integers(0, 256, size=(3, 3, 3)).astype(np.uint8)
     img = cv2.resize(low, (size, size), interpolation=cv2.INTER_CUBIC)
     scale = size / 256
@@ -66,6 +67,8 @@ def cube_texture(name: str, face_size: int = 256) -> np.ndarray:
 
 
 def encode_png(rgb: np.ndarray) -> bytes:
+    import cv2
+
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:
         raise RuntimeError("PNG encoding failed")
@@ -74,6 +77,8 @@ def encode_png(rgb: np.ndarray) -> bytes:
 
 def load_texture_image(path: str) -> np.ndarray:
     """Read a user texture image as RGB uint8, with a clear error if it cannot be read."""
+    import cv2
+
     img = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if img is None:
         raise ValueError(f"cannot read texture image {path!s}: not an image file OpenCV can decode")

@@ -19,6 +19,9 @@ import os
 from scorbot_gym.cli._args import add_name_list
 
 DEFAULT_MODEL = "pose_models.npz"
+#: ``pose ablate --occlusion`` when not given; parsed by ``run_ablate``, since the parser lives
+#: with the sweep machinery, which ``--help`` and argument errors should not import
+DEFAULT_ABLATE_OCCLUSION = "0:95:5"
 
 
 def _positive_int(text: str) -> int:
@@ -133,8 +136,11 @@ def run_ablate(args: argparse.Namespace) -> int:
     if args.paired is not None and args.paired not in args.estimators:
         raise ValueError(f"--paired {args.paired!r} is not among --estimators {args.estimators}")
     objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
+    occlusion = args.occlusion
+    if occlusion is None:
+        occlusion = _occlusion_range(DEFAULT_ABLATE_OCCLUSION)
     spec = SweepSpec(
-        args.protocol, tuple(args.estimators), args.occlusion, objects, args.seed, args.width,
+        args.protocol, tuple(args.estimators), occlusion, objects, args.seed, args.width,
         args.height, args.test_views, args.train_stride, Perturbation.parse(args.perturb),
     )  # fmt: skip
     report = ablate(spec, sweep_runner(args.jobs, args.ray), args.cache_dir)
@@ -183,15 +189,14 @@ def _add_common_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _add_train_arguments(t: argparse.ArgumentParser) -> None:
-    from scorbot_gym.sim.scene import DEFAULT_CAMERAS
-    from scorbot_gym.sim.simulation import MOVING_CAMERAS
+    from scorbot_gym.names import FIXED_CAMERAS, MOVING_CAMERAS
 
     _add_common_arguments(t)
     t.add_argument("--views", type=int, default=None, help="training views per object")
     t.add_argument("--out", default=DEFAULT_MODEL, help=f"model file (default {DEFAULT_MODEL})")
     t.add_argument(
         "--camera",
-        choices=[*(c.name for c in DEFAULT_CAMERAS), *MOVING_CAMERAS],
+        choices=[*FIXED_CAMERAS, *MOVING_CAMERAS],
         default="top",
         help="camera the models are trained for (eye_in_hand: from the arm's home pose)",
     )
@@ -226,17 +231,17 @@ def _add_eval_arguments(e: argparse.ArgumentParser) -> None:
 
 
 def _add_ablate_arguments(a: argparse.ArgumentParser) -> None:
-    from scorbot_gym.data.protocols import protocol_names
+    from scorbot_gym.names import PROTOCOLS
 
     _add_common_arguments(a)
-    a.add_argument("--protocol", required=True, choices=protocol_names())
+    a.add_argument("--protocol", required=True, choices=PROTOCOLS)
     a.add_argument(
         "--estimators", type=_estimator_list, default=["manifold"],
         help="comma-separated estimator specs NAME or NAME(param=value, ...) (default manifold)",
     )  # fmt: skip
     a.add_argument(
-        "--occlusion", type=_occlusion_range, default=_occlusion_range("0:95:5"),
-        help="percent levels START:STOP:STEP or a comma list (default 0:95:5)",
+        "--occlusion", type=_occlusion_range, default=None,
+        help=f"percent levels START:STOP:STEP or a comma list (default {DEFAULT_ABLATE_OCCLUSION})",
     )  # fmt: skip
     a.add_argument(
         "--jobs", type=_positive_int, default=None,

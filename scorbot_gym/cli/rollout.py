@@ -1,11 +1,16 @@
-"""``scorbot-gym rollout``: run seeded closed-loop episodes of a policy and print a summary."""
+"""``scorbot-gym rollout``: run seeded closed-loop episodes of a policy and print a summary.
+
+The options' choices come from :mod:`scorbot_gym.names` and the object catalogue; the
+episode machinery (simulator, vision stack, learners) is imported by :func:`run` only, so
+``--help`` and argument errors take a fraction of a second.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from pose.fileio import atomic_write_json
 from scorbot_gym.cli._args import (
     add_name_list,
     non_negative_float,
@@ -13,18 +18,23 @@ from scorbot_gym.cli._args import (
     positive_int,
     probability,
 )
-from scorbot_gym.evaluation import format_summary
-from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES, RolloutConfig, run_rollout
-from scorbot_gym.evaluation.video import VIDEO_SUFFIXES, record_episodes
+from scorbot_gym.names import (
+    DISTURBANCES,
+    FIXED_CAMERAS,
+    MOTIONS,
+    MOVING_CAMERAS,
+    POLICIES,
+    POSE_ALIASES,
+    POSE_SOURCES,
+    RECOGNIZERS,
+    SEGMENTERS,
+)
 from scorbot_gym.objects import CATALOGUE
-from scorbot_gym.perception import pose_source_names
-from scorbot_gym.perception.motion import motion_names
-from scorbot_gym.perception.recognizers import RECOGNIZERS
-from scorbot_gym.perception.segmenters import segmenter_names
-from scorbot_gym.sim.scene import DEFAULT_CAMERAS
-from scorbot_gym.tasks.disturbance import DISTURBANCES
 
-CAMERAS = (*(c.name for c in DEFAULT_CAMERAS), "eye_in_hand")
+if TYPE_CHECKING:
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+CAMERAS = (*FIXED_CAMERAS, *MOVING_CAMERAS)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -51,7 +61,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--pose",
-        choices=sorted({*pose_source_names(), *POSE_ALIASES}),
+        choices=sorted({*POSE_SOURCES, *POSE_ALIASES}),
         default="oracle",
         help="where the object pose in the observation comes from: oracle (ground truth), "
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
@@ -85,14 +95,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--motion",
-        choices=motion_names(),
+        choices=MOTIONS,
         default=None,
         help="for --pose manifold: where no camera can estimate the pose, 'silhouette' places an "
         "object that moved from its silhouette in any camera (position and heading; default: none)",
     )
     p.add_argument(
         "--segmenter",
-        choices=segmenter_names(),
+        choices=SEGMENTERS,
         default="background",
         help="object mask for --pose manifold: background (subtraction against the empty "
         "workspace, arm removed by its own model) or privileged (the simulator's mask)",
@@ -189,6 +199,9 @@ def _policy(text: str) -> str:
 
 def config_from_args(args: argparse.Namespace) -> RolloutConfig:
     """Every check happens here, before any episode runs."""
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+    from scorbot_gym.evaluation.video import VIDEO_SUFFIXES
+
     if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
         raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
     if args.overlay and not args.video:
@@ -230,6 +243,11 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.evaluation import format_summary
+    from scorbot_gym.evaluation.rollout import run_rollout
+    from scorbot_gym.evaluation.video import record_episodes
+
     config = config_from_args(args)
     summary, _ = run_rollout(config, progress=not args.no_progress)
     print(format_summary(summary))

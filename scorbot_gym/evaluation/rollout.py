@@ -13,10 +13,8 @@ from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
+from scorbot_gym.names import POLICIES, POSE_ALIASES
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-
-POLICIES = ("scripted", "random", "rl", "learned")
-POSE_ALIASES = {"noisy": "noisy_oracle"}
 
 
 @dataclass

@@ -20,8 +20,8 @@ from pose.model_set import PoseModelSet
 from pose.recognition import AppearanceRecognizer, ShortlistRecognizer, SilhouetteRecognizer
 from pose.shape.descriptors import block_weights
 from pose.shape.flr import FLRClassifier
+from scorbot_gym.names import RECOGNIZERS
 
-RECOGNIZERS = ("flr", "appearance", "flr+appearance")
 #: classes FLR shortlists for appearance to decide among (``"flr+appearance"``)
 SHORTLIST_LENGTH = 3
 #: FLR settings tuned by the shape-recognition benchmark (ART block weighted 3x)

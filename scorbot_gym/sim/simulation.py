@@ -10,6 +10,7 @@ import mujoco  # the package's __init__ has already chosen the GL backend
 import numpy as np
 
 from pose.camera import CameraModel
+from scorbot_gym.names import MOVING_CAMERAS
 from scorbot_gym.objects import ObjectSpec, get_object
 from scorbot_gym.sim import cameras as cam_utils
 from scorbot_gym.sim._memory import release_freed_memory
@@ -31,10 +32,6 @@ from scorbot_gym.sim.scene import (
 
 RenderKind = Literal["rgb", "depth", "segmentation"]
 ARM_PREFIX = "scorbot/"
-
-
-#: cameras carried by the arm: their extrinsics change with every step (the others are fixed)
-MOVING_CAMERAS = ("eye_in_hand",)
 
 
 def check_render_size(width: int, height: int, what: str = "render size") -> None:
