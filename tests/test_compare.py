@@ -130,6 +130,14 @@ def test_bad_arms_are_one_line_errors_naming_the_valid_ones(capsys, tmp_path):
         main(["compare", "--noise", "0.02:x"])
 
 
+def test_builtin_arms_are_the_policies_the_command_line_names():
+    """A built-in added to the registry and not to scorbot_gym.names (or the other way round)
+    would be missing from --help or fail to resolve."""
+    from scorbot_gym.names import POLICIES
+
+    assert tuple(cmp.BUILTIN_ARMS) == POLICIES
+
+
 def test_noise_levels_pair_position_and_heading():
     assert cmp.noise_level(0.01) == (0.01, 5.0)  # 1 cm goes with 5 degrees
     assert cmp.noise_level("0.02:20") == (0.02, 20.0)
