@@ -187,18 +187,50 @@ def compare_table(name: str) -> Callable[[], str]:
     return render
 
 
+def compare_arms() -> str:
+    """``compare.json``, one row per arm (``scorbot_gym.evaluation.compare.markdown_table``)."""
+    from scorbot_gym.evaluation.compare import markdown_table
+
+    return markdown_table(read("compare.json"))
+
+
+def _condition_words(cond: dict) -> str:
+    """``with the true pose`` / ``with heading noise σ 20°`` / ... for a compare condition."""
+    if cond["source"] == "oracle":
+        return "with the true pose"
+    if cond["source"] != "noisy_oracle":
+        return f"with the `{cond['label']}` pose"
+    pos, yaw = cond["noise_pos_m"], cond["noise_yaw_deg"]
+    noise = [f"position σ {100 * pos:g} cm" if pos else "", f"heading σ {yaw:g}°" if yaw else ""]
+    return "with pose noise " + " and ".join(n for n in noise if n)
+
+
 def headline_compare() -> str:
+    """Every policy against the reference under every pose condition of ``compare.json``."""
     d = read("compare.json")
     by = {(r["policy"], r["pose"]): r for r in d["results"]}
-    s, r = by[("scripted", "manifold")], by[("rl", "manifold")]
-    diff = next(x for x in d["differences"] if x["pose"] == "manifold" and x["a"] == "rl")
+    ref = d["reference"]
+    sentences = []
+    for cond in d["conditions"]:
+        pose, r0 = cond["label"], by[(ref, cond["label"])]
+        parts = [f"`{ref}` **{pct(r0['success_rate'])}** {ci(r0['ci95'])}"]
+        for r in d["results"]:
+            if r["pose"] != pose or r["policy"] == ref:
+                continue
+            diff = r["vs_reference"]
+            parts.append(
+                f"`{r['label']}` **{pct(r['success_rate'])}** {ci(r['ci95'])} "
+                f"(paired difference {100 * diff['diff']:+.1f} points, 95 % CI "
+                f"{ci(diff['ci95'])[1:-1]}, McNemar p = {diff['mcnemar_p']:.2g})"
+            )
+        words = _condition_words(cond)
+        sentences.append(f"{words[0].upper()}{words[1:]}: " + ", ".join(parts))
+    objects = "whole catalogue" if d["objects"] is None else ", ".join(d["objects"])
     return (
-        f"With the pose estimated by the manifold at every step, over {s['episodes']} paired "
-        f"episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, whole catalogue, Cartesian actions): "
-        f"scripted **{pct(s['success_rate'])}** {ci(s['ci95'])}, the shipped residual SAC "
-        f"policy **{pct(r['success_rate'])}** {ci(r['ci95'])}, paired difference "
-        f"{100 * diff['diff']:+.1f} points {ci(diff['ci95'])}, McNemar p = "
-        f"{diff['mcnemar_p']:.1g} (`benchmarks/results/compare.json`).\n"
+        f"Over {d['episodes']} paired episodes (seeds {d['seeds'][0]}–{d['seeds'][-1]}, "
+        f"{objects}, {d['action_type']} actions). "
+        + ". ".join(sentences)
+        + " (`benchmarks/results/compare.json`).\n"
     )
 
 
@@ -426,7 +458,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "closed-loop": closed_loop_arms,
     "closed-loop-robustness": closed_loop_robustness,
     "closed-loop-perturbations": closed_loop_perturbations,
-    "compare": compare_table("compare.json"),
+    "compare": compare_arms,
     "compare-noise-once": compare_table("compare_noise_once.json"),
     "compare-heldout": compare_table("compare_heldout_objects.json"),
     "compare-heldout-training": compare_table("compare_heldout_training_objects.json"),

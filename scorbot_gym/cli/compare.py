@@ -8,13 +8,21 @@ from pathlib import Path
 from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
 
 
-def _floats(text: str) -> list[float]:
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected comma-separated numbers (metres), got {text!r}"
-        ) from None
+def _noise_levels(text: str) -> list[str]:
+    """``S`` or ``S:Y`` items (position std in metres, heading std in degrees), checked here;
+    :func:`scorbot_gym.evaluation.compare.noise_level` reads them."""
+    levels = [v.strip() for v in text.split(",") if v.strip()]
+    for v in levels:
+        parts = v.split(":")
+        try:
+            if len(parts) > 2 or any(float(x) < 0 for x in parts):
+                raise ValueError
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected comma-separated S or S:Y (position std in metres, heading std in "
+                f"degrees, both >= 0; e.g. 0.01,0.02:20), got {text!r}"
+            ) from None
+    return levels
 
 
 def _names(text: str) -> list[str]:
@@ -24,11 +32,13 @@ def _names(text: str) -> list[str]:
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "compare",
-        help="compare policies (scripted, rl, random, a policy directory) on paired seeds",
+        help="compare policies (scripted, rl, learned, random, a policy or run folder) on "
+        "paired seeds",
         description="Run every policy under every pose condition on the same episode seeds and "
-        "print each arm's success rate (95% Wilson interval), steps to success and failure "
-        "causes, and each policy's difference from the first (paired 95% interval, McNemar's "
-        "test). --json and --png write the report and a per-object / per-noise plot.",
+        "print each arm's success rate (95% Wilson interval), its difference from scripted "
+        "(paired 95% interval, McNemar's test), steps to success (median and quartiles), failure "
+        "causes and how each policy was trained. --json writes the report (keys documented in "
+        "scorbot_gym.evaluation.compare), --png the figure with the headline numbers.",
     )
     from scorbot_gym.objects import CATALOGUE  # the valid names, for this sub-command only
 
@@ -36,9 +46,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--policies",
         type=_names,
         default=["scripted", "rl"],
-        help="comma-separated: scripted, rl (the shipped policy), random, or a "
-        "policy directory from `scorbot-gym train`; differences are against the first "
-        "(default scripted,rl)",
+        help="comma-separated: built-in policies (scripted: the controller, rl: the shipped "
+        "residual, learned: the shipped stand-alone imitation policy, random) or policy folders "
+        "(policy.json) / `scorbot-gym train` run folders; differences are against scripted "
+        "(else the first) (default scripted,rl)",
     )
     p.add_argument(
         "--pose",
@@ -50,10 +61,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--noise",
-        type=_floats,
+        type=_noise_levels,
         default=[],
-        help="pose-noise levels (position std in metres, e.g. 0.005,0.01,0.02); each "
-        "adds a noisy_oracle condition",
+        help="pose-noise levels, each adds a noisy_oracle condition: S (position std in "
+        "metres, heading std S*500 degrees: 1 cm with 5 deg) or S:Y (heading std Y degrees), "
+        "e.g. 0.01,0:20,0.02:0",
     )
     p.add_argument(
         "--pose-model",
@@ -81,29 +93,54 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=1,
         help="re-estimate the pose every K steps (0: once per episode, at reset; default 1)",
     )
+    p.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=1,
+        help="run this many arms at a time, one process each (results do not depend on it)",
+    )
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
-    p.add_argument("--png", type=Path, default=None, help="write the comparison plot here")
+    p.add_argument("--png", type=Path, default=None, help="write the comparison figure here")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.set_defaults(func=run)
 
 
 def format_report(report: dict) -> str:
-    from scorbot_gym.evaluation.compare import policy_label
-
-    lines = [f"{'policy':<20} {'pose':<14} {'success':>8}  {'95% CI':<15} {'steps':>6}  failures"]
+    """One line per arm (success, interval, difference to the reference, steps to success as
+    median [IQR], failures), then each policy's training."""
+    ref = "vs " + report.get("reference", "first")
+    head = f"{'policy':<18} {'pose':<15} {'success':>7}  {'95% CI':<14} {ref:<32} "
+    head += f"{'steps':<12} failures"
+    lines = [head]
     for r in report["results"]:
         lo, hi = r["ci95"]
-        steps = r["median_steps_to_success"]
+        d = r.get("vs_reference")
+        diff = "-"
+        if d:
+            dlo, dhi = d["ci95"]
+            diff = f"{d['diff']:+.1%} ({dlo:+.1%}, {dhi:+.1%}) p={d['mcnemar_p']:.2g}"
+        s = r.get("steps_to_success")
+        steps = "-" if not s else f"{s['median']:.0f} [{s['q25']:.0f}-{s['q75']:.0f}]"
         fails = ", ".join(f"{k} {v}" for k, v in r["failure_causes"].items() if v) or "-"
         lines.append(
-            f"{policy_label(r['policy']):<20} {r['pose']:<14} {r['success_rate']:>8.1%}  "
-            f"{lo:.1%} - {hi:.1%}  {'-' if steps is None else f'{steps:.0f}':>6}  {fails}"
+            f"{r.get('label', r['policy']):<18} {r['pose']:<15} {r['success_rate']:>7.1%}  "
+            f"{lo:.1%} - {hi:.1%}  {diff:<32} {steps:<12} {fails}"
         )
-    for d in report["differences"]:
-        lo, hi = d["ci95"]
+    for arm in report.get("arms", {}).values():
+        t = arm["training"]
+        known = [
+            f"{t['algo']}" if t["algo"] else None,
+            f"{t['demonstration_episodes']} demonstrations"
+            if t["demonstration_episodes"]
+            else None,
+            None if t["env_steps"] is None else f"{t['env_steps']:,} env steps",
+            None if t["wall_time_s"] is None else f"{t['wall_time_s']:,.0f} s wall time",
+            None if t["seeds"] is None else "seeds " + ",".join(map(str, t["seeds"])),
+        ]
+        known_text = ", ".join(k for k in known if k)
         lines.append(
-            f"{policy_label(d['a'])} - {policy_label(d['b'])} ({d['pose']}): {d['diff']:+.1%} "
-            f"(95% CI {lo:+.1%} to {hi:+.1%}, McNemar p={d['mcnemar_p']:.3g})"
+            f"{arm['label']}: trained from {t['trained_from']}"
+            + (f" ({known_text})" if known_text else "")
         )
     return "\n".join(lines)
 
@@ -125,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         action_type=args.action_type,
         estimate_every=args.estimate_every,
         progress=not args.no_progress,
+        jobs=args.jobs,
     )
     print(format_report(report))
     if args.json:

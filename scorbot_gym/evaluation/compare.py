@@ -1,22 +1,63 @@
-"""Scripted vs learned grasping, paired: the table (and plot) a paper would print.
+"""Scripted vs learned grasping, paired: the table (and figure) a paper would print.
 
 Every arm (a policy under a pose condition) runs the same episode seeds ``seed ... seed+N-1``,
-so the object, its placement and the pose noise draws are the same across arms and the arms
-can be compared episode by episode. Per arm: success rate with a 95 % Wilson interval, steps to
-success, failure causes, per-object success, the perception record. Per pair of policies under
-one pose condition: the difference of success rates with Newcombe's 95 % interval for *paired*
-proportions (method 10, Newcombe 1998, Stat. Med. 17:2635) and McNemar's exact test on the
-discordant episodes.
+so the object, its placement and the pose-noise draws are the same across arms and the arms
+can be compared episode by episode. Per arm: how the policy was trained, success rate with a
+95 % Wilson interval, the paired difference to the scripted controller (Newcombe's 95 %
+interval for *paired* proportions, method 10, Newcombe 1998, Stat. Med. 17:2635, and McNemar's
+exact test on the discordant episodes), steps to success, failure causes, per-object success.
+Per policy: success against pose-noise level.
 
-Pose conditions: ``oracle``; ``noisy@S`` (``noisy_oracle`` with x-y position noise S metres and
-heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees); ``manifold`` (the
+**Policies** (arms) are names from :data:`BUILTIN_ARMS` (``scripted``, ``random``, ``rl``: the
+shipped residual, ``learned``: the shipped stand-alone imitation policy; a new built-in is one
+entry there) or any policy folder (with ``policy.json``, loaded by
+:func:`scorbot_gym.policies.loading.load_policy`), or a ``scorbot-gym train`` run folder (its
+final ``policy/``; not ``best/``, which was chosen on evaluation episodes that may share these
+seeds).
+
+**Pose conditions**: ``oracle``; ``noisy@S`` (``noisy_oracle`` with x-y position noise S
+metres and heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees);
+``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``manifold`` (the
 pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
 models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses).
+
+**The report** (what :func:`compare` returns and ``--json`` writes):
+
+- ``seeds`` ``[first, last]``, ``episodes`` (per arm), ``objects`` (``null``: the catalogue),
+  ``action_type``, ``estimate_every``, ``reference`` (the policy differences are taken
+  against: ``scripted`` when it is an arm, else the first), ``difference_method``,
+  ``noise_heading_deg_per_m``, ``min_per_object_episodes`` (the figure's threshold for
+  per-object bars), ``wall_s`` (of the whole comparison);
+- ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg}]`` in run order;
+- ``arms``: ``{policy: {label, training}}`` where ``training`` is :func:`training_record`:
+  ``trained_from`` (``scripted``: the hand-written controller itself; ``residual``: a learned
+  correction on top of it; ``demonstrations``: imitation of scripted demonstrations, perhaps
+  fine-tuned by RL; ``none``: RL from scratch; ``untrained``: random actions),
+  ``uses_scripted_controller`` (at test time), ``algo``, ``demonstration_episodes``,
+  ``env_steps``, ``wall_time_s``, ``seeds`` and ``source`` (the folder) - ``null`` wherever
+  the policy folder does not record it (never guessed);
+- ``results``: one record per arm: ``policy``, ``label``, ``pose``, ``pose_source``,
+  ``noise_pos_m``, ``noise_yaw_deg`` (``null`` for the estimator), ``episodes``,
+  ``successes``, ``success_rate``, ``ci95``, ``steps_to_success`` ``{median, q25, q75, mean}``
+  (successful episodes only; ``null`` without any), ``median_steps_to_success``,
+  ``mean_steps_to_success``, ``failure_causes`` (count per cause), ``per_object``
+  (``{object: {episodes, successes, success_rate, ci95}}``), ``perception`` (the pose source's
+  record, ``null`` for none), ``training`` (as in ``arms``), ``saw_scripted_controller`` (as
+  the policy folder records it, ``null`` for none), ``vs_reference`` (``null`` for the
+  reference, else as a ``differences`` entry) and ``episode_success`` (a string of ``0``/``1``,
+  one per seed in order: enough to redo any paired statistic);
+- ``differences``: per pose condition and non-reference policy ``{pose, a, b, diff, ci95,
+  only_a, only_b, mcnemar_p}`` (``a - b``, ``b`` the reference);
+- ``noise_curves``: ``{policy: [{pose, noise_pos_m, noise_yaw_deg, episodes, success_rate,
+  ci95}]}`` over the oracle (noise 0) and every ``noisy`` condition, by increasing noise.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import io
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,11 +67,18 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.imitation import ImitationPolicy
-from scorbot_gym.policies.sb3 import SB3Policy
+from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY
+from scorbot_gym.rl import runs
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
-BUILTIN_POLICIES = ("scripted", "random", "rl", "learned")
+#: per-object success gets its own bar (and interval) only from this many episodes per object;
+#: objects with fewer are pooled (at 2-6 episodes an interval spans most of [0, 1])
+MIN_PER_OBJECT_EPISODES = 20
+REFERENCE = "scripted"
+
+
+# ---- pose conditions ----------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -39,18 +87,54 @@ class PoseCondition:
     source: str
     kwargs: dict[str, Any]
     noise_m: float | None  # position noise (0 for the oracle; None when not a noise level)
+    noise_yaw_deg: float | None = None  # heading noise (0 for the oracle)
+
+
+def noise_level(level: float | str | tuple[float, float]) -> tuple[float, float]:
+    """``S`` (metres; heading ``S * DEG_PER_M`` degrees), ``"S:Y"`` or ``(S, Y)`` (Y degrees)
+    -> ``(position_m, heading_deg)``; one-line error for anything else."""
+    if isinstance(level, str):
+        parts = level.split(":")
+        try:
+            if len(parts) > 2:
+                raise ValueError
+            pos = float(parts[0])
+            yaw = float(parts[1]) if len(parts) == 2 else pos * DEG_PER_M
+        except ValueError:
+            raise ValueError(
+                f"noise level {level!r}: expected S (position std in metres) or S:Y "
+                "(and heading std in degrees), e.g. 0.01 or 0.02:20"
+            ) from None
+    elif isinstance(level, tuple | list):
+        pos, yaw = (float(v) for v in level)
+    else:
+        pos = float(level)
+        yaw = pos * DEG_PER_M
+    if not (np.isfinite(pos) and pos >= 0 and np.isfinite(yaw) and yaw >= 0):
+        raise ValueError(
+            f"noise levels are position std (m) and heading std (deg) >= 0, got {pos}, {yaw}"
+        )
+    return pos, yaw
+
+
+def noise_label(pos: float, yaw: float) -> str:
+    """``noisy@S`` when the heading noise is the default for S, else ``noisy@S:Y``."""
+    default = np.isclose(yaw, pos * DEG_PER_M)
+    return f"noisy@{pos:g}" if default else f"noisy@{pos:g}:{yaw:g}"
 
 
 def pose_conditions(
-    poses: list[str], noise: list[float] = (), pose_model: str | Path | None = None
+    poses: Sequence[str],
+    noise: Sequence[float | str | tuple[float, float]] = (),
+    pose_model: str | Path | None = None,
 ) -> list[PoseCondition]:
-    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S`` per noise level.
+    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S[:Y]`` per noise level.
 
     ``manifold`` without ``pose_model`` gets its models (the defaults) from :func:`compare`."""
     out: list[PoseCondition] = []
     for p in poses:
         if p == "oracle":
-            out.append(PoseCondition("oracle", "oracle", {}, 0.0))
+            out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
         elif p == "manifold":
             kw = {} if pose_model is None else {"models": str(pose_model)}
             out.append(PoseCondition("manifold", "manifold", kw, None))
@@ -58,66 +142,298 @@ def pose_conditions(
             noise = list(noise) or [0.01]
         else:
             raise ValueError(f"unknown pose condition {p!r}; valid: oracle, noisy, manifold")
-    for s in noise:
-        if not (np.isfinite(s) and s >= 0):
-            raise ValueError(f"noise levels are position std devs in metres >= 0, got {s}")
-        kw = {"pos_sigma_m": float(s), "yaw_sigma_deg": float(s) * DEG_PER_M}
-        out.append(PoseCondition(f"noisy@{s:g}", "noisy_oracle", kw, float(s)))
+    for level in noise:
+        pos, yaw = noise_level(level)
+        kw = {"pos_sigma_m": pos, "yaw_sigma_deg": yaw}
+        out.append(PoseCondition(noise_label(pos, yaw), "noisy_oracle", kw, pos, yaw))
+    labels = [c.label for c in out]
     if not out:
         raise ValueError("give at least one pose condition")
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"a pose condition is given twice: {', '.join(labels)}")
     return out
 
 
-def policy_label(policy: str) -> str:
-    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``)."""
-    p = Path(policy)
-    return p.parent.name if p.name == "policy" else p.name
+# ---- arms: a policy and how it was trained ------------------------------------------------
 
 
-def load_policy(name: str) -> SB3Policy | ImitationPolicy | None:
-    """``rl`` (the shipped residual), ``learned`` (the shipped stand-alone imitation policy) or
-    a policy directory; ``None`` for scripted/random."""
-    if name in ("scripted", "random"):
+@dataclass
+class Arm:
+    """One policy of the comparison: how to build it on an env, and how it was trained."""
+
+    name: str  # as given: a built-in name or a folder
+    label: str  # short, for tables and figures
+    build: Callable[[Any, int], Any]  # (env, seed) -> Policy
+    training: dict[str, Any]
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # what the policy needs of make_env
+    meta: dict[str, Any] = field(default_factory=dict)  # policy.json of a saved policy
+
+
+def _training(
+    trained_from: str, uses_controller: bool, source: str | None = None, **known: Any
+) -> dict[str, Any]:
+    keys = ("algo", "demonstration_episodes", "env_steps", "wall_time_s", "seeds")
+    return {
+        "trained_from": trained_from,
+        "uses_scripted_controller": uses_controller,
+        **{k: known.get(k) for k in keys},
+        "source": source,
+    }
+
+
+def _scripted_arm(name: str) -> Arm:
+    return Arm(
+        name,
+        name,
+        lambda env, seed: ScriptedGraspPolicy.for_env(env),
+        _training("scripted", True),
+    )
+
+
+def _random_arm(name: str) -> Arm:
+    return Arm(
+        name,
+        name,
+        lambda env, seed: RandomPolicy(env.action_space, seed),
+        _training("untrained", False),
+    )
+
+
+def _shipped(folder: Path) -> Callable[[str], Arm]:
+    return lambda name: saved_arm(folder, name=name)
+
+
+#: built-in policy names -> arm factory; a new shipped policy is one entry here
+BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
+    "scripted": _scripted_arm,
+    "random": _random_arm,
+    "rl": _shipped(SHIPPED_POLICY),
+    "learned": _shipped(SHIPPED_LEARNED_POLICY),
+}
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    """A JSON object from a run's bookkeeping, or ``None`` if absent or unreadable (then the
+    figure it would have given is reported as unknown, never guessed)."""
+    try:
+        return runs.read_json(path)
+    except (OSError, ValueError):
         return None
+
+
+def policy_folder(path: str | Path) -> Path:
+    """A saved policy folder (``policy.json`` inside), a file in one, or a training run folder
+    (its final ``policy/``, via :func:`scorbot_gym.rl.runs.policy_dir`); one-line error
+    listing the valid names for anything else."""
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(
+            f"unknown policy {str(path)!r}; valid: {', '.join(BUILTIN_ARMS)}, or a policy "
+            "folder (with policy.json) or a `scorbot-gym train` run folder"
+        )
+    return runs.policy_dir(path.parent if path.is_file() else path, checkpoint="last")
+
+
+def _source(folder: Path) -> str:
+    """The folder as a reader can find it: package-relative for a shipped policy (not this
+    machine's install path), as given otherwise."""
+    package = Path(__file__).resolve().parent.parent
+    try:
+        return str(Path(package.name) / Path(folder).resolve().relative_to(package))
+    except ValueError:
+        return str(folder)
+
+
+def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """How a saved policy was trained, from its ``policy.json`` (``uses_scripted_controller``,
+    ``residual``, ``saw_scripted_controller``, ``training``, ``trained_timesteps``, ``config``)
+    and, for a run's ``policy/`` folder, the run's ``checkpoint/state.json`` (env steps and
+    training wall time at the export) and ``config.json``. Unrecorded figures are ``None``."""
+    train = meta.get("training") if isinstance(meta.get("training"), dict) else {}
+    saw = meta.get("saw_scripted_controller")
+    saw = saw if isinstance(saw, dict) else {}
+    uses = meta.get("uses_scripted_controller")
+    if uses is None:
+        uses = meta.get("residual") is not None or bool(saw.get("residual_base"))
+    demos = train.get("demonstration_episodes", saw.get("bc_demo_episodes"))
+    if uses:
+        trained_from = "residual"
+    elif demos or meta.get("algo") == "imitation":
+        trained_from = "demonstrations"
+    else:
+        trained_from = "none"
+    config = meta.get("config") or train.get("config") or {}
+    env_steps = train.get("env_steps", meta.get("trained_timesteps"))
+    wall = train.get("wall_time_s", train.get("wall_s"))
+    seed = config.get("seed") if isinstance(config, dict) else None
+    if folder.name == runs.POLICY:  # a run folder's final export: the run's own bookkeeping
+        state = _read_json(folder.parent / runs.CHECKPOINT / runs.STATE) or {}
+        env_steps = state.get("timesteps", env_steps)
+        wall = state.get("wall_s", wall)
+        seed = (_read_json(folder.parent / runs.CONFIG) or {}).get("seed", seed)
+    return _training(
+        trained_from,
+        bool(uses),
+        _source(folder),
+        algo=meta.get("algo"),
+        demonstration_episodes=demos,
+        env_steps=None if env_steps is None else int(env_steps),
+        wall_time_s=None if wall is None else float(wall),
+        seeds=None if seed is None else [int(seed)],
+    )
+
+
+def load_policy(folder: str | Path) -> Any:
+    """The saved policy in ``folder`` (a policy folder; see :func:`policy_folder`), whatever
+    kind its ``policy.json`` says it is (SB3, imitation)."""
     from scorbot_gym.policies.loading import load_policy as load_saved
 
-    return load_saved(name)
+    return load_saved(folder, checkpoint="last")
 
 
-def _make_policy(name: str, learned: SB3Policy | None, env, seed: int):
-    if name == "scripted":
-        return ScriptedGraspPolicy.for_env(env)
-    if name == "random":
-        return RandomPolicy(env.action_space, seed)
-    return learned.bind(env)
+def saved_arm(path: str | Path, name: str | None = None) -> Arm:
+    """An arm from a policy folder or a run folder."""
+    folder = policy_folder(path)
+    policy = load_policy(folder)
+    name = str(path) if name is None else name
+    return Arm(
+        name,
+        policy_label(name),
+        lambda env, seed: policy.bind(env),
+        training_record(folder, policy.meta),
+        policy.env_kwargs(),
+        policy.meta,
+    )
 
 
-def _record(policy: str, cond: PoseCondition, results: list[EpisodeResult], learned) -> dict:
+def resolve_arm(name: str) -> Arm:
+    """A built-in name (:data:`BUILTIN_ARMS`) or a policy / run folder; one-line error listing
+    the valid names otherwise."""
+    if name in BUILTIN_ARMS:
+        return BUILTIN_ARMS[name](name)
+    return saved_arm(name)
+
+
+def policy_label(policy: str) -> str:
+    """``scripted``, ``rl``, or a policy directory's run name (``runs/bc/policy`` -> ``bc``,
+    ``runs/bc/best`` -> ``bc/best``)."""
+    p = Path(policy)
+    if p.name == runs.POLICY:
+        return p.parent.name
+    return f"{p.parent.name}/{p.name}" if p.name == runs.BEST else p.name
+
+
+# ---- running and recording ----------------------------------------------------------------
+
+
+def _run_arm(
+    name: str,
+    cond: PoseCondition,
+    episodes: int,
+    seed: int,
+    objects: list[str] | None,
+    action_type: str,
+    estimate_every: int,
+    progress: bool,
+    threads: int | None = None,
+) -> list[EpisodeResult]:
+    """The episodes of one arm (a worker process's job under ``jobs > 1``)."""
+    if threads is not None:
+        import torch
+
+        torch.set_num_threads(threads)  # one-sample predictions: threads only add contention
+    arm = resolve_arm(name)
+    kw = dict(arm.env_kwargs)
+    env_id = kw.pop("env_id", None) or (
+        "ScorbotGraspCartesian-v0" if action_type == "cartesian" else "ScorbotGrasp-v0"
+    )
+    env = make_env(
+        env_id,
+        pose=cond.source,
+        pose_kwargs=cond.kwargs,
+        estimate_every=estimate_every,
+        objects=objects,
+        **kw,
+    )
+    try:
+        return run_episodes(env, arm.build(env, seed), episodes, seed, progress=progress)
+    finally:
+        env.close()
+
+
+def _quartiles(values: list[int]) -> dict[str, float] | None:
+    if not values:
+        return None
+    q25, med, q75 = np.percentile(values, [25, 50, 75])
+    mean = float(np.mean(values))
+    return {"median": float(med), "q25": float(q25), "q75": float(q75), "mean": mean}
+
+
+def _record(arm: Arm, cond: PoseCondition, results: list[EpisodeResult]) -> dict:
     s = summarize(results)
-    wins = [r.steps for r in results if r.success]
-    per_object = {
-        k: {**v, "success_rate": v["successes"] / v["episodes"]}
-        for k, v in sorted(s["per_object"].items())
-    }
+    steps = _quartiles([r.steps for r in results if r.success])
+    per_object = {}
+    for obj, v in sorted(s["per_object"].items()):
+        per_object[obj] = {
+            **v,
+            "success_rate": v["successes"] / v["episodes"],
+            "ci95": list(wilson_interval(v["successes"], v["episodes"])),
+        }
     return {
-        "policy": policy,
+        "policy": arm.name,
+        "label": arm.label,
         "pose": cond.label,
         "pose_source": cond.source,
         "noise_pos_m": cond.noise_m,
+        "noise_yaw_deg": cond.noise_yaw_deg,
         "episodes": s["episodes"],
         "successes": s["successes"],
         "success_rate": s["success_rate"],
         "ci95": s["success_rate_ci95"],
-        "median_steps_to_success": float(np.median(wins)) if wins else None,
+        "steps_to_success": steps,
+        "median_steps_to_success": steps["median"] if steps else None,
         "mean_steps_to_success": s["mean_steps_to_success"],
         "failure_causes": s["failure_causes"],
         "per_object": per_object,
         "perception": s["perception"],
-        "saw_scripted_controller": (
-            learned.meta.get("saw_scripted_controller") if learned is not None else None
-        ),
-        "episode_success": [bool(r.success) for r in results],
+        "training": arm.training,
+        "saw_scripted_controller": arm.meta.get("saw_scripted_controller"),
+        "vs_reference": None,
+        "episode_success": "".join("1" if r.success else "0" for r in results),
     }
+
+
+def _successes(record: dict) -> list[bool]:
+    return [c == "1" for c in record["episode_success"]]
+
+
+def noise_curves(results: list[dict]) -> dict[str, list[dict[str, Any]]]:
+    """Per policy: success over the oracle (noise 0) and the ``noisy`` conditions, by
+    increasing (position, heading) noise."""
+    curves: dict[str, list[dict[str, Any]]] = {}
+    for r in results:
+        if r["noise_pos_m"] is None:
+            continue
+        curves.setdefault(r["policy"], []).append(
+            {k: r[k] for k in ("pose", "noise_pos_m", "noise_yaw_deg", "episodes")}
+            | {"success_rate": r["success_rate"], "ci95": r["ci95"]}
+        )
+    for points in curves.values():
+        points.sort(key=lambda p: (p["noise_pos_m"], p["noise_yaw_deg"]))
+    return curves
+
+
+def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
+    """Run :func:`_run_arm` over ``tasks``, in ``jobs`` spawned processes when > 1 (a forked
+    child of a process that has rendered cannot render)."""
+    if jobs <= 1 or len(tasks) <= 1:
+        return [_run_arm(*t) for t in tasks]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(_run_arm, *t[:-1], False, 1) for t in tasks]
+        return [f.result() for f in futures]
 
 
 def compare(
@@ -125,21 +441,27 @@ def compare(
     poses: list[str],
     episodes: int,
     seed: int = 0,
-    noise: list[float] = (),
+    noise: Sequence[float | str | tuple[float, float]] = (),
     pose_model: str | Path | None = None,
     objects: list[str] | None = None,
     action_type: str = "cartesian",
     estimate_every: int = 1,
     progress: bool = True,
+    jobs: int = 1,
 ) -> dict[str, Any]:
     """Run every policy under every pose condition on the same seeds; returns the report
-    (``results``: one record per arm; ``differences``: each policy minus the first)."""
+    described in the module docstring (``jobs`` arms at a time in separate processes; the
+    results do not depend on it)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if jobs < 1:
+        raise ValueError(f"jobs must be >= 1, got {jobs}")
     if not policies:
-        raise ValueError("give at least one policy (scripted, random, rl or a policy directory)")
+        raise ValueError(f"give at least one policy ({', '.join(BUILTIN_ARMS)} or a policy folder)")
+    if len(set(policies)) != len(policies):
+        raise ValueError(f"a policy is given twice: {', '.join(policies)}")
     conds = pose_conditions(poses, noise, pose_model)
-    learned = {p: load_policy(p) for p in policies}
+    arms = {p: resolve_arm(p) for p in policies}  # bad names fail here, before any episode
     if any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
         from scorbot_gym.perception.training import default_pose_models
 
@@ -150,51 +472,119 @@ def compare(
             else c
             for c in conds
         ]
-    results, diffs = [], []
+    reference = REFERENCE if REFERENCE in policies else policies[0]
+    start = time.perf_counter()
+    tasks = [
+        (p, c, episodes, seed, objects, action_type, estimate_every, progress)
+        for c in conds
+        for p in policies
+    ]
+    episodes_run = _map(jobs, tasks)
+    results = [_record(arms[t[0]], t[1], eps) for t, eps in zip(tasks, episodes_run, strict=True)]
+    diffs = []
     for cond in conds:
-        arm_records = []
+        by = {r["policy"]: r for r in results if r["pose"] == cond.label}
+        ref = by[reference]
         for name in policies:
-            pol = learned[name]
-            kw = pol.env_kwargs() if pol is not None else {}
-            env_id = kw.pop("env_id", None) or (
-                "ScorbotGraspCartesian-v0" if action_type == "cartesian" else "ScorbotGrasp-v0"
-            )
-            env = make_env(
-                env_id,
-                pose=cond.source,
-                pose_kwargs=cond.kwargs,
-                estimate_every=estimate_every,
-                objects=objects,
-                **kw,
-            )
-            try:
-                policy = _make_policy(name, pol, env, seed)
-                eps = run_episodes(env, policy, episodes, seed, progress=progress)
-            finally:
-                env.close()
-            arm_records.append(_record(name, cond, eps, pol))
-        ref = arm_records[0]
-        for rec in arm_records[1:]:
-            d = newcombe_paired_diff(rec["episode_success"], ref["episode_success"])
-            diffs.append({"pose": cond.label, "a": rec["policy"], "b": ref["policy"], **d})
-        results += arm_records
+            if name == reference:
+                continue
+            d = newcombe_paired_diff(_successes(by[name]), _successes(ref))
+            diff = {"pose": cond.label, "a": name, "b": reference, **d}
+            by[name]["vs_reference"] = diff
+            diffs.append(diff)
     return {
         "seeds": [seed, seed + episodes - 1],
         "episodes": episodes,
         "objects": objects,
         "action_type": action_type,
         "estimate_every": estimate_every,
+        "reference": reference,
         "difference_method": "Newcombe (1998) method 10 paired-proportion interval; McNemar "
         "exact test",
         "noise_heading_deg_per_m": DEG_PER_M,
+        "min_per_object_episodes": MIN_PER_OBJECT_EPISODES,
+        "wall_s": time.perf_counter() - start,
+        "conditions": [
+            {
+                "label": c.label,
+                "source": c.source,
+                "noise_pos_m": c.noise_m,
+                "noise_yaw_deg": c.noise_yaw_deg,
+            }
+            for c in conds
+        ],
+        "arms": {p: {"label": a.label, "training": a.training} for p, a in arms.items()},
         "results": results,
         "differences": diffs,
+        "noise_curves": noise_curves(results),
     }
 
 
-def plot_comparison(report: dict[str, Any], path: str | Path) -> None:
-    """Success per object (bars with Wilson 95 % intervals, one per arm) and success against
-    pose-noise level (one line per policy; the oracle is noise 0)."""
+# ---- the figure ---------------------------------------------------------------------------
+
+TRAINED_FROM = {
+    "scripted": "scripted controller",
+    "residual": "controller + learned correction",
+    "demonstrations": "learned from demonstrations, no controller",
+    "none": "RL from scratch, no controller",
+    "untrained": "random actions",
+}
+
+
+def _pct_ci(rate: float, ci: Sequence[float]) -> str:
+    return f"{100 * rate:.1f} % ({100 * ci[0]:.1f}–{100 * ci[1]:.1f})"
+
+
+def _diff_text(d: dict[str, Any]) -> str:
+    lo, hi = d["ci95"]
+    p = d["mcnemar_p"]
+    return f"Δ {100 * d['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}), p = {p:.2g}"
+
+
+def headline(report: dict[str, Any], pose: str | None = None) -> str:
+    """The headline numbers under the first (or the given) pose condition, one line per
+    policy: success with its interval and, for the others, the paired difference to the
+    reference with McNemar's p."""
+    pose = pose or report["results"][0]["pose"]
+    seeds = report["seeds"]
+    lines = [f"{pose}, {report['episodes']} paired episodes (seeds {seeds[0]}–{seeds[-1]})"]
+    for r in report["results"]:
+        if r["pose"] != pose:
+            continue
+        text = f"{r['label']}: {_pct_ci(r['success_rate'], r['ci95'])}"
+        if r.get("vs_reference"):
+            text += f"; {_diff_text(r['vs_reference'])} vs {r['vs_reference']['b']}"
+        lines.append(text)
+    return "\n".join(lines)
+
+
+def _pooled_objects(records: list[dict], min_n: int) -> tuple[list[str], list[str]]:
+    """Objects with at least ``min_n`` episodes in every record, and the others (pooled)."""
+    objects = sorted({o for r in records for o in r["per_object"]})
+    own = [
+        o
+        for o in objects
+        if all(r["per_object"].get(o, {}).get("episodes", 0) >= min_n for r in records)
+    ]
+    return own, [o for o in objects if o not in own]
+
+
+def _bar_with_ci(ax, x, successes: int, n: int, width: float, color, **kw) -> float:
+    p = successes / n if n else np.nan
+    lo, hi = wilson_interval(successes, n)
+    err = [[max(0.0, p - lo)], [max(0.0, hi - p)]]
+    ax.bar([x], [p], width, yerr=err, capsize=2, color=color, **kw)
+    return p
+
+
+def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
+    """The comparison figure: (1) success of every arm with its Wilson 95 % interval, each bar
+    labelled with the rate and, for the non-reference policies, the paired difference to the
+    reference with its interval and McNemar p; (2) per-object success under the first pose
+    condition, with a bar of its own only for objects with at least ``min_per_object_episodes``
+    episodes and the rest pooled (an interval from a handful of episodes says nothing); (3)
+    success against pose noise per policy, only when there are noise conditions. Returns the
+    panels drawn (``arms``, ``objects``, ``noise``)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -203,54 +593,170 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> None:
     from pose.fileio import atomic_write_bytes
 
     res = report["results"]
-    objects = sorted({o for r in res for o in r["per_object"]})
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 4.5), gridspec_kw={"width_ratios": [2, 1]})
-    width = 0.8 / max(1, len(res))
-    for i, r in enumerate(res):
-        rates, errs = [], [[], []]
-        for o in objects:
-            v = r["per_object"].get(o, {"successes": 0, "episodes": 0})
-            p = v["successes"] / v["episodes"] if v["episodes"] else np.nan
-            lo, hi = wilson_interval(v["successes"], v["episodes"])
-            rates.append(p)
-            errs[0].append(max(0.0, p - lo) if v["episodes"] else 0.0)
-            errs[1].append(max(0.0, hi - p) if v["episodes"] else 0.0)
-        x = np.arange(len(objects)) + (i - (len(res) - 1) / 2) * width
-        ax1.bar(
-            x,
-            rates,
-            width,
-            yerr=errs,
-            capsize=2,
-            label=f"{policy_label(r['policy'])} / {r['pose']}",
-        )
-    ax1.set_xticks(np.arange(len(objects)), objects, rotation=30, ha="right")
-    ax1.set_ylim(0, 1.05)
-    ax1.set_ylabel("success rate")
-    counts = sorted({r["episodes"] for r in res})
-    ax1.set_title(f"success per object ({'/'.join(map(str, counts))} paired episodes per arm)")
-    ax1.legend(fontsize=7)
-    for name in dict.fromkeys(r["policy"] for r in res):
-        pts = sorted(
-            (r["noise_pos_m"], r["success_rate"], r["ci95"])
-            for r in res
-            if r["policy"] == name and r["noise_pos_m"] is not None
-        )
-        if pts:
-            xs = [100 * p[0] for p in pts]
-            ys = [p[1] for p in pts]
-            yerr = [[y - p[2][0] for y, p in zip(ys, pts, strict=True)]]
-            yerr.append([p[2][1] - y for y, p in zip(ys, pts, strict=True)])
-            ax2.errorbar(xs, ys, yerr=yerr, marker="o", capsize=3, label=policy_label(name))
-    ax2.set_xlabel(f"pose noise: position std (cm); heading std = {DEG_PER_M / 100:g} deg per cm")
-    ax2.set_ylabel("success rate")
-    ax2.set_ylim(0, 1.05)
-    ax2.set_title("success vs pose noise (0 = oracle)")
-    ax2.legend(fontsize=8)
-    fig.tight_layout()
-    import io
+    policies = list(dict.fromkeys(r["policy"] for r in res))
+    poses = list(dict.fromkeys(r["pose"] for r in res))
+    by = {(r["policy"], r["pose"]): r for r in res}
+    colors = {p: plt.cm.tab10(i % 10) for i, p in enumerate(policies)}
+    min_n = report.get("min_per_object_episodes", MIN_PER_OBJECT_EPISODES)
+    first = [by[(p, poses[0])] for p in policies]
+    own, pooled = _pooled_objects(first, min_n)
+    curves = {p: c for p, c in report.get("noise_curves", {}).items() if len(c) > 1}
+    panels = ["arms"] + (["objects"] if own else []) + (["noise"] if curves else [])
+    ratios = {"arms": max(2.0, 0.5 * len(res)), "objects": 1 + 0.4 * len(own), "noise": 2.0}
+    fig, axes = plt.subplots(
+        1,
+        len(panels),
+        figsize=(max(8.0, sum(ratios[k] for k in panels) * 1.25 + 1), 5.6),
+        gridspec_kw={"width_ratios": [ratios[k] for k in panels]},
+        squeeze=False,
+    )
+    ax = dict(zip(panels, axes[0], strict=True))
+    width = 0.8 / len(policies)
 
+    a = ax["arms"]
+    for i, name in enumerate(policies):
+        for j, pose in enumerate(poses):
+            r = by.get((name, pose))
+            if r is None:
+                continue
+            x = j + (i - (len(policies) - 1) / 2) * width
+            training = r["training"]["trained_from"]
+            label = f"{r['label']} ({TRAINED_FROM.get(training, training)})" if j == 0 else None
+            p = _bar_with_ci(a, x, r["successes"], r["episodes"], width, colors[name], label=label)
+            text = _pct_ci(p, r["ci95"])
+            if r.get("vs_reference"):
+                text += "\n" + _diff_text(r["vs_reference"])
+            a.text(
+                x, 0.02, text, rotation=90, ha="center", va="bottom", fontsize=6,
+                bbox={"facecolor": "white", "alpha": 0.7, "linewidth": 0, "pad": 1},
+            )  # fmt: skip
+    a.set_xticks(range(len(poses)), poses, rotation=20, ha="right")
+    a.set_ylim(0, 1.12)
+    a.set_ylabel("success rate (95 % Wilson interval)")
+    a.set_title(
+        f"success, {report['episodes']} paired episodes per arm\n"
+        f"Δ vs {report.get('reference', policies[0])}: paired 95 % CI (Newcombe), McNemar p",
+        fontsize=9,
+    )
+    handles, labels = a.get_legend_handles_labels()
+
+    if "objects" in ax:
+        b = ax["objects"]
+        groups = own + (["others (pooled)"] if pooled else [])
+        for i, (name, r) in enumerate(zip(policies, first, strict=True)):
+            for j, g in enumerate(groups):
+                objs = [g] if g in own else pooled
+                n = sum(r["per_object"].get(o, {}).get("episodes", 0) for o in objs)
+                k = sum(r["per_object"].get(o, {}).get("successes", 0) for o in objs)
+                x = j + (i - (len(policies) - 1) / 2) * width
+                _bar_with_ci(b, x, k, n, width, colors[name])
+        b.set_xticks(range(len(groups)), groups, rotation=30, ha="right")
+        b.set_ylim(0, 1.05)
+        note = f"{len(pooled)} objects with < {min_n} episodes pooled" if pooled else ""
+        b.set_title(f"per object, {poses[0]}\n{note}", fontsize=9)
+
+    if "noise" in ax:
+        c = ax["noise"]
+        levels = sorted(
+            {(p["noise_pos_m"], p["noise_yaw_deg"]) for pts in curves.values() for p in pts}
+        )
+        shift = 0.3 / max(1, len(curves))  # side by side: overlapping intervals stay visible
+        for i, (name, pts) in enumerate(curves.items()):
+            offset = (i - (len(curves) - 1) / 2) * shift
+            xs = [levels.index((p["noise_pos_m"], p["noise_yaw_deg"])) + offset for p in pts]
+            ys = np.array([p["success_rate"] for p in pts])
+            lo = ys - np.array([p["ci95"][0] for p in pts])
+            hi = np.array([p["ci95"][1] for p in pts]) - ys
+            c.errorbar(
+                xs, ys, yerr=[lo, hi], marker="o", capsize=3, color=colors[name],
+                label=by[(name, pts[0]["pose"])]["label"],
+            )  # fmt: skip
+        ticks = ["oracle" if pos == 0 and yaw == 0 else f"{100 * pos:g} cm\n{yaw:g}°"
+                 for pos, yaw in levels]  # fmt: skip
+        c.set_xticks(range(len(levels)), ticks, fontsize=8)
+        c.set_xlabel("pose noise σ: position, heading")
+        c.set_ylim(0, 1.05)
+        c.set_title("success vs pose noise\n(95 % Wilson intervals)", fontsize=9)
+
+    head = headline(report)
+    fig.suptitle(head, fontsize=8.5)
+    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(policies)), fontsize=7.5)
+    rows = -(-len(policies) // 3)
+    fig.tight_layout(rect=(0, 0.045 * rows, 1, 1 - 0.026 * (head.count("\n") + 1)))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
+    return panels
+
+
+# ---- the table ----------------------------------------------------------------------------
+
+
+def _md_pct_ci(rate: float, ci: Sequence[float]) -> str:
+    lo, hi = (100 * v for v in ci)
+    return f"{100 * rate:.1f} % ({lo:.1f}–{hi:.1f})"
+
+
+def _md_training(t: dict[str, Any]) -> str:
+    """What the policy folder records of its training; "—" where it records nothing."""
+    if t["trained_from"] in ("scripted", "untrained"):
+        return "—"
+    parts = []
+    if t.get("algo"):
+        parts.append(str(t["algo"]))
+    if t.get("demonstration_episodes"):
+        parts.append(f"{t['demonstration_episodes']} demos")
+    steps = t.get("env_steps")
+    parts.append("env steps not recorded" if steps is None else f"{steps:,} env steps")
+    wall = t.get("wall_time_s")
+    parts.append("wall time not recorded" if wall is None else f"{wall:,.0f} s wall")
+    if t.get("seeds"):
+        parts.append("seed " + ", ".join(map(str, t["seeds"])))
+    return ", ".join(parts)
+
+
+def markdown_table(report: dict[str, Any]) -> str:
+    """The comparison as one markdown table, one row per arm: policy, how it was trained (and
+    the training cost its folder records, "not recorded" where it records none), pose
+    condition, success with its 95 % interval, the paired difference to the reference with its
+    interval and McNemar's p, steps to success as median [quartiles], failure causes."""
+    ref = report.get("reference", report["results"][0]["policy"])
+    head = [
+        "policy",
+        "trained from",
+        "training",
+        "pose",
+        "success (95 % CI)",
+        f"Δ vs {ref} (95 % CI)",
+        "McNemar p",
+        "steps to success",
+        "failures",
+    ]
+    rows = []
+    for r in report["results"]:
+        t = r["training"]
+        d = r.get("vs_reference")
+        diff, p = "—", "—"
+        if d:
+            lo, hi = (100 * v for v in d["ci95"])
+            diff = f"{100 * d['diff']:+.1f} pts ({lo:+.1f} to {hi:+.1f})"
+            p = f"{d['mcnemar_p']:.2g}"
+        s = r.get("steps_to_success")
+        steps = "—" if not s else f"{s['median']:.0f} [{s['q25']:.0f}–{s['q75']:.0f}]"
+        fails = ", ".join(f"{n} {c}" for c, n in r["failure_causes"].items() if n) or "none"
+        rows.append(
+            [
+                f"`{r['label']}`",
+                TRAINED_FROM.get(t["trained_from"], t["trained_from"]),
+                _md_training(t),
+                f"`{r['pose']}`",
+                _md_pct_ci(r["success_rate"], r["ci95"]),
+                diff,
+                p,
+                steps,
+                fails,
+            ]
+        )
+    lines = ["| " + " | ".join(head) + " |", "| " + " | ".join("---" for _ in head) + " |"]
+    return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows]) + "\n"
