@@ -18,6 +18,8 @@ import platform
 import sys
 from pathlib import Path
 
+from scorbot_gym.cli._args import seed_list
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 #: TrainConfig settings of the arms --train can start (oracle pose, Cartesian actions)
@@ -33,16 +35,6 @@ def _arm(text: str) -> tuple[str, list[Path]]:
     if not sep or not label or not dirs:
         raise argparse.ArgumentTypeError(f"must be LABEL=DIR[,DIR...], got {text!r}")
     return label, [Path(d) for d in dirs.split(",") if d]
-
-
-def _seeds(text: str) -> list[int]:
-    try:
-        seeds = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be comma-separated integers, got {text}") from None
-    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"must be distinct integers >= 0, got {text}")
-    return seeds
 
 
 def _positive(text: str) -> int:
@@ -63,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
         help=f"train arms whose label is a preset ({', '.join(PRESETS)}) and whose folder "
         "holds no run yet (or resume them)",
     )
-    parser.add_argument("--seeds", type=_seeds, default=[0, 1, 2], help="with --train")
+    parser.add_argument("--seeds", type=seed_list, default=[0, 1, 2], help="with --train")
     parser.add_argument("--timesteps", type=_positive, default=3000, help="with --train")
     parser.add_argument("--eval-every", type=_positive, default=1000, help="with --train")
     parser.add_argument("--eval-episodes", type=_positive, default=10, help="with --train")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
+from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int, seed_list
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.rl import hyperparams as hparams
 
@@ -62,16 +62,6 @@ def _existing_file(text: str) -> Path:
     return path
 
 
-def _seed_list(text: str) -> list[int]:
-    try:
-        seeds = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be comma-separated integers, got {text}") from None
-    if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
-        raise argparse.ArgumentTypeError(f"must be distinct integers >= 0, got {text}")
-    return seeds
-
-
 class _Overrides(argparse.Action):
     """``--hyperparams k=v [k=v ...]``: values read as YAML; names checked once the algorithm
     is known (after parsing)."""
@@ -113,7 +103,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     seeds.add_argument("--seed", type=non_negative_int, default=0)
     seeds.add_argument(
         "--seeds",
-        type=_seed_list,
+        type=seed_list,
         default=None,
         metavar="S,S,...",
         help="train one run per seed, one after another, into --out/seed_<S>/",

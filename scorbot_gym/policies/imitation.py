@@ -32,10 +32,9 @@ from typing import Any
 
 import numpy as np
 
+from scorbot_gym.policies.sb3 import read_policy_json  # one policy-folder format
 from scorbot_gym.policies.scripted import yaw_from_quat
 
-FORMAT = "scorbot-gym-policy"
-VERSION = 1
 ALGO = "imitation"
 SHIPPED_LEARNED_POLICY = Path(__file__).parent / "data" / "imitation_dagger_oracle"
 #: pose_age is scaled as log1p(age) / log1p(AGE_SCALE): 0 fresh, 1 never estimated
@@ -317,22 +316,6 @@ class ImitationPolicy:
             return cls(MLP(weights, biases), mean, std, meta)
         except ValueError as exc:
             raise ValueError(f"{path}: {exc}") from None
-
-
-def read_policy_json(meta_path: Path) -> dict[str, Any]:
-    """``policy.json`` checked for format and version (one-line errors)."""
-    try:
-        meta = json.loads(Path(meta_path).read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{meta_path} is not valid JSON ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{meta_path} is not a scorbot-gym policy description")
-    if meta.get("version") != VERSION:
-        raise ValueError(
-            f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
-            f"version {VERSION}"
-        )
-    return meta
 
 
 def _atomic(path: Path, write) -> None:

@@ -11,8 +11,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from scorbot_gym.policies.imitation import ALGO, SHIPPED_LEARNED_POLICY, read_policy_json
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY
+from scorbot_gym.policies.imitation import ALGO, SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.sb3 import SHIPPED_POLICY, read_policy_json
 
 SHIPPED = {"rl": SHIPPED_POLICY, "learned": SHIPPED_LEARNED_POLICY}
 

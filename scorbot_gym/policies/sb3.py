@@ -30,6 +30,22 @@ VERSION = 1
 SHIPPED_POLICY = Path(__file__).parent / "data" / "residual_sac_oracle"
 
 
+def read_policy_json(meta_path: Path) -> dict[str, Any]:
+    """``policy.json`` checked for format and version (one-line errors)."""
+    try:
+        meta = json.loads(Path(meta_path).read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{meta_path} is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise ValueError(f"{meta_path} is not a scorbot-gym policy description")
+    if meta.get("version") != VERSION:
+        raise ValueError(
+            f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
+            f"version {VERSION}"
+        )
+    return meta
+
+
 def _algorithms() -> dict[str, Any]:
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
@@ -130,17 +146,7 @@ class SB3Policy:
         for p in (meta_path, model_path):
             if not p.is_file():
                 raise FileNotFoundError(f"policy {path} is missing {p.name}")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ValueError(f"{meta_path} is not valid JSON ({exc})") from None
-        if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-            raise ValueError(f"{meta_path} is not a scorbot-gym policy description")
-        if meta.get("version") != VERSION:
-            raise ValueError(
-                f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
-                f"version {VERSION}"
-            )
+        meta = read_policy_json(meta_path)
         algos = _algorithms()
         if meta.get("algo") not in algos:
             raise ValueError(

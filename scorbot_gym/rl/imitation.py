@@ -32,16 +32,15 @@ import numpy as np
 
 from scorbot_gym.policies.imitation import (
     ALGO,
-    FORMAT,
     MLP,
     OBSERVATION_KEYS,
-    VERSION,
     ActionHistory,
     HistorySpec,
     ImitationPolicy,
     n_features,
     to_action,
 )
+from scorbot_gym.policies.sb3 import FORMAT, VERSION
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 from scorbot_gym.tasks.grasp import FAILURE_CAUSES
 
