@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from scorbot_gym.policies.sb3 import read_policy_json  # one policy-folder format
+from scorbot_gym.policies.sb3 import check_action_type, read_policy_json  # one folder format
 from scorbot_gym.policies.scripted import yaw_from_quat
 
 ALGO = "imitation"
@@ -224,12 +224,7 @@ class ImitationPolicy:
         """Check that ``env`` gives what the policy reads and takes its actions; remember the
         env's class names so that its ``object_class`` one-hot is re-ordered into the
         policy's. Returns ``self``."""
-        env_type = env.get_wrapper_attr("action_type")
-        if env_type != self.meta["action_type"]:
-            raise ValueError(
-                f"the policy outputs {self.meta['action_type']} actions, the env takes "
-                f"{env_type} actions (use action_type={self.meta['action_type']!r})"
-            )
+        check_action_type(env, self.meta["action_type"])
         have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
         want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
         wrong = {

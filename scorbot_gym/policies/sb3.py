@@ -30,6 +30,16 @@ VERSION = 1
 SHIPPED_POLICY = Path(__file__).parent / "data" / "residual_sac_oracle"
 
 
+def check_action_type(env, action_type: str) -> None:
+    """A saved policy acts in one action space: a one-line error if ``env`` takes the other."""
+    env_type = env.get_wrapper_attr("action_type")
+    if env_type != action_type:
+        raise ValueError(
+            f"the policy outputs {action_type} actions, the env takes {env_type} actions "
+            f"(use action_type={action_type!r})"
+        )
+
+
 def read_policy_json(meta_path: Path) -> dict[str, Any]:
     """``policy.json`` checked for format and version (one-line errors)."""
     try:
@@ -192,12 +202,7 @@ class SB3Policy:
         env's class names, so that an ``object_class`` one-hot over other classes (``--object
         box`` makes a one-class env; a user-added object is a class the model never saw) is
         re-ordered into the model's. Returns ``self``."""
-        env_type = env.get_wrapper_attr("action_type")
-        if env_type != self.meta["action_type"]:
-            raise ValueError(
-                f"the policy outputs {self.meta['action_type']} actions, the env takes "
-                f"{env_type} actions (use action_type={self.meta['action_type']!r})"
-            )
+        check_action_type(env, self.meta["action_type"])
         have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
         if self.base is not None:
             have["base_action"] = tuple(env.action_space.shape)
