@@ -172,6 +172,9 @@ class RolloutConfig:
             env_kwargs.setdefault("distractors", self.distractors)
         if self.tilt_deg:
             env_kwargs.setdefault("tilt_deg", self.tilt_deg)
+        # a policy that reads images (the pixel policy) names the camera and size it needs
+        for key, value in getattr(self._learned(), "env_requirements", {}).items():
+            env_kwargs.setdefault(key, value)
         return make_env(
             self.env_id,
             pose=self.pose,

@@ -1,9 +1,10 @@
 """Load any saved policy folder by what its ``policy.json`` says it is.
 
 ``"algo": "imitation"`` → :class:`~scorbot_gym.policies.imitation.ImitationPolicy` (numpy MLP,
-stand-alone); ``sac``/``tqc``/``ppo`` → :class:`~scorbot_gym.policies.sb3.SB3Policy`. The names
-``rl`` (the shipped residual) and ``learned`` (the shipped stand-alone imitation policy) stand
-for the policies in the package.
+stand-alone); ``"pixel_imitation"`` → :class:`~scorbot_gym.policies.pixel.PixelPolicy` (CNN on
+the top camera image, no pose estimate); ``sac``/``tqc``/``ppo`` →
+:class:`~scorbot_gym.policies.sb3.SB3Policy`. The names ``rl`` (the shipped residual) and
+``learned`` (the shipped stand-alone imitation policy) stand for the policies in the package.
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from typing import Any
 
 from scorbot_gym.policies.imitation import ALGO, SHIPPED_LEARNED_POLICY
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, read_policy_json
+
+PIXEL_ALGO = "pixel_imitation"  # scorbot_gym.policies.pixel.ALGO, without importing cv2/torch
 
 SHIPPED = {"rl": SHIPPED_POLICY, "learned": SHIPPED_LEARNED_POLICY}
 
@@ -28,8 +31,13 @@ def load_policy(path: str | Path, checkpoint: str = "best") -> Any:
         path = Path(path)
         path = policy_dir(path.parent if path.is_file() else path, checkpoint)
     meta_path = path / "policy.json"
+    algo = read_policy_json(meta_path).get("algo") if meta_path.is_file() else None
+    if algo == PIXEL_ALGO:
+        from scorbot_gym.policies.pixel import PixelPolicy
+
+        return PixelPolicy.load(path)
     imitation = (path / "weights.npz").is_file() and not (path / "model.zip").is_file()
-    if imitation or (meta_path.is_file() and read_policy_json(meta_path).get("algo") == ALGO):
+    if imitation or algo == ALGO:
         from scorbot_gym.policies.imitation import ImitationPolicy
 
         return ImitationPolicy.load(path)

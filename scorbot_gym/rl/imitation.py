@@ -158,6 +158,7 @@ def collect_episodes(
     rng: np.random.Generator | None = None,
     expert_factory: Callable[[gym.Env], Any] | None = None,
     sync_expert: bool = False,
+    keep: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
 ) -> list[LabelledEpisode]:
     """Run one episode per seed; the expert labels every observation.
 
@@ -165,6 +166,8 @@ def collect_episodes(
     otherwise, at each step, the expert with probability ``beta`` and the learner otherwise.
     The learner's features use the history of *executed* actions. ``sync_expert`` makes the
     expert an :class:`ExecutedActionExpert` (the default expert: the scripted controller).
+    ``keep`` maps each observation to what the episode stores (default: all of it), e.g. a
+    pixel policy's small frames instead of the rendered images, to keep memory bounded.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     classes = tuple(env.get_wrapper_attr("class_names"))
@@ -179,7 +182,9 @@ def collect_episodes(
         expert.reset(oracle_view(obs, info, classes), info)
         if history is not None:
             history.reset()
-        rows, infos, actions, labels, rewards, terms, truncs = [obs], [info], [], [], [], [], []
+        store = keep or (lambda o: o)
+        rows, infos = [store(obs)], [info]
+        actions, labels, rewards, terms, truncs = [], [], [], [], []
         while True:
             label = np.asarray(expert.act(oracle_view(obs, info, classes)), np.float32)
             labels.append(label)
@@ -195,7 +200,7 @@ def collect_episodes(
             if hasattr(expert, "executed"):
                 expert.executed(action)
             obs, reward, terminated, truncated, info = env.step(action)
-            rows.append(obs)
+            rows.append(store(obs))
             infos.append(info)
             actions.append(action)
             rewards.append(reward)

@@ -1,0 +1,189 @@
+"""Train the pixel policy (the imitation recipe on the top camera image, no pose estimator) and
+measure it beside the state imitation policy and the scripted controller on the same seeds.
+
+The pixel policy (:mod:`scorbot_gym.policies.pixel`) sees an 84 x 84 RGB frame of the top
+camera (rendered at 112 x 84, the camera's whole 4:3 field), proprioception, the target class
+and its own action history; the shipped state policy (``--policy learned``) sees the oracle
+pose instead of the image. Both were trained by BC (DART) + DAgger with the scripted controller
+labelling from the oracle pose; neither runs a controller at test time. The paired difference
+pixel - state on the same episodes is what the explicit pose estimate buys.
+
+    nice -n 5 python benchmarks/pixel_policy.py [--demos 200] [--dagger-rounds 8]
+        [--dagger-episodes 80] [--fit-steps 6000] [--episodes 200] [--eval-seed 50000]
+        [--jobs 3] [--out runs/pixel_policy] [--skip-training]
+
+Training uses CUDA when available. Writes ``benchmarks/results/pixel_policy.json`` (the
+policy folder goes to ``--out``, not into the package: its weights are ~4 MB).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+RESULTS = Path(__file__).parent / "results"
+ARM_KEYS = (
+    "episodes",
+    "successes",
+    "success_rate",
+    "ci95",
+    "median_steps_to_success",
+    "failure_causes",
+    "per_object",
+    "training",
+    "vs_reference",
+    "episode_success",
+)
+
+
+def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--demos", type=positive_int, default=200)
+    p.add_argument("--dart-sigma", type=non_negative_float, default=0.2)
+    p.add_argument("--dagger-rounds", type=non_negative_int, default=8)
+    p.add_argument("--dagger-episodes", type=positive_int, default=80)
+    p.add_argument("--fit-steps", type=positive_int, default=6000)
+    p.add_argument("--batch-size", type=positive_int, default=256)
+    p.add_argument("--grayscale", action="store_true", help="1-channel frames instead of RGB")
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
+    p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
+    p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
+    p.add_argument("--eval-seed", type=int, default=50_000)
+    p.add_argument("--jobs", type=positive_int, default=1, help="arms evaluated in parallel")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=Path("runs") / "pixel_policy")
+    p.add_argument("--json", type=Path, default=RESULTS / "pixel_policy.json")
+    p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
+    args = p.parse_args(argv)
+
+    import torch
+
+    from pose.fileio import atomic_write_json
+    from scorbot_gym.envs.factory import make_env
+    from scorbot_gym.evaluation.compare import compare
+    from scorbot_gym.evaluation.summary import newcombe_paired_diff
+    from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
+    from scorbot_gym.rl.pixel import PixelImitationConfig, train_pixel_imitation
+
+    torch.set_num_threads(args.threads)
+    if not args.skip_training:
+        config = PixelImitationConfig(
+            demos=args.demos,
+            dart_sigma=args.dart_sigma,
+            dagger_rounds=args.dagger_rounds,
+            dagger_episodes=args.dagger_episodes,
+            fit_steps=args.fit_steps,
+            batch_size=args.batch_size,
+            net=NetSpec(channels=1 if args.grayscale else 3),
+            seed=args.seed,
+            torch_threads=args.threads,
+            device=args.device,
+        )
+        width, height = DEFAULT_RENDER_SIZE
+        env = make_env(
+            "ScorbotGraspCartesian-v0",
+            pose="oracle",
+            include_class=True,
+            cameras=[config.camera],
+            image_width=width,
+            image_height=height,
+        )
+        try:
+            policy, _ = train_pixel_imitation(env, config, progress=lambda m: print(m, flush=True))
+        finally:
+            env.close()
+        policy.save(args.out)
+        print(f"policy saved to {args.out}", flush=True)
+    policy = PixelPolicy.load(args.out)
+    training = policy.meta["training"]
+
+    t0 = time.perf_counter()
+    pixel = str(args.out)
+    report = compare(
+        [pixel, "learned", "scripted"],
+        ["oracle"],
+        args.episodes,
+        seed=args.eval_seed,
+        progress=False,
+        jobs=args.jobs,
+    )
+    by = {r["policy"]: r for r in report["results"]}
+    ok = {name: [c == "1" for c in r["episode_success"]] for name, r in by.items()}
+    arms = {
+        "pixel": {k: by[pixel][k] for k in ARM_KEYS},
+        "state": {k: by["learned"][k] for k in ARM_KEYS},
+        "scripted": {k: by["scripted"][k] for k in ARM_KEYS},
+    }
+    pose_buys = newcombe_paired_diff(ok["learned"], ok[pixel])  # state - pixel
+    for name, arm in arms.items():
+        lo, hi = arm["ci95"]
+        print(
+            f"{name:>9}: success {arm['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
+            f"n={arm['episodes']} failures {arm['failure_causes']}",
+            flush=True,
+        )
+    print(
+        f"the explicit pose estimate buys {pose_buys['diff']:+.1%} (state - pixel, 95% CI "
+        f"{pose_buys['ci95'][0]:+.1%}..{pose_buys['ci95'][1]:+.1%}, McNemar p "
+        f"{pose_buys['mcnemar_p']:.3g})",
+        flush=True,
+    )
+    size_kb = sum(f.stat().st_size for f in Path(args.out).iterdir()) / 1024
+    out = {
+        "description": "pixel policy (BC + DART + DAgger on the top camera's 84x84 RGB frame, "
+        "no pose estimator) vs the shipped state imitation policy (same recipe, oracle pose) "
+        "and the scripted controller; same seeds, whole catalogue, cartesian actions. The "
+        "state and scripted arms read the oracle pose; the pixel arm reads no pose entry.",
+        "eval_seeds": report["seeds"],
+        "episodes": args.episodes,
+        "arms": arms,
+        "state_minus_pixel": {
+            "meaning": "success the explicit pose estimate buys (paired, same episodes)",
+            **pose_buys,
+        },
+        "pixel_training": {
+            k: training.get(k)
+            for k in (
+                "demonstration_episodes",
+                "dagger_episodes",
+                "env_steps",
+                "labelled_steps",
+                "frames_mb",
+                "wall_time_s",
+                "fit_time_s",
+                "device",
+                "rounds",
+                "config",
+                "augmentation",
+            )
+        },
+        "pixel_observation": {
+            "camera": policy.camera,
+            "render_size": policy.meta["render_size"],
+            "frame_size": policy.net_spec.frame_size,
+            "channels": policy.net_spec.channels,
+            "reads": policy.meta["reads"],
+        },
+        "pixel_policy_size_kb": round(size_kb, 1),
+        "evaluation_wall_s": round(time.perf_counter() - t0, 1),
+        "machine": {
+            "cpus": os.cpu_count(),
+            "platform": platform.platform(),
+            "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+        },
+        "command": " ".join(["python benchmarks/pixel_policy.py", *(argv or sys.argv[1:])]),
+    }
+    atomic_write_json(args.json, out)
+    print(f"results written to {args.json}")
+
+
+if __name__ == "__main__":
+    main()

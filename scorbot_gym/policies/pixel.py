@@ -1,0 +1,382 @@
+"""A stand-alone grasping policy from pixels: the imitation recipe with no pose estimator.
+
+The end-to-end arm against which the pose-manifold pipeline is judged. The policy sees
+
+- the **top camera's RGB image**, downsized to ``frame_size`` x ``frame_size`` (84 by default,
+  area interpolation; whatever size the env renders, so the policy also runs on the 320x240
+  frames a pose source reads, though it was trained on the size its ``policy.json`` names);
+- **proprioception** (joint angles and velocities, gripper opening, TCP position and quaternion);
+- the **target class** one-hot (``object_class`` from the pose wrapper with the identity given,
+  or the cluttered env's ``target_class``; zeros where the env gives neither): the same task
+  command the state policy gets;
+- the same **executed-action history** as the state policy
+  (:class:`~scorbot_gym.policies.imitation.ActionHistory`: previous actions and the
+  gripper-command history that stands in for the scripted controller's lift timer).
+
+It never reads ``object_pos``, ``object_quat``, ``pose_valid``, ``pose_confidence`` or
+``pose_age`` (:data:`POSE_KEYS`): where the object is, and how it is turned, has to come from
+the image. The network is a Nature-DQN encoder (Mnih et al. 2015: 32x8x8/4, 64x4x4/2,
+64x3x3/1, then 256 units) whose embedding is concatenated with the normalised proprioceptive
+features and passed through a 256-unit MLP to the same outputs as the state policy: 5 arm
+values (tanh) and 1 gripper logit (sign).
+
+A saved policy is a folder: ``policy.json`` (``"algo": "pixel_imitation"``,
+``"observation": "pixels"``, ``"uses_scripted_controller": false``, the camera, frame size,
+history, normalisation, network layout and how it was trained) and ``weights.npz`` (the
+network's tensors as plain arrays, no pickle). Inference runs on the CPU with torch.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from scorbot_gym.policies.imitation import (
+    CONSTANT_STD,
+    FEATURE_CLIP,
+    ActionHistory,
+    HistorySpec,
+    _atomic,
+    to_action,
+)
+from scorbot_gym.policies.sb3 import FORMAT, VERSION, check_action_type, read_policy_json
+
+ALGO = "pixel_imitation"
+#: proprioception the features read, in this order
+PROPRIO_KEYS = ("joint_pos", "joint_vel", "gripper_opening", "ee_pos", "ee_quat")
+PROPRIO_SIZE = 18
+#: what a pose estimator adds to the observation: the pixel policy never reads these
+POSE_KEYS = ("object_pos", "object_quat", "object_yaw", "pose_valid", "pose_confidence", "pose_age")
+#: the 4:3 size the top camera renders at for training: its whole field, 84 rows
+DEFAULT_RENDER_SIZE = (112, 84)
+
+
+@dataclass(frozen=True)
+class NetSpec:
+    """The network's layout (recorded in ``policy.json``; the weights must match it)."""
+
+    frame_size: int = 84
+    channels: int = 3  # 3: RGB, 1: grayscale
+    embedding: int = 256
+    hidden: int = 256
+
+    def __post_init__(self) -> None:
+        if self.frame_size < 36:  # the three convolutions need at least 36 pixels
+            raise ValueError(f"frame_size must be >= 36, got {self.frame_size}")
+        if self.channels not in (1, 3):
+            raise ValueError(f"channels must be 1 (grayscale) or 3 (RGB), got {self.channels}")
+        if self.embedding < 1 or self.hidden < 1:
+            raise ValueError(f"embedding and hidden must be >= 1, got {self}")
+
+
+def build_network(spec: NetSpec, n_vector: int):
+    """The torch module: CNN embedding of the frame ⊕ vector features → MLP → 6 outputs."""
+    import torch as th
+    from torch import nn
+
+    class PixelNet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            c = spec.channels
+            self.encoder = nn.Sequential(
+                nn.Conv2d(c, 32, 8, stride=4),
+                nn.ReLU(),
+                nn.Conv2d(32, 64, 4, stride=2),
+                nn.ReLU(),
+                nn.Conv2d(64, 64, 3, stride=1),
+                nn.ReLU(),
+                nn.Flatten(),
+            )
+            with th.no_grad():
+                n_flat = self.encoder(th.zeros(1, c, spec.frame_size, spec.frame_size)).shape[1]
+            self.embed = nn.Sequential(nn.Linear(n_flat, spec.embedding), nn.ReLU())
+            self.head = nn.Sequential(
+                nn.Linear(spec.embedding + n_vector, spec.hidden),
+                nn.ReLU(),
+                nn.Linear(spec.hidden, spec.hidden),
+                nn.ReLU(),
+                nn.Linear(spec.hidden, 6),
+            )
+
+        def forward(self, frames: th.Tensor, vectors: th.Tensor) -> th.Tensor:
+            """``frames`` uint8 (B, C, H, W) or float in [0, 1]; ``vectors`` normalised."""
+            x = frames.float() / 255.0 if frames.dtype == th.uint8 else frames
+            return self.head(th.cat([self.embed(self.encoder(x)), vectors], dim=1))
+
+    return PixelNet()
+
+
+def to_frame(image: np.ndarray, spec: NetSpec) -> np.ndarray:
+    """An H x W x 3 uint8 camera image as the network's (C, S, S) uint8 frame."""
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[-1] != 3:
+        raise ValueError(f"expected an H x W x 3 RGB image, got shape {img.shape}")
+    s = spec.frame_size
+    if img.shape[:2] != (s, s):
+        img = cv2.resize(img, (s, s), interpolation=cv2.INTER_AREA)
+    if spec.channels == 1:
+        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)[None]
+    return np.ascontiguousarray(img.transpose(2, 0, 1))
+
+
+class PixelPolicy:
+    """Top-camera frame + proprioception + class + own action history → CNN/MLP → action.
+
+    ``features(obs, history)`` gives ``(frame, vector)``: the same duck type as
+    :class:`~scorbot_gym.policies.imitation.ImitationPolicy`, so the imitation trainer's
+    collection and DAgger loops (:mod:`scorbot_gym.rl.imitation`) drive it unchanged.
+    """
+
+    uses_scripted_controller = False
+    replans = 0  # the episode runner's replan count: a learned policy does not plan
+
+    def __init__(
+        self,
+        net_spec: NetSpec,
+        state: dict[str, np.ndarray] | None,
+        mean: np.ndarray,
+        std: np.ndarray,
+        meta: dict[str, Any],
+    ) -> None:
+        import torch as th
+
+        self.net_spec, self.meta = net_spec, meta
+        self.camera = str(meta["camera"])
+        self.image_key = f"{self.camera}_rgb"
+        self.classes = tuple(meta["classes"])
+        self.history_spec = HistorySpec(**meta["history"])
+        self.history = ActionHistory(self.history_spec)
+        self.n_vector = n_vector_features(len(self.classes), self.history_spec)
+        self.mean = np.asarray(mean, np.float32)
+        self.std = np.asarray(std, np.float32)
+        if not len(self.mean) == len(self.std) == self.n_vector:
+            raise ValueError(
+                f"incompatible policy: {self.n_vector} vector features from policy.json, the "
+                f"normalisation has {len(self.mean)}"
+            )
+        self.net = build_network(net_spec, self.n_vector).eval()
+        if state is not None:
+            self.load_state(state)
+        self._env_classes: tuple[str, ...] | None = None
+        self._th = th
+
+    def load_state(self, state: dict[str, np.ndarray]) -> None:
+        """Copy weights (numpy arrays by parameter name) into the network; a missing,
+        unexpected or misshapen tensor is a ValueError."""
+        th = __import__("torch")
+        own = self.net.state_dict()
+        if set(state) != set(own):
+            missing, extra = sorted(set(own) - set(state)), sorted(set(state) - set(own))
+            raise ValueError(f"weights do not fit the network: missing {missing}, extra {extra}")
+        bad = [k for k, v in own.items() if tuple(state[k].shape) != tuple(v.shape)]
+        if bad:
+            raise ValueError(f"weights do not fit the network: wrong shapes for {bad}")
+        self.net.load_state_dict({k: th.as_tensor(np.asarray(v)) for k, v in state.items()})
+
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        return {k: v.detach().cpu().numpy().copy() for k, v in self.net.state_dict().items()}
+
+    # --- features --------------------------------------------------------------------------
+    def _onehot(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        key = "object_class" if "object_class" in obs else "target_class"
+        if key not in obs:
+            return np.zeros(len(self.classes))
+        onehot = np.asarray(obs[key], float)
+        if self._env_classes is None:
+            return onehot
+        out = np.zeros(len(self.classes))
+        for name, v in zip(self._env_classes, onehot, strict=True):
+            if name in self.classes:
+                out[self.classes.index(name)] = v
+        return out
+
+    def compact_observation(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Only what the policy reads, the image already as its small frame (H x W x C uint8):
+        what the trainer stores per step (84 x 84 x 3 bytes instead of the rendered image)."""
+        out = {k: np.asarray(obs[k]) for k in PROPRIO_KEYS}
+        for key in ("object_class", "target_class"):
+            if key in obs:
+                out[key] = np.asarray(obs[key])
+        img, s = np.asarray(obs[self.image_key]), self.net_spec.frame_size
+        if img.shape[:2] != (s, s):  # the same resize as to_frame: features are unchanged
+            img = cv2.resize(img, (s, s), interpolation=cv2.INTER_AREA)
+        out[self.image_key] = img
+        return out
+
+    def features(
+        self, obs: dict[str, np.ndarray], history: ActionHistory
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``(frame, vector)``: the (C, S, S) uint8 frame and the raw (unnormalised) vector of
+        proprioception, class one-hot and action history. No pose key is read."""
+        if self.image_key not in obs:
+            raise KeyError(
+                f"the pixel policy reads {self.image_key!r}: make the env with "
+                f"cameras=[{self.camera!r}] (policy.env_kwargs() gives the settings)"
+            )
+        vector = np.concatenate(
+            [np.asarray(obs[k], np.float32).ravel() for k in PROPRIO_KEYS]
+            + [self._onehot(obs).astype(np.float32), history.features()]
+        )
+        return to_frame(obs[self.image_key], self.net_spec), vector
+
+    def normalise(self, vectors: np.ndarray) -> np.ndarray:
+        z = (vectors - self.mean) / np.maximum(self.std, CONSTANT_STD)
+        z = np.where(self.std < CONSTANT_STD, 0.0, z)
+        return np.clip(z, -FEATURE_CLIP, FEATURE_CLIP).astype(np.float32)
+
+    def raw_outputs(self, frames: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+        """Network outputs for a batch (frames uint8 (B, C, S, S), raw vectors (B, n))."""
+        th = self._th
+        with th.no_grad():
+            out = self.net(th.as_tensor(frames), th.as_tensor(self.normalise(vectors)))
+        return out.numpy()
+
+    def action_from_features(self, feats: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        frame, vector = feats
+        return to_action(self.raw_outputs(frame[None], vector[None])[0])
+
+    # --- Policy protocol -------------------------------------------------------------------
+    def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> None:
+        self.history.reset()
+
+    def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        action = self.action_from_features(self.features(obs, self.history))
+        self.history.push(action)
+        return action
+
+    # --- env matching ----------------------------------------------------------------------
+    def bind(self, env) -> PixelPolicy:
+        """Check that ``env`` renders the camera and gives the proprioception the policy
+        reads and takes its actions; remember the env's class order. Returns ``self``."""
+        check_action_type(env, self.meta["action_type"])
+        have = env.observation_space.spaces
+        missing = [k for k in (*PROPRIO_KEYS, self.image_key) if k not in have]
+        if missing:
+            raise ValueError(
+                f"the pixel policy reads {missing}, which the env does not give: make it with "
+                f"{self.env_kwargs()}"
+            )
+        shape = tuple(have[self.image_key].shape)
+        if len(shape) != 3 or shape[-1] != 3:
+            raise ValueError(f"{self.image_key} must be an H x W x 3 image, the env gives {shape}")
+        self._env_classes = None
+        if "object_class" in have or "target_class" in have:
+            attr = "class_names" if "object_class" in have else "target_classes"
+            names = tuple(env.get_wrapper_attr(attr))
+            self._env_classes = names if names != self.classes else None
+        return self
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations:
+        the camera it was trained on, rendered at the training size."""
+        cartesian = self.meta["action_type"] == "cartesian"
+        return {
+            "env_id": "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0",
+            "classes": list(self.classes),
+            **self.env_requirements,
+        }
+
+    @property
+    def env_requirements(self) -> dict[str, Any]:
+        """The env settings the policy needs (as a pose source's ``env_requirements``)."""
+        width, height = self.meta["render_size"]
+        return {"cameras": [self.camera], "image_width": width, "image_height": height}
+
+    # --- files -----------------------------------------------------------------------------
+    def save(self, path: str | Path) -> Path:
+        """Write ``policy.json`` and ``weights.npz`` into the folder ``path`` (atomically)."""
+        path = Path(path)
+        path.mkdir(parents=True, exist_ok=True)
+        meta = {
+            **self.meta,
+            "network": {**self.meta.get("network", {}), **self.net_spec.__dict__},
+            "normalization": {"mean": self.mean.tolist(), "std": self.std.tolist()},
+        }
+        arrays = {k: v.astype(np.float32) for k, v in self.state_arrays().items()}
+        _atomic(path / "weights.npz", lambda f: np.savez_compressed(f, **arrays))
+        _atomic(path / "policy.json", lambda f: f.write(json.dumps(meta, indent=2).encode()))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> PixelPolicy:
+        """A policy folder; a missing, corrupt or incompatible file is a one-line error."""
+        path = Path(path)
+        if not path.is_dir():
+            raise FileNotFoundError(
+                f"no policy folder at {path} (expected policy.json and weights.npz)"
+            )
+        meta_path, weights_path = path / "policy.json", path / "weights.npz"
+        for p in (meta_path, weights_path):
+            if not p.is_file():
+                raise FileNotFoundError(f"policy {path} is missing {p.name}")
+        meta = read_policy_json(meta_path)
+        if meta.get("algo") != ALGO:
+            raise ValueError(f"{meta_path}: algo must be {ALGO!r}, got {meta.get('algo')!r}")
+        try:
+            norm = meta["normalization"]
+            mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
+            net = meta["network"]
+            spec = NetSpec(
+                frame_size=int(net["frame_size"]),
+                channels=int(net["channels"]),
+                embedding=int(net["embedding"]),
+                hidden=int(net["hidden"]),
+            )
+            HistorySpec(**meta["history"])
+            meta["classes"], meta["action_type"], meta["camera"]
+            width, height = meta["render_size"]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ValueError(f"{meta_path} is incomplete or malformed ({exc!r})") from None
+        try:
+            with np.load(weights_path, allow_pickle=False) as z:
+                state = {k: z[k] for k in z.files}
+        except Exception as exc:  # numpy and zipfile raise many kinds on a damaged archive
+            raise ValueError(
+                f"{weights_path} could not be read as policy weights: {type(exc).__name__}: {exc}"
+            ) from None
+        try:
+            return cls(spec, state, mean, std, meta)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+
+
+def n_vector_features(n_classes: int, history: HistorySpec) -> int:
+    return PROPRIO_SIZE + n_classes + 6 * history.previous_actions + history.gripper_commands
+
+
+def new_meta(
+    *,
+    classes: tuple[str, ...],
+    action_type: str,
+    camera: str,
+    render_size: tuple[int, int],
+    history: HistorySpec,
+) -> dict[str, Any]:
+    """``policy.json`` of an untrained pixel policy (the trainer adds how it was trained)."""
+    from dataclasses import asdict
+
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "algo": ALGO,
+        "observation": "pixels",
+        "uses_scripted_controller": False,
+        "action_type": action_type,
+        "classes": list(classes),
+        "camera": camera,
+        "render_size": [int(render_size[0]), int(render_size[1])],
+        "reads": [*PROPRIO_KEYS, f"{camera}_rgb", "object_class or target_class (optional)"],
+        "history": asdict(history),
+        "features": "CNN(frame) + proprioception + class one-hot + previous actions + "
+        "gripper-command history (scorbot_gym.policies.pixel); no pose estimate",
+        "network": {
+            "encoder": "Nature-DQN conv 32x8x8/4, 64x4x4/2, 64x3x3/1, linear embedding",
+            "activation": "relu",
+            "outputs": "5 arm (tanh) + 1 gripper logit (sign)",
+        },
+    }

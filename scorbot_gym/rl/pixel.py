@@ -1,0 +1,306 @@
+"""Imitation learning of the pixel policy (:mod:`scorbot_gym.policies.pixel`): the state
+policy's recipe, BC from scripted demonstrations with DART noise then DAgger, with the top
+camera image in place of the pose estimate.
+
+Collection and DAgger are :func:`scorbot_gym.rl.imitation.collect_episodes` unchanged: the
+scripted controller acts (demonstrations) or labels (DAgger) from the **oracle** pose in
+``info``, the learner acts from its frame, proprioception and action history. Episodes store
+only what the policy reads, the image as its 84 x 84 uint8 frame (``keep``), so memory grows by
+~21 kB per step. Fitting adds DrQ's random-shift augmentation (Kostrikov et al. 2021; Yarats et
+al. 2021: pad by ``shift`` pixels, crop back at a random offset per sample), the standard
+regulariser for a small CNN trained on a few thousand frames. Training uses CUDA when it is
+available (``device="auto"``); the saved policy runs on the CPU.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from scorbot_gym.policies.imitation import ActionHistory, HistorySpec, to_action
+from scorbot_gym.policies.pixel import NetSpec, PixelPolicy, n_vector_features, new_meta
+from scorbot_gym.rl.imitation import LabelledEpisode, collect_episodes
+
+
+@dataclass
+class PixelImitationConfig:
+    """Everything that defines a pixel imitation run (recorded in ``policy.json``)."""
+
+    demos: int = 200
+    dart_sigma: float = 0.2
+    dagger_rounds: int = 8
+    dagger_episodes: int = 80
+    beta: float = 0.5
+    beta_decay: float = 0.5
+    net: NetSpec = field(default_factory=NetSpec)
+    camera: str = "top"
+    fit_steps: int = 6000
+    batch_size: int = 256
+    learning_rate: float = 3e-4
+    weight_decay: float = 1e-5
+    shift: int = 4
+    history: HistorySpec = field(default_factory=HistorySpec)
+    seed: int = 0
+    torch_threads: int = 1
+    sync_expert: bool = True
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        if isinstance(self.history, dict):
+            self.history = HistorySpec(**self.history)
+        if isinstance(self.net, dict):
+            self.net = NetSpec(**self.net)
+        for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("dagger_rounds", "dagger_episodes", "shift"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
+            raise ValueError(
+                f"beta and beta_decay must be in [0, 1], got {self.beta}, {self.beta_decay}"
+            )
+        if self.dart_sigma < 0:
+            raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
+        if self.device not in ("auto", "cpu", "cuda"):
+            raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
+
+    def torch_device(self) -> str:
+        import torch as th
+
+        if self.device == "auto":
+            return "cuda" if th.cuda.is_available() else "cpu"
+        return self.device
+
+
+def skeleton(env: gym.Env, config: PixelImitationConfig) -> PixelPolicy:
+    """An untrained pixel policy for ``env``, which must render ``config.camera``."""
+    classes = tuple(env.get_wrapper_attr("class_names"))
+    key = f"{config.camera}_rgb"
+    if key not in env.observation_space.spaces:
+        raise ValueError(
+            f"the pixel policy trains on {key!r}: make the env with cameras=[{config.camera!r}]"
+        )
+    height, width = env.observation_space[key].shape[:2]
+    meta = new_meta(
+        classes=classes,
+        action_type=env.get_wrapper_attr("action_type"),
+        camera=config.camera,
+        render_size=(width, height),
+        history=config.history,
+    )
+    n = n_vector_features(len(classes), config.history)
+    return PixelPolicy(config.net, None, np.zeros(n), np.ones(n), meta)
+
+
+def episode_arrays(
+    episode: LabelledEpisode, policy: PixelPolicy
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Frames (T, C, S, S) uint8, raw vectors (T, n) with the executed-action history, and
+    labels (T, 6) of an episode's acted steps."""
+    history = ActionHistory(policy.history_spec)
+    keys = list(episode.observations)
+    frames, vectors = [], []
+    for t in range(len(episode)):
+        frame, vector = policy.features({k: episode.observations[k][t] for k in keys}, history)
+        frames.append(frame)
+        vectors.append(vector)
+        history.push(episode.actions[t])
+    return np.stack(frames), np.stack(vectors), episode.labels[: len(episode)]
+
+
+def random_shift(frames, pad: int):
+    """DrQ-v2's random shift: replicate-pad by ``pad`` and resample each image at a random
+    integer offset in [-pad, pad] (one ``grid_sample`` for the whole batch)."""
+    import torch as th
+    import torch.nn.functional as F
+
+    if pad == 0:
+        return frames
+    n, _, h, w = frames.shape
+    padded = F.pad(frames, (pad, pad, pad, pad), mode="replicate")
+    eps = 1.0 / (h + 2 * pad)
+    arange = th.linspace(-1.0 + eps, 1.0 - eps, h + 2 * pad, device=frames.device)[:h]
+    arange = arange.unsqueeze(0).repeat(h, 1).unsqueeze(2)
+    base = th.cat([arange, arange.transpose(1, 0)], dim=2).unsqueeze(0).repeat(n, 1, 1, 1)
+    shift = th.randint(0, 2 * pad + 1, (n, 1, 1, 2), device=frames.device).float()
+    shift *= 2.0 / (h + 2 * pad)
+    return F.grid_sample(padded, base + shift, padding_mode="zeros", align_corners=False)
+
+
+def fit_pixel_policy(
+    policy: PixelPolicy,
+    frames: np.ndarray,
+    vectors: np.ndarray,
+    labels: np.ndarray,
+    config: PixelImitationConfig,
+    seed: int,
+    warm_start: bool = False,
+) -> list[float]:
+    """Fit the policy's network (and its vector normalisation) to ``labels``: MSE on the arm's
+    tanh outputs, binary cross-entropy on the gripper logit, frames randomly shifted.
+    Returns the loss curve; the fitted weights are copied back into ``policy`` (CPU)."""
+    import torch as th
+    import torch.nn.functional as F
+
+    from scorbot_gym.policies.pixel import build_network
+
+    th.set_num_threads(config.torch_threads)
+    th.manual_seed(seed)
+    device = config.torch_device()
+    gen = th.Generator(device=device).manual_seed(seed)
+    policy.mean = vectors.mean(axis=0).astype(np.float32)
+    policy.std = vectors.std(axis=0).astype(np.float32)
+    x_img = th.as_tensor(frames).to(device)  # uint8: 1/4 of the memory of floats
+    x_vec = th.as_tensor(policy.normalise(vectors)).to(device)
+    arm = th.as_tensor(np.clip(labels[:, :-1], -1.0, 1.0), dtype=th.float32).to(device)
+    grip = th.as_tensor((labels[:, -1] > 0).astype(np.float32)).to(device)
+    net = build_network(config.net, policy.n_vector).to(device)
+    if warm_start:
+        net.load_state_dict(policy.net.state_dict())
+    opt = th.optim.AdamW(
+        net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    sched = th.optim.lr_scheduler.CosineAnnealingLR(opt, config.fit_steps)
+    losses = []
+    net.train()
+    for _ in range(config.fit_steps):
+        idx = th.randint(0, len(x_vec), (config.batch_size,), device=device, generator=gen)
+        img = random_shift(x_img[idx].float() / 255.0, config.shift)
+        out = net(img, x_vec[idx])
+        loss = F.mse_loss(th.tanh(out[:, :-1]), arm[idx])
+        loss = loss + F.binary_cross_entropy_with_logits(out[:, -1], grip[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+        losses.append(loss.detach())
+    policy.load_state({k: v.detach().cpu().numpy() for k, v in net.state_dict().items()})
+    policy.net.eval()
+    return [float(v) for v in th.stack(losses).cpu().numpy()]
+
+
+def label_accuracy(
+    policy: PixelPolicy, frames: np.ndarray, vectors: np.ndarray, labels: np.ndarray
+) -> dict[str, float]:
+    """How closely the policy reproduces the labels (arm RMSE, gripper sign agreement),
+    on at most 4096 evenly spaced steps (CPU inference)."""
+    pick = np.linspace(0, len(labels) - 1, min(len(labels), 4096)).astype(int)
+    pred = np.concatenate(
+        [
+            to_action(policy.raw_outputs(frames[pick[i : i + 512]], vectors[pick[i : i + 512]]))
+            for i in range(0, len(pick), 512)
+        ]
+    )
+    y = labels[pick]
+    return {
+        "arm_rmse": float(np.sqrt(np.mean((pred[:, :-1] - np.clip(y[:, :-1], -1, 1)) ** 2))),
+        "gripper_agreement": float(np.mean((pred[:, -1] > 0) == (y[:, -1] > 0))),
+    }
+
+
+def train_pixel_imitation(
+    env: gym.Env,
+    config: PixelImitationConfig,
+    progress: Callable[[str], None] | None = None,
+) -> tuple[PixelPolicy, dict[str, Any]]:
+    """BC on ``config.demos`` DART-noised scripted demonstrations (seeds ``seed, seed + 1,
+    ...``), then ``config.dagger_rounds`` DAgger rounds on fresh seeds, the scripted controller
+    labelling from the oracle pose. ``env`` renders ``config.camera`` and has ``class_names``
+    (e.g. ``make_env(pose="oracle", include_class=True, cameras=["top"], image_width=112,
+    image_height=84)``; its pose entries are there for the expert's bookkeeping only, the
+    policy never reads them). Returns the policy and the training record (also in its meta)."""
+    say = progress or (lambda _msg: None)
+    start = time.perf_counter()
+    rng = np.random.default_rng(config.seed)
+    policy = skeleton(env, config)
+    seeds = range(config.seed, config.seed + config.demos)
+    data = collect_episodes(
+        env, seeds, dart_sigma=config.dart_sigma, rng=rng, keep=policy.compact_observation
+    )
+    frames, vectors, labels = _concat([episode_arrays(ep, policy) for ep in data])
+    fit_t0 = time.perf_counter()
+    losses = fit_pixel_policy(policy, frames, vectors, labels, config, seed=config.seed)
+    fit_s = time.perf_counter() - fit_t0
+    rounds = [
+        _round_record(0, 1.0, data, losses, fit_s, policy, frames, vectors, labels),
+    ]
+    say(f"BC on {len(data)} demonstrations ({len(labels)} steps): {rounds[-1]}")
+    next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
+    for r in range(1, config.dagger_rounds + 1):
+        beta = config.beta * config.beta_decay ** (r - 1)
+        seeds = range(next_seed, next_seed + config.dagger_episodes)
+        next_seed += config.dagger_episodes
+        new = collect_episodes(
+            env,
+            seeds,
+            learner=policy,
+            beta=beta,
+            rng=rng,
+            sync_expert=config.sync_expert,
+            keep=policy.compact_observation,
+        )
+        f, v, y = _concat([episode_arrays(ep, policy) for ep in new])
+        frames = np.concatenate([frames, f])
+        vectors = np.concatenate([vectors, v])
+        labels = np.concatenate([labels, y])
+        fit_t0 = time.perf_counter()
+        losses = fit_pixel_policy(
+            policy, frames, vectors, labels, config, seed=config.seed + r, warm_start=True
+        )
+        fit_s = time.perf_counter() - fit_t0
+        rounds.append(_round_record(r, beta, new, losses, fit_s, policy, frames, vectors, labels))
+        say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
+    record = {
+        "config": asdict(config),
+        "demonstration_episodes": config.demos,
+        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])),
+        "env_steps": int(sum(r["env_steps"] for r in rounds)),
+        "labelled_steps": int(len(labels)),
+        "frames_mb": round(frames.nbytes / 2**20, 1),
+        "wall_time_s": time.perf_counter() - start,
+        "fit_time_s": float(sum(r["fit_s"] for r in rounds)),
+        "device": config.torch_device(),
+        "rounds": rounds,
+        "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
+        "augmentation": f"random shift +-{config.shift} px (DrQ)",
+    }
+    policy.meta["training"] = record
+    policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
+        "residual_base": False,
+        "bc_demo_episodes": config.demos,
+        "dagger_labelled_episodes": record["dagger_episodes"],
+    }
+    return policy, record
+
+
+def _concat(parts: Sequence[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
+    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+
+
+def _round_record(
+    r: int,
+    beta: float,
+    episodes: Sequence[LabelledEpisode],
+    losses: list[float],
+    fit_s: float,
+    policy: PixelPolicy,
+    frames: np.ndarray,
+    vectors: np.ndarray,
+    labels: np.ndarray,
+) -> dict[str, Any]:
+    return {
+        "round": r,
+        "beta": beta,
+        "episodes": len(episodes),
+        "success": float(np.mean([ep.success for ep in episodes])),
+        "env_steps": int(sum(len(ep) for ep in episodes)),
+        "final_loss": float(np.mean(losses[-100:])),
+        "fit_s": round(fit_s, 2),
+        **label_accuracy(policy, frames, vectors, labels),
+    }
