@@ -28,18 +28,73 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 RESULTS = Path(__file__).parent / "results"
-ARM_KEYS = (
-    "episodes",
-    "successes",
-    "success_rate",
-    "ci95",
-    "median_steps_to_success",
-    "failure_causes",
-    "per_object",
-    "training",
-    "vs_reference",
-    "episode_success",
-)
+CHUNK = 25  # episodes per evaluation job: the pixel arm renders, so it is split across jobs
+
+
+def run_chunk(name: str, seed: int, episodes: int) -> list:
+    """Episodes ``seed ... seed + episodes - 1`` of one arm (a worker process's job), on the
+    env the arm needs (the pixel policy's camera), oracle pose source."""
+    import torch
+
+    from scorbot_gym.envs.factory import make_env
+    from scorbot_gym.evaluation.compare import resolve_arm
+    from scorbot_gym.evaluation.episodes import run_episodes
+
+    torch.set_num_threads(1)  # one-sample predictions: threads only add contention
+    arm = resolve_arm(name)
+    kw = dict(arm.env_kwargs)
+    env = make_env(kw.pop("env_id", "ScorbotGraspCartesian-v0"), pose="oracle", **kw)
+    try:
+        return run_episodes(env, arm.build(env, seed), episodes, seed, progress=False)
+    finally:
+        env.close()
+
+
+def evaluate(names: dict[str, str], episodes: int, seed: int, jobs: int) -> dict[str, list]:
+    """Every arm on seeds ``seed ... seed + episodes - 1`` (episode ``i`` has seed ``seed + i``
+    whichever job runs it, so the arms stay paired and the results do not depend on ``jobs``)."""
+    tasks = [
+        (label, start, min(CHUNK, seed + episodes - start))
+        for label in names
+        for start in range(seed, seed + episodes, CHUNK)
+    ]
+    if jobs <= 1:
+        done = [run_chunk(names[label], start, n) for label, start, n in tasks]
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as pool:
+            futures = [pool.submit(run_chunk, names[label], start, n) for label, start, n in tasks]
+            done = [f.result() for f in futures]
+    out: dict[str, list] = {label: [] for label in names}
+    for (label, _, _), results in zip(tasks, done, strict=True):
+        out[label] += results
+    return out
+
+
+def arm_record(name: str, results: list) -> dict:
+    """Success with its 95 % Wilson interval, steps, failure causes, per-object success, how
+    the policy was trained, and the per-seed outcomes (enough to redo any paired statistic)."""
+    import numpy as np
+
+    from scorbot_gym.evaluation.compare import resolve_arm
+    from scorbot_gym.evaluation.summary import summarize
+
+    s = summarize(results)
+    steps = [r.steps for r in results if r.success]
+    return {
+        "policy": name,
+        "episodes": s["episodes"],
+        "successes": s["successes"],
+        "success_rate": s["success_rate"],
+        "ci95": s["success_rate_ci95"],
+        "median_steps_to_success": float(np.median(steps)) if steps else None,
+        "failure_causes": s["failure_causes"],
+        "per_object": s["per_object"],
+        "training": resolve_arm(name).training,
+        "episode_success": "".join("1" if r.success else "0" for r in results),
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -57,7 +112,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
     p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
     p.add_argument("--eval-seed", type=int, default=50_000)
-    p.add_argument("--jobs", type=positive_int, default=1, help="arms evaluated in parallel")
+    p.add_argument(
+        "--jobs", type=positive_int, default=1, help=f"evaluation processes ({CHUNK} episodes each)"
+    )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("runs") / "pixel_policy")
     p.add_argument("--json", type=Path, default=RESULTS / "pixel_policy.json")
@@ -68,7 +125,6 @@ def main(argv: list[str] | None = None) -> None:
 
     from pose.fileio import atomic_write_json
     from scorbot_gym.envs.factory import make_env
-    from scorbot_gym.evaluation.compare import compare
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
     from scorbot_gym.rl.pixel import PixelImitationConfig, train_pixel_imitation
@@ -106,30 +162,23 @@ def main(argv: list[str] | None = None) -> None:
     training = policy.meta["training"]
 
     t0 = time.perf_counter()
-    pixel = str(args.out)
-    report = compare(
-        [pixel, "learned", "scripted"],
-        ["oracle"],
-        args.episodes,
-        seed=args.eval_seed,
-        progress=False,
-        jobs=args.jobs,
-    )
-    by = {r["policy"]: r for r in report["results"]}
-    ok = {name: [c == "1" for c in r["episode_success"]] for name, r in by.items()}
-    arms = {
-        "pixel": {k: by[pixel][k] for k in ARM_KEYS},
-        "state": {k: by["learned"][k] for k in ARM_KEYS},
-        "scripted": {k: by["scripted"][k] for k in ARM_KEYS},
+    names = {"pixel": str(args.out), "state": "learned", "scripted": "scripted"}
+    runs = evaluate(names, args.episodes, args.eval_seed, args.jobs)
+    arms = {label: arm_record(names[label], results) for label, results in runs.items()}
+    ok = {label: [r.success for r in results] for label, results in runs.items()}
+    diffs = {
+        "state_minus_pixel": newcombe_paired_diff(ok["state"], ok["pixel"]),
+        "pixel_minus_scripted": newcombe_paired_diff(ok["pixel"], ok["scripted"]),
+        "state_minus_scripted": newcombe_paired_diff(ok["state"], ok["scripted"]),
     }
-    pose_buys = newcombe_paired_diff(ok["learned"], ok[pixel])  # state - pixel
-    for name, arm in arms.items():
+    for label, arm in arms.items():
         lo, hi = arm["ci95"]
         print(
-            f"{name:>9}: success {arm['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
+            f"{label:>9}: success {arm['success_rate']:.1%} (95% CI {lo:.1%}-{hi:.1%}) "
             f"n={arm['episodes']} failures {arm['failure_causes']}",
             flush=True,
         )
+    pose_buys = diffs["state_minus_pixel"]
     print(
         f"the explicit pose estimate buys {pose_buys['diff']:+.1%} (state - pixel, 95% CI "
         f"{pose_buys['ci95'][0]:+.1%}..{pose_buys['ci95'][1]:+.1%}, McNemar p "
@@ -142,12 +191,13 @@ def main(argv: list[str] | None = None) -> None:
         "no pose estimator) vs the shipped state imitation policy (same recipe, oracle pose) "
         "and the scripted controller; same seeds, whole catalogue, cartesian actions. The "
         "state and scripted arms read the oracle pose; the pixel arm reads no pose entry.",
-        "eval_seeds": report["seeds"],
+        "eval_seeds": [args.eval_seed, args.eval_seed + args.episodes - 1],
         "episodes": args.episodes,
         "arms": arms,
-        "state_minus_pixel": {
-            "meaning": "success the explicit pose estimate buys (paired, same episodes)",
-            **pose_buys,
+        "paired_differences": {
+            "method": "Newcombe (1998) method 10 paired-proportion interval; McNemar exact test",
+            "state_minus_pixel is": "the success the explicit pose estimate buys",
+            **diffs,
         },
         "pixel_training": {
             k: training.get(k)
