@@ -1,5 +1,7 @@
-"""Train the pixel policy (the imitation recipe on the top camera image, no pose estimator) and
-measure it beside the state imitation policy and the scripted controller on the same seeds.
+"""Pixel policy (imitation on the top camera image, no pose estimator) vs the state policy.
+
+Trains the pixel policy and measures it beside the state imitation policy and the scripted
+controller on the same seeds.
 
 The pixel policy (:mod:`scorbot_gym.policies.pixel`) sees an 84 x 84 RGB frame of the top
 camera (rendered at 112 x 84, the camera's whole 4:3 field), proprioception, the target class
@@ -107,6 +109,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dagger-episodes", type=positive_int, default=80)
     p.add_argument("--fit-steps", type=positive_int, default=6000)
     p.add_argument("--batch-size", type=positive_int, default=256)
+    p.add_argument(
+        "--shift",
+        type=non_negative_int,
+        default=4,
+        help="random-shift augmentation, pixels (DrQ; 0: none). At 84 px one pixel is ~1 cm "
+        "on the table, so a shift also blurs where the object is",
+    )
+    p.add_argument("--learning-rate", type=float, default=3e-4)
     p.add_argument("--grayscale", action="store_true", help="1-channel frames instead of RGB")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
@@ -138,6 +148,8 @@ def main(argv: list[str] | None = None) -> None:
             dagger_episodes=args.dagger_episodes,
             fit_steps=args.fit_steps,
             batch_size=args.batch_size,
+            shift=args.shift,
+            learning_rate=args.learning_rate,
             net=NetSpec(channels=1 if args.grayscale else 3),
             seed=args.seed,
             torch_threads=args.threads,
