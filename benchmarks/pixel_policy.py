@@ -75,6 +75,34 @@ def evaluate(names: dict[str, str], episodes: int, seed: int, jobs: int) -> dict
     return out
 
 
+def render_cost(steps: int = 60) -> dict[str, float]:
+    """Median ms per env step (oracle pose wrapper, zero action) without a camera and with the
+    top camera rendered at a few sizes: what the image observation costs the data collection."""
+    import numpy as np
+
+    from scorbot_gym.envs.factory import make_env
+
+    out = {}
+    for label, kw in [
+        ("no_camera", {}),
+        ("top_84x84", {"cameras": ["top"], "image_width": 84, "image_height": 84}),
+        ("top_112x84", {"cameras": ["top"], "image_width": 112, "image_height": 84}),
+        ("top_320x240", {"cameras": ["top"], "image_width": 320, "image_height": 240}),
+    ]:
+        env = make_env("ScorbotGraspCartesian-v0", pose="oracle", include_class=True, **kw)
+        try:
+            env.reset(seed=0)
+            action, times = np.zeros(6, np.float32), []
+            for _ in range(steps):
+                t = time.perf_counter()
+                env.step(action)
+                times.append(time.perf_counter() - t)
+            out[label] = round(1000 * float(np.median(times)), 3)
+        finally:
+            env.close()
+    return out
+
+
 def arm_record(name: str, results: list) -> dict:
     """Success with its 95 % Wilson interval, steps, failure causes, per-object success, how
     the policy was trained, and the per-seed outcomes (enough to redo any paired statistic)."""
@@ -140,6 +168,8 @@ def main(argv: list[str] | None = None) -> None:
     from scorbot_gym.rl.pixel import PixelImitationConfig, train_pixel_imitation
 
     torch.set_num_threads(args.threads)
+    step_ms = render_cost()
+    print(f"env step, ms (median): {step_ms}", flush=True)
     if not args.skip_training:
         config = PixelImitationConfig(
             demos=args.demos,
@@ -235,9 +265,11 @@ def main(argv: list[str] | None = None) -> None:
             "reads": policy.meta["reads"],
         },
         "pixel_policy_size_kb": round(size_kb, 1),
+        "env_step_ms_median": step_ms,
         "evaluation_wall_s": round(time.perf_counter() - t0, 1),
         "machine": {
             "cpus": os.cpu_count(),
+            "load_average_at_end": [round(x, 2) for x in os.getloadavg()],
             "platform": platform.platform(),
             "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         },
