@@ -168,7 +168,8 @@ class PixelPolicy:
     def load_state(self, state: dict[str, np.ndarray]) -> None:
         """Copy weights (numpy arrays by parameter name) into the network; a missing,
         unexpected or misshapen tensor is a ValueError."""
-        th = __import__("torch")
+        import torch as th
+
         own = self.net.state_dict()
         if set(state) != set(own):
             missing, extra = sorted(set(own) - set(state)), sorted(set(state) - set(own))
