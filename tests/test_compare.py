@@ -93,7 +93,8 @@ def test_how_each_arm_was_trained_comes_from_its_folder_never_guessed(cli_report
     rl = arms["rl"]["training"]
     assert rl["trained_from"] == "residual" and rl["uses_scripted_controller"] is True
     assert rl["env_steps"] == 10000 and rl["seeds"] == [0]
-    assert rl["wall_time_s"] is None  # the shipped policy's folder does not record it
+    shipped = json.loads((SHIPPED_POLICY / "policy.json").read_text())["training"]
+    assert rl["wall_time_s"] == shipped["wall_time_s"]  # as its policy.json records it
     assert rl["source"] == "scorbot_gym/policies/data/residual_sac_oracle"  # not this install's
     assert arms[str(run_folder)]["label"] == "my_run"
     run = arms[str(run_folder)]["training"]
@@ -205,5 +206,6 @@ def test_markdown_table_has_one_row_per_arm(cli_report):
     lines = text.strip().splitlines()
     assert len(lines) == 2 + len(cli_report["results"])
     assert "Δ vs scripted" in lines[0] and "McNemar p" in lines[0]
-    assert "controller + learned correction" in text and "wall time not recorded" in text
+    assert "controller + learned correction" in text
+    assert "806 s wall" in text  # the shipped residual's policy.json records its training time
     assert "1,234 env steps, 56 s wall, seed 7" in text
