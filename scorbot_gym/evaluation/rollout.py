@@ -13,7 +13,7 @@ from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
-from scorbot_gym.names import POLICIES, POSE_ALIASES
+from scorbot_gym.names import CLUTTER_POSE_SOURCES, POLICIES, POSE_ALIASES
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
 
@@ -98,10 +98,10 @@ class RolloutConfig:
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
             )
-        if self.pose == "manifold_clutter" and self.recognize:
+        if self.pose in CLUTTER_POSE_SOURCES and self.recognize:
             raise ValueError(
-                "pose 'manifold_clutter' is told the target (the task command) and recognises "
-                "every blob itself: drop recognize"
+                f"pose {self.pose!r} is told the target (the task command) and chooses its blob "
+                "itself: drop recognize"
             )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
@@ -131,6 +131,8 @@ class RolloutConfig:
             return dict(self.noise)
         if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
             return {"models": self._models(progress), "recognizer": self.recognizer}
+        if self.pose in CLUTTER_POSE_SOURCES:  # the same blobs, chosen without recognition
+            return {"models": self._models(progress)}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models

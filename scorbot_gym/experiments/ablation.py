@@ -16,6 +16,7 @@ from scorbot_gym.experiments.aggregate import (
     selections,
     stage_ablation,
     view_errors,
+    winners,
 )
 from scorbot_gym.experiments.plot import plot_success_vs_occlusion
 from scorbot_gym.experiments.runners import Runner, run_sweep
@@ -35,6 +36,7 @@ def ablate(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None 
         "chance": chance,
         "stage_ablation": stage_ablation(results),
         "curves": curve_summary(results, chance),
+        "winners": winners(results),
         "stats": sweep["stats"],
         "fit_errors": fit_errors(sweep["trials"]),
         "selections": selections(sweep["trials"]),
