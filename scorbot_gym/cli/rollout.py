@@ -181,7 +181,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="MP4 or GIF of all the episodes, one after the other (recorded after the run)",
     )
     p.add_argument(
-        "--overlay", action="store_true", help="draw the estimated pose's axes on the video"
+        "--overlay",
+        action="store_true",
+        help="mark the target and draw the estimated pose's axes on the video",
     )
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--no-progress", action="store_true")
