@@ -22,9 +22,6 @@ POSE_SOURCES = (
     "oracle",
     "random_blob",
 )
-#: the pose sources that split a cluttered table into blobs and estimate the named target
-#: (one camera, the default models of every class)
-CLUTTER_POSE_SOURCES = ("manifold_clutter", "largest_blob", "random_blob")
 #: short pose-source names the command line accepts, and the registered source each stands for
 POSE_ALIASES = {"noisy": "noisy_oracle"}
 

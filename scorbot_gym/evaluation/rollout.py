@@ -13,8 +13,12 @@ from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
-from scorbot_gym.names import CLUTTER_POSE_SOURCES, POLICIES, POSE_ALIASES
+from scorbot_gym.names import POLICIES, POSE_ALIASES
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
+
+#: the pose sources that split a cluttered table into blobs and estimate the named target on
+#: one of them (one camera, the default models of every class)
+CLUTTER_POSE_SOURCES = ("manifold_clutter", "largest_blob", "random_blob")
 
 
 @dataclass
