@@ -65,7 +65,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="oracle",
         help="where the object pose in the observation comes from: oracle (ground truth), "
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
-        "estimator on camera images)",
+        "estimator on camera images); with --distractors: manifold_clutter (every blob "
+        "recognised, the target's estimated), largest_blob / random_blob (a blob taken without "
+        "recognition: the baselines)",
     )
     p.add_argument(
         "--pose-model",
