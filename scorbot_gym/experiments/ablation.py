@@ -58,4 +58,6 @@ def write_report(
             f"{s['protocol']} (v{s['protocol_info']['version']}), {len(s['objects'])} objects, "
             f"{s['width']}x{s['height']}, seed {s['seed']}"
         )
+        if s["protocol_info"].get("occlusion") == "measured, binned":
+            title += "; occlusion measured from the segmentation, 10 % bins (lower edge)"
         plot_success_vs_occlusion(report["results"], report["chance"], png_path, title)
