@@ -22,7 +22,10 @@ recognition, errors, the in-loop cost per estimate and per stage), one compact r
 (seed, target, outcome) to find the failures behind a number, the issue's targets met or not,
 and a PNG.
 
-    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 2 4 --jobs 16
+    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
+
+``--distractors 0`` runs the same targets in the same poses alone on the table (the target is
+placed before its neighbours, with the same draws): what the neighbours cost each arm.
 """
 
 from __future__ import annotations
