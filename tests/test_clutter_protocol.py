@@ -65,6 +65,15 @@ def test_blob_choice_sources_pick_a_blob_and_answer_a_valid_pose(models, source)
         env.close()
 
 
+def test_blob_choice_sources_run_from_a_rollout_config():
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    config = RolloutConfig(pose="largest_blob", pose_model="m.npz", distractors=2)
+    assert config.pose_kwargs() == {"models": "m.npz"}
+    with pytest.raises(ValueError, match="chooses its blob itself: drop recognize"):
+        RolloutConfig(pose="random_blob", recognize=True)
+
+
 # --- a target touching a neighbour in the image ---------------------------------------------------
 def _touch(sim, mover: str, still: str) -> None:
     """Slide ``mover`` toward ``still`` until they touch, then back it off 2 mm (no overlap)."""
