@@ -18,9 +18,9 @@ chunk); the summary pools every chunk's episodes, so the figures do not depend o
 Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quick``): per
 distractor count and arm the rollout summary (success with its 95 % interval, failure causes
 with ``wrong_object``, distractors knocked over, perception: target recognition accuracy, blob
-recognition, errors, the in-loop cost per estimate and per stage), one compact row per episode
-(seed, target, outcome) to find the failures behind a number, the issue's targets met or not,
-and a PNG.
+recognition, errors, the in-loop cost per estimate and per stage), one line per failed episode
+(seed, target, cause) to find the failures behind a number, the issue's targets met or not, and
+a PNG.
 
     python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
 
@@ -78,19 +78,25 @@ def arm_summary(arm: str, distractors: int, seed: int, results: list) -> dict:
     summary["config"] = RolloutConfig(
         pose=arm, episodes=n, seed=seed, distractors=distractors
     ).to_dict()
-    summary["episodes_table"] = [
-        {
-            "seed": r["seed"],
-            "target": r["object_name"],
-            "success": r["success"],
-            "cause": r["failure_cause"],
-            "steps": r["steps"],
-            "knocked": r["extra"].get("distractors_knocked_over", 0),
-            "target_recognised_rate": (r["perception"] or {}).get("target_recognised_rate"),
-        }
-        for r in rows
-    ]
+    summary["failed_episodes"] = failed_episodes(rows)
     return summary
+
+
+def failed_episodes(rows: list[dict]) -> list[str]:
+    """One line per failed episode, ``"seed target cause knocked=N picked=R"`` (``picked``:
+    the share of estimates taken on the target's blob), to find the episodes behind a figure
+    and replay them (``rollout --seed``); successes are the other seeds of the range."""
+    out = []
+    for r in rows:
+        if r["success"]:
+            continue
+        picked = (r["perception"] or {}).get("target_recognised_rate")
+        out.append(
+            f"{r['seed']} {r['object_name']} {r['failure_cause']} "
+            f"knocked={r['extra'].get('distractors_knocked_over', 0)}"
+            + ("" if picked is None else f" picked={picked:.2f}")
+        )
+    return out
 
 
 def check_targets(report: dict) -> list[dict]:
