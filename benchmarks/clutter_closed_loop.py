@@ -2,109 +2,228 @@
 
 Every arm runs the same seeded episodes: the target drawn from the catalogue, ``--distractors``
 other catalogue objects drawn beside it (seeded, close enough to touch and occlude), the
-scripted controller re-planning from every estimate:
+scripted controller re-planning from every estimate. The arms differ by one component, the
+pose source (:mod:`scorbot_gym.perception.registry`):
 
-- ``oracle``: the target's true pose (the ceiling);
+- ``oracle``: the target's true pose (the ceiling; privileged);
 - ``manifold_clutter``: background subtraction split into blobs, every blob recognised (FLR
   shortlist + appearance), the target's pose estimated on its blob by the default top-camera
   pose models; no privileged input, the target named by the task command;
-- ``manifold_largest_blob``: the single-object source as it is (the largest blob, the target's
-  model): what the loop did before blobs were split, the baseline.
+- ``largest_blob``: the same blobs and models, the largest blob taken (no recognition): the
+  baseline of a single-object pipeline;
+- ``random_blob``: the same, a blob drawn at random (the chance level: grasp a random blob).
 
-Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quick``): per arm the
-rollout summary (success with its 95 % interval, failure causes with ``wrong_object``,
-distractors knocked over, perception: target recognition, blob recognition, errors, timings).
+Episodes are cut into chunks that run in ``--jobs`` processes (each builds its env once per
+chunk); the summary pools every chunk's episodes, so the figures do not depend on ``--jobs``.
+Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quick``): per
+distractor count and arm the rollout summary (success with its 95 % interval, failure causes
+with ``wrong_object``, distractors knocked over, perception: target recognition accuracy, blob
+recognition, errors, the in-loop cost per estimate and per stage), one line per failed episode
+(seed, target, cause) to find the failures behind a number, the issue's targets met or not, and
+a PNG.
 
-    python benchmarks/clutter_closed_loop.py [--episodes 40] [--distractors 2] [--jobs 2]
+    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
+
+``--distractors 0`` runs the same targets in the same poses alone on the table (the target is
+placed before its neighbours, with the same draws): what the neighbours cost each arm.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core per worker: the per-estimate times are 1-core
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-ARMS = {
-    "oracle": {"pose": "oracle"},
-    "manifold_clutter": {"pose": "manifold_clutter"},
-    "manifold_largest_blob": {"pose": "manifold"},
-}
+RESULTS = Path(__file__).resolve().parent / "results"
+ARMS = ("oracle", "manifold_clutter", "largest_blob", "random_blob")
+CHUNK = 10  # episodes per task
+# (distractors, arm, figure, bound, "min"|"max"): the issue's targets (2 distractors)
+TARGETS = (
+    (2, "manifold_clutter", "success_rate", 0.90, "min"),
+    (2, "manifold_clutter", "wrong_object_rate", 0.02, "max"),
+    (2, "manifold_clutter", "target_recognition_accuracy", 0.95, "min"),
+    (2, "manifold_clutter", "median_estimate_ms", 40.0, "max"),
+)
 
 
-def run_arm(label: str, config, progress: bool) -> dict:
-    from scorbot_gym.evaluation.rollout import run_rollout
+def run_chunk(arm: str, distractors: int, seed: int, episodes: int) -> list:
+    """One chunk of an arm's episodes (a top-level function: it runs in a worker process)."""
+    import cv2
 
-    t0 = time.perf_counter()
-    summary, _ = run_rollout(config, progress=progress)
-    summary.pop("results", None)
-    summary["label"] = label
-    summary["wall_s"] = time.perf_counter() - t0
-    p = summary.get("perception") or {}
-    lo, hi = summary["success_rate_ci95"]
-    print(
-        f"{label:>22}: success {summary['success_rate']:6.1%} (95% CI {lo:.1%}-{hi:.1%}) "
-        f"n={summary['episodes']}  target recog {p.get('target_recognition_accuracy')}  "
-        f"failures {summary['failure_causes']}  knocked {summary.get('distractors_knocked_over')}",
-        flush=True,
-    )
+    from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+
+    cv2.setNumThreads(1)
+    config = RolloutConfig(pose=arm, episodes=episodes, seed=seed, distractors=distractors)
+    return run_rollout(config)[1]
+
+
+def arm_summary(arm: str, distractors: int, seed: int, results: list) -> dict:
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+    from scorbot_gym.evaluation.summary import summarize, wilson_interval
+
+    summary = summarize(results)
+    rows = summary.pop("results")
+    n = summary["episodes"]
+    wrong = summary["failure_causes"].get("wrong_object", 0)
+    summary["wrong_object_rate"] = wrong / n
+    summary["wrong_object_rate_ci95"] = list(wilson_interval(wrong, n))
+    summary["config"] = RolloutConfig(
+        pose=arm, episodes=n, seed=seed, distractors=distractors
+    ).to_dict()
+    summary["failed_episodes"] = failed_episodes(rows)
     return summary
+
+
+def failed_episodes(rows: list[dict]) -> list[str]:
+    """One line per failed episode, ``"seed target cause knocked=N picked=R"`` (``picked``:
+    the share of estimates taken on the target's blob), to find the episodes behind a figure
+    and replay them (``rollout --seed``); successes are the other seeds of the range."""
+    out = []
+    for r in rows:
+        if r["success"]:
+            continue
+        picked = (r["perception"] or {}).get("target_recognised_rate")
+        out.append(
+            f"{r['seed']} {r['object_name']} {r['failure_cause']} "
+            f"knocked={r['extra'].get('distractors_knocked_over', 0)}"
+            + ("" if picked is None else f" picked={picked:.2f}")
+        )
+    return out
+
+
+def check_targets(report: dict) -> list[dict]:
+    out = []
+    for k, arm, figure, bound, kind in TARGETS:
+        s = report["runs"].get(str(k), {}).get(arm)
+        if s is None:
+            continue
+        value = s.get(figure, (s.get("perception") or {}).get(figure))
+        met = value is not None and (value >= bound if kind == "min" else value <= bound)
+        out.append({"distractors": k, "arm": arm, "figure": figure, "bound": bound,
+                    "kind": kind, "value": value, "met": bool(met)})  # fmt: skip
+    return out
+
+
+def plot(report: dict, path: Path) -> None:
+    import matplotlib
+
+    from pose.fileio import atomic_write_bytes
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = report["runs"]
+    ks = sorted(runs, key=int)
+    arms = [a for a in ARMS if any(a in runs[k] for k in ks)]
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    width = 0.8 / len(arms)
+    for j, arm in enumerate(arms):
+        for i, k in enumerate(ks):
+            s = runs[k].get(arm)
+            if s is None:
+                continue
+            lo, hi = s["success_rate_ci95"]
+            x = i + (j - (len(arms) - 1) / 2) * width
+            ax.bar(x, s["success_rate"], width, color=f"C{j}", label=arm if i == 0 else None)
+            ax.errorbar(x, s["success_rate"], [[s["success_rate"] - lo], [hi - s["success_rate"]]],
+                        color="k", lw=1, capsize=2)  # fmt: skip
+            ax.text(x, hi + 0.02, f"wrong {s['wrong_object_rate']:.0%}", rotation=90,
+                    ha="center", va="bottom", fontsize=7)  # fmt: skip
+    ax.axhline(0.9, color="grey", ls="--", lw=1)
+    ax.set_xticks(range(len(ks)), [f"target + {k} distractors" for k in ks])
+    ax.set_ylabel("grasp success (95 % CI)")
+    ax.set_ylim(0, 1.25)
+    n = runs[ks[0]][arms[0]]["episodes"]
+    ax.set_title(f"cluttered table, {n} seeded episodes per bar, scripted controller", fontsize=9)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=120)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--episodes", type=int, default=40)
-    ap.add_argument("--distractors", type=int, default=2)
+    ap.add_argument("--episodes", type=int, default=200)
+    ap.add_argument("--distractors", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--seed", type=int, default=5000, help="first episode's seed")
-    ap.add_argument("--arms", nargs="+", choices=sorted(ARMS), default=list(ARMS))
+    ap.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
     ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
-    ap.add_argument("--out", type=Path, default=None)
-    ap.add_argument("--jobs", type=int, default=1, help="arms run in this many processes")
-    ap.add_argument("--no-progress", action="store_true")
+    ap.add_argument("--out", type=Path, default=None, help="JSON path (the PNG goes beside it)")
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
     args = ap.parse_args(argv)
-    if args.episodes < 1 or args.distractors < 0 or args.jobs < 1:
+    if args.episodes < 1 or args.jobs < 1 or any(k < 0 for k in args.distractors):
         ap.error("--episodes and --jobs must be >= 1, --distractors >= 0")
     episodes = 4 if args.quick else args.episodes
 
-    import cv2
-
     from pose.fileio import atomic_write_json
-    from scorbot_gym.evaluation.rollout import RolloutConfig
+    from scorbot_gym.perception.training import default_pose_models
 
-    cv2.setNumThreads(1)
-    configs = {
-        label: RolloutConfig(
-            episodes=episodes, seed=args.seed, distractors=args.distractors, **ARMS[label]
-        )
-        for label in args.arms
-    }
-    progress = not args.no_progress and args.jobs == 1
+    default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
+    tasks = [
+        (arm, k, s, min(CHUNK, args.seed + episodes - s))
+        for k in args.distractors
+        for arm in args.arms
+        for s in range(args.seed, args.seed + episodes, CHUNK)
+    ]
+    t0 = time.perf_counter()
     if args.jobs > 1:  # spawned: no GL context is inherited
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(args.jobs, mp_context=mp.get_context("spawn")) as pool:
-            futures = {k: pool.submit(run_arm, k, c, False) for k, c in configs.items()}
-            arms = {k: f.result() for k, f in futures.items()}
+            chunks = list(pool.map(run_chunk, *zip(*tasks, strict=True)))
     else:
-        arms = {k: run_arm(k, c, progress) for k, c in configs.items()}
+        chunks = [run_chunk(*t) for t in tasks]
+    wall = time.perf_counter() - t0
+    runs: dict[str, dict] = {}
+    for k in args.distractors:
+        for arm in args.arms:
+            results = [r for t, c in zip(tasks, chunks, strict=True) if t[:2] == (arm, k)
+                       for r in c]  # fmt: skip
+            s = arm_summary(arm, k, args.seed, results)
+            runs.setdefault(str(k), {})[arm] = s
+            p = s["perception"] or {}
+            lo, hi = s["success_rate_ci95"]
+            print(
+                f"{k} distractors {arm:>17}: success {s['success_rate']:6.1%} "
+                f"({lo:.1%}-{hi:.1%}) n={s['episodes']}  wrong {s['wrong_object_rate']:.1%}  "
+                f"target recog {p.get('target_recognition_accuracy')}  "
+                f"ms/estimate {p.get('median_estimate_ms')}  causes {s['failure_causes']}",
+                flush=True,
+            )
+    report = {
+        "episodes": episodes,
+        "distractors": args.distractors,
+        "seed": args.seed,
+        "arms": list(args.arms),
+        "runs": runs,
+        "wall_s": wall,
+        "jobs": args.jobs,
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "load_average_1min_at_end": os.getloadavg()[0],
+        },  # fmt: skip
+    }
+    report["targets"] = check_targets(report)
+    for t in report["targets"]:
+        print(f"target {t['figure']} {t['kind']} {t['bound']}: {t['value']} "
+              f"({'met' if t['met'] else 'NOT met'})")  # fmt: skip
     name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
-    out = args.out or Path(__file__).parent / "results" / name
-    atomic_write_json(
-        out,
-        {
-            "episodes": episodes,
-            "distractors": args.distractors,
-            "seed": args.seed,
-            "arms": arms,
-            "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
-        },
-    )
-    print(f"written {out}")
+    out = args.out or RESULTS / name
+    atomic_write_json(out, report)
+    plot(report, out.with_suffix(".png"))
+    print(f"written {out} and {out.with_suffix('.png')}")
     return 0
 
 

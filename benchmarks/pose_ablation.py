@@ -12,6 +12,7 @@ worker, so ``median_ms`` is a single-core time.
     python benchmarks/pose_ablation.py                      # full: 4 protocols, 0:95:5, catalogue
     python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0:90:10 \\
         --objects banana,box,foam_brick --test-views 10 --jobs 2   # a reduced run
+    python benchmarks/pose_ablation.py --protocols clutter --jobs 16   # real occluders, measured
     python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0,50 \\
         --estimators manifold --perturbations "none;lighting=0.5;noise_sigma=8"  # robustness
 
@@ -42,6 +43,7 @@ from pathlib import Path  # noqa: E402
 from pose.fileio import atomic_write_bytes, atomic_write_json, read_json  # noqa: E402
 from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
+from scorbot_gym.data.protocols import get_protocol  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, RayRunner, SweepSpec, ablate, write_report  # noqa: E402
 from scorbot_gym.experiments.aggregate import (  # noqa: E402
     format_paired,
@@ -173,7 +175,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--protocols", default=",".join(PROTOCOLS))
     ap.add_argument("--estimators", default=None, help="default: every registered estimator")
-    ap.add_argument("--occlusion", default="0:95:5")
+    ap.add_argument(
+        "--occlusion", default=None,
+        help="percent levels (default: each protocol's own, 0:95:5; clutter: its bins 0:90:10)",
+    )  # fmt: skip
     ap.add_argument("--objects", default=None, help="comma-separated (default: the catalogue)")
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
@@ -220,14 +225,15 @@ def main(argv: list[str] | None = None) -> int:
         pairs = Perturbation.parse_list(args.perturbations)
         labels = [label for label, _ in pairs]
         perturbations = [p for _, p in pairs] or [Perturbation.parse(args.perturb)]
-        occlusions = parse_occlusions(args.occlusion)
+        given = parse_occlusions(args.occlusion) if args.occlusion else None
         if paired is not None and paired not in [str(EstimatorSpec.parse(e)) for e in estimators]:
             raise ValueError(f"--paired {paired!r} is not among --estimators")
         if paired is not None and labels:
             raise ValueError("--paired compares estimators of one sweep; not with --perturbations")
         plan = [
             (protocol, [
-                SweepSpec(protocol, tuple(estimators), occlusions, objects, args.seed,
+                SweepSpec(protocol, tuple(estimators),
+                          given or get_protocol(protocol).occlusions, objects, args.seed,
                           args.width, args.height, args.test_views, args.train_stride, p)
                 for p in perturbations
             ])

@@ -14,7 +14,14 @@ from __future__ import annotations
 #: :mod:`scorbot_gym.evaluation.rollout` takes them from here
 POLICIES = ("scripted", "random", "rl", "learned")
 #: the pose sources :mod:`scorbot_gym.perception.registry` registers itself (sorted)
-POSE_SOURCES = ("manifold", "manifold_clutter", "noisy_oracle", "oracle")
+POSE_SOURCES = (
+    "largest_blob",
+    "manifold",
+    "manifold_clutter",
+    "noisy_oracle",
+    "oracle",
+    "random_blob",
+)
 #: short pose-source names the command line accepts, and the registered source each stands for
 POSE_ALIASES = {"noisy": "noisy_oracle"}
 
@@ -40,4 +47,5 @@ PROTOCOLS = (
     "tilted",
     "sparse-headings",
     "cross-camera",
+    "clutter",
 )

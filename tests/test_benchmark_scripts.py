@@ -79,6 +79,8 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("closed_loop.py", ["--perturbations", "none;glare=2"], "glare"),
         ("closed_loop.py", ["--perturbations", "none", "--arms", "oracle"], "--arms does not"),
         ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
+        ("pose_ablation.py", ["--protocols", "clutter", "--occlusion", "0,25"], "bin edges"),
+        ("clutter_closed_loop.py", ["--episodes", "0"], "--episodes"),
         ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
         (
             "pose_ablation.py",
@@ -98,6 +100,7 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
     out = {  # were an argument wrongly accepted, nothing would be written into results/
         "pose_ablation.py": ["--out-dir", str(tmp_path)],
         "closed_loop.py": ["--out", str(tmp_path / "c.json")],
+        "clutter_closed_loop.py": ["--out", str(tmp_path / "c.json")],
     }[script]
     line = _usage_error(_run(str(BENCHMARKS / script), *args, *out))
     assert "error:" in line, line

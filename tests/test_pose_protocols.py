@@ -16,7 +16,8 @@ from scorbot_gym.objects import get_object
 
 def test_names_and_occlusion_axis():
     assert set(protocol_names()) == {
-        "top-resting", "side-turntable", "overview", "tilted", "sparse-headings", "cross-camera"
+        "top-resting", "side-turntable", "overview", "tilted", "sparse-headings", "cross-camera",
+        "clutter",
     }  # fmt: skip
     assert (
         OCCLUSION_LEVELS[0] == 0.0 and OCCLUSION_LEVELS[-1] == 0.95 and len(OCCLUSION_LEVELS) == 20

@@ -137,8 +137,10 @@ def run_ablate(args: argparse.Namespace) -> int:
         raise ValueError(f"--paired {args.paired!r} is not among --estimators {args.estimators}")
     objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
     occlusion = args.occlusion
-    if occlusion is None:
-        occlusion = _occlusion_range(DEFAULT_ABLATE_OCCLUSION)
+    if occlusion is None:  # the protocol's levels (0:95:5; clutter: its measured-occlusion bins)
+        from scorbot_gym.data.protocols import get_protocol
+
+        occlusion = get_protocol(args.protocol).occlusions
     spec = SweepSpec(
         args.protocol, tuple(args.estimators), occlusion, objects, args.seed, args.width,
         args.height, args.test_views, args.train_stride, Perturbation.parse(args.perturb),
@@ -241,7 +243,8 @@ def _add_ablate_arguments(a: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     a.add_argument(
         "--occlusion", type=_occlusion_range, default=None,
-        help=f"percent levels START:STOP:STEP or a comma list (default {DEFAULT_ABLATE_OCCLUSION})",
+        help=f"percent levels START:STOP:STEP or a comma list (default {DEFAULT_ABLATE_OCCLUSION}; "
+        "clutter: the lower edges of its 10 %% bins of measured occlusion, 0:90:10)",
     )  # fmt: skip
     a.add_argument(
         "--jobs", type=_positive_int, default=None,

@@ -65,7 +65,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="oracle",
         help="where the object pose in the observation comes from: oracle (ground truth), "
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
-        "estimator on camera images)",
+        "estimator on camera images); with --distractors: manifold_clutter (every blob "
+        "recognised, the target's estimated), largest_blob / random_blob (a blob taken without "
+        "recognition: the baselines)",
     )
     p.add_argument(
         "--pose-model",
@@ -181,7 +183,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="MP4 or GIF of all the episodes, one after the other (recorded after the run)",
     )
     p.add_argument(
-        "--overlay", action="store_true", help="draw the estimated pose's axes on the video"
+        "--overlay",
+        action="store_true",
+        help="mark the target and draw the estimated pose's axes on the video",
     )
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--no-progress", action="store_true")

@@ -15,6 +15,11 @@ bumping its ``version``.
 - ``sparse-headings``: side camera, training headings 30° apart, tests exactly halfway between
   (the seed's claim that the manifold + RBF *interpolates* between known poses).
 - ``cross-camera``: trained on the top and side cameras, tested on the overview camera.
+- ``clutter``: side camera, trained as ``side-turntable``; each test view puts the target among
+  three other catalogue objects, some on the camera's side of it (real occluders,
+  :mod:`scorbot_gym.data.clutter_views`). The occlusion is *measured* from the segmentation,
+  and a level is a bin of it: level ``o`` holds the views whose measured occlusion lies in
+  ``[o, o + 10 %)`` (:data:`CLUTTER_BINS`), so the bins hold different numbers of views.
 """
 
 from __future__ import annotations
@@ -38,6 +43,8 @@ from scorbot_gym.data.views import (
 #: the seed's occlusion axis: 0-95 % in 5 % steps
 OCCLUSION_LEVELS = tuple(round(0.05 * i, 2) for i in range(20))
 MAX_TILT = np.radians(30.0)
+#: the ``clutter`` protocol's levels: lower edges of 10 % bins of measured occlusion
+CLUTTER_BINS = tuple(round(0.1 * i, 2) for i in range(10))
 
 Sampler = Callable[[int, int], list[PoseSample]]  # (n_resting, seed) -> samples
 
@@ -102,6 +109,12 @@ class PoseProtocol:
     occlusions: tuple[float, ...] = OCCLUSION_LEVELS
     extra: dict = field(default_factory=dict)
 
+    @property
+    def clutter_distractors(self) -> int | None:
+        """How many other objects share a test view's table (``None``: a synthetic occluder
+        pasted over the image instead, at the requested fraction)."""
+        return self.extra.get("distractors")
+
     def train_samples(self, n_resting: int, seed: int = 0) -> list[PoseSample]:
         return self.train_sampler(n_resting, seed)
 
@@ -110,6 +123,7 @@ class PoseProtocol:
 
 
 _N_TEST = 30
+_N_CLUTTER = 150  # views pooled over every bin of measured occlusion
 
 PROTOCOLS: dict[str, PoseProtocol] = {
     p.name: p
@@ -137,6 +151,11 @@ PROTOCOLS: dict[str, PoseProtocol] = {
         PoseProtocol(
             "cross-camera", 1, ("top", "side"), "overview", _grid(10.0), _random(_N_TEST),
             "trained on the top and side cameras, tested on the overview camera",
+        ),
+        PoseProtocol(
+            "clutter", 1, ("side",), "side", _grid(10.0), _random(_N_CLUTTER),
+            "side camera, the target among 3 other objects; occlusion measured, in 10 % bins",
+            CLUTTER_BINS, {"distractors": 3},
         ),
     )
 }  # fmt: skip
@@ -200,11 +219,37 @@ def held_out_views(
     """
     p = get_protocol(protocol) if isinstance(protocol, str) else protocol
     samples = p.test_samples(_n_resting(object_name), seed)
+    if p.clutter_distractors is not None:
+        return _clutter_bin(p, object_name, samples, occlusion, width, height, seed, cache_dir,
+                            progress, depth, perturbation)  # fmt: skip
     occ_seed = seed + 1000 * round(100 * occlusion)
     return render_views(
         object_name, samples, p.test_camera, width, height, occlusion, occ_seed, cache_dir,
         progress, depth, perturbation,
     )  # fmt: skip
+
+
+def _clutter_bin(
+    p: PoseProtocol, object_name, samples, occlusion, width, height, seed, cache_dir, progress,
+    depth, perturbation,
+) -> list[LabelledView]:  # fmt: skip
+    """The views of the bin ``occlusion`` of ``p``'s clutter scenes (rendered once for all)."""
+    from scorbot_gym.data.clutter_views import occlusion_bin, render_clutter_views
+
+    if not any(abs(occlusion - b) < 1e-9 for b in p.occlusions):
+        levels = ", ".join(f"{100 * b:.0f}" for b in p.occlusions)
+        raise ValueError(
+            f"protocol {p.name!r} bins its measured occlusion: levels are the bins' lower edges "
+            f"({levels} %), got {100 * occlusion:g} %"
+        )
+    if depth or (perturbation is not None and perturbation.active):
+        raise ValueError(f"protocol {p.name!r} renders plain RGB test views: no depth, no "
+                         "perturbation")  # fmt: skip
+    views = render_clutter_views(
+        object_name, samples, p.test_camera, width, height, p.clutter_distractors, seed,
+        cache_dir, progress,
+    )  # fmt: skip
+    return [v for v in views if occlusion_bin(v.occlusion, p.occlusions) == occlusion]
 
 
 def describe(names: Sequence[str] | None = None) -> list[dict]:
@@ -216,6 +261,11 @@ def describe(names: Sequence[str] | None = None) -> list[dict]:
             "train_cameras": list(p.train_cameras),
             "test_camera": p.test_camera,
             "description": p.description,
+            **(
+                {"distractors": p.clutter_distractors, "occlusion": "measured, binned"}
+                if p.clutter_distractors is not None
+                else {}
+            ),
         }
         for p in (get_protocol(n) for n in (names or protocol_names()))
     ]

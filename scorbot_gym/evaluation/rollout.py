@@ -16,6 +16,10 @@ from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.names import POLICIES, POSE_ALIASES
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
+#: the pose sources that split a cluttered table into blobs and estimate the named target on
+#: one of them (one camera, the default models of every class)
+CLUTTER_POSE_SOURCES = ("manifold_clutter", "largest_blob", "random_blob")
+
 
 @dataclass
 class RolloutConfig:
@@ -98,10 +102,10 @@ class RolloutConfig:
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
             )
-        if self.pose == "manifold_clutter" and self.recognize:
+        if self.pose in CLUTTER_POSE_SOURCES and self.recognize:
             raise ValueError(
-                "pose 'manifold_clutter' is told the target (the task command) and recognises "
-                "every blob itself: drop recognize"
+                f"pose {self.pose!r} is told the target (the task command) and chooses its blob "
+                "itself: drop recognize"
             )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
@@ -131,6 +135,8 @@ class RolloutConfig:
             return dict(self.noise)
         if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
             return {"models": self._models(progress), "recognizer": self.recognizer}
+        if self.pose in CLUTTER_POSE_SOURCES:  # the same blobs, chosen without recognition
+            return {"models": self._models(progress)}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models

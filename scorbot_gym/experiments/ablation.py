@@ -16,6 +16,7 @@ from scorbot_gym.experiments.aggregate import (
     selections,
     stage_ablation,
     view_errors,
+    winners,
 )
 from scorbot_gym.experiments.plot import plot_success_vs_occlusion
 from scorbot_gym.experiments.runners import Runner, run_sweep
@@ -35,6 +36,7 @@ def ablate(spec: SweepSpec, runner: Runner | None = None, cache_dir: str | None 
         "chance": chance,
         "stage_ablation": stage_ablation(results),
         "curves": curve_summary(results, chance),
+        "winners": winners(results),
         "stats": sweep["stats"],
         "fit_errors": fit_errors(sweep["trials"]),
         "selections": selections(sweep["trials"]),
@@ -56,4 +58,6 @@ def write_report(
             f"{s['protocol']} (v{s['protocol_info']['version']}), {len(s['objects'])} objects, "
             f"{s['width']}x{s['height']}, seed {s['seed']}"
         )
+        if s["protocol_info"].get("occlusion") == "measured, binned":
+            title += "; occlusion measured from the segmentation, 10 % bins (lower edge)"
         plot_success_vs_occlusion(report["results"], report["chance"], png_path, title)

@@ -268,6 +268,61 @@ def curve_summary(results: Sequence[dict], chance: dict) -> list[dict]:
     return out
 
 
+def winners(results: Sequence[dict]) -> list[dict]:
+    """Per (protocol, occlusion), the estimator with the highest success@5° beside the best
+    pose-manifold composition and the image-blind answer, and whether a baseline wins
+    (``baseline_wins``: a non-manifold estimator, or the image-blind answer, strictly above
+    every manifold composition). A curve of one method cannot say where another beats it; this
+    row does. Views differ between levels (the ``clutter`` protocol bins measured occlusion), so
+    ``n`` goes with every row."""
+    cells: dict[tuple, list[dict]] = defaultdict(list)
+    for r in results:
+        cells[(r["protocol"], r["occlusion"])].append(r)
+    out = []
+    for (protocol, occlusion), rows in sorted(cells.items()):
+        scored = [r for r in rows if r["success_5deg"] is not None]
+        if not scored:
+            continue
+        # ties go to a manifold composition, so that a baseline is said to win only above it
+        best = max(scored, key=lambda r: (r["success_5deg"], _family(r["estimator"])))
+        ours = [r for r in scored if _family(r["estimator"])]
+        mine = max(ours, key=lambda r: r["success_5deg"]) if ours else None
+        blind = scored[0]["constant_answer_success_5deg"]
+        top = mine["success_5deg"] if mine else None
+        beaten_by = None
+        if top is not None:
+            if not _family(best["estimator"]) and best["success_5deg"] > top:
+                beaten_by = best["estimator"]
+            elif blind is not None and blind > top:
+                beaten_by = "image-blind answer"
+        out.append({
+            "protocol": protocol, "occlusion": occlusion, "n": best["n"],
+            "best": best["estimator"], "best_success_5deg": best["success_5deg"],
+            "best_manifold": mine["estimator"] if mine else None,
+            "manifold_success_5deg": top, "image_blind_success_5deg": blind,
+            "baseline_wins": beaten_by is not None, "won_by": beaten_by,
+        })  # fmt: skip
+    return out
+
+
+def format_winners(rows: Sequence[dict]) -> str:
+    """The winners table (empty string for no rows or no manifold composition swept)."""
+    if not rows or all(r["best_manifold"] is None for r in rows):
+        return ""
+    lines = [
+        "best per level (ok@5 %): overall, best manifold composition, image-blind",
+        f"{'occl%':>6}{'n':>6}  {'best':<30}{'ok%':>6}{'manifold':>10}{'blind':>7}  note",
+    ]
+    for r in rows:
+        note = f"BASELINE WINS: {r['won_by']}" if r["baseline_wins"] else ""
+        lines.append(
+            f"{100 * r['occlusion']:>6.0f}{r['n']:>6}  {r['best'][:29]:<30}"
+            f"{_pct(r['best_success_5deg']):>6}{_pct(r['manifold_success_5deg']):>10}"
+            f"{_pct(r['image_blind_success_5deg']):>7}  {note}"
+        )  # fmt: skip
+    return "\n".join(lines)
+
+
 def _family(label: str) -> bool:
     return label.split("(")[0].startswith(REFERENCE)
 
@@ -404,6 +459,7 @@ def report_tables(report: dict) -> list[str]:
     paired comparison), the empty ones left out: the CLI and the benchmark print the same."""
     tables = (
         format_curves(report["curves"]),
+        format_winners(report.get("winners", [])),
         format_stage_ablation(report["stage_ablation"]),
         format_selections(report["selections"]),
         format_paired(report.get("paired", [])),

@@ -34,7 +34,10 @@ def plot_success_vs_occlusion(
     if many:  # tab20 pairs a dark and a light shade of each hue: all ten hues first
         colours = colours[0::2] + colours[1::2]
     for k, label in enumerate(labels):
-        rows = sorted((r for r in results if r["estimator"] == label), key=lambda r: r["occlusion"])
+        rows = sorted(
+            (r for r in results if r["estimator"] == label and r["n"]),  # empty bins: no point
+            key=lambda r: r["occlusion"],
+        )
         x = [100 * r["occlusion"] for r in rows]
         y = [100 * (r["success_5deg"] or 0.0) for r in rows]
         lo = [100 * r["success_5deg_ci95"][0] for r in rows]

@@ -102,7 +102,7 @@ class SweepSpec:
         from scorbot_gym.data.protocols import get_protocol
         from scorbot_gym.objects import get_object
 
-        get_protocol(self.protocol)
+        protocol = get_protocol(self.protocol)
         if not self.estimators:
             raise ValueError("a sweep needs at least one estimator")
         known = estimator_names()
@@ -115,6 +115,15 @@ class SweepSpec:
             raise ValueError(
                 f"occlusions must be fractions within [0, 0.95], got {self.occlusions}"
             )
+        if protocol.clutter_distractors is not None:  # levels are bins of measured occlusion
+            bad = [o for o in self.occlusions if not any(abs(o - b) < 1e-9 for b in
+                                                         protocol.occlusions)]  # fmt: skip
+            if bad:
+                edges = ",".join(f"{100 * b:.0f}" for b in protocol.occlusions)
+                raise ValueError(
+                    f"protocol {self.protocol!r} measures occlusion and bins it: levels must be "
+                    f"bin edges among {edges} (percent), got {[100 * o for o in bad]}"
+                )
         for o in self.objects:
             get_object(o)
         if self.test_views is not None and self.test_views < 1:

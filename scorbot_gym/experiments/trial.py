@@ -78,6 +78,7 @@ def model_key(job: ModelJob) -> str:
 
 def trial_key(job: ModelJob, occlusion: float) -> str:
     from scorbot_gym.data import perturbations
+    from scorbot_gym.data.protocols import get_protocol
 
     payload = {
         "model": model_key(job), "occlusion": occlusion, "test_views": job.test_views,
@@ -85,6 +86,10 @@ def trial_key(job: ModelJob, occlusion: float) -> str:
     }  # fmt: skip
     if perturbations.Perturbation(**dict(job.perturbation)).active:  # as the views' key does
         payload["perturbation_code"] = perturbations.code_fingerprint()
+    if get_protocol(job.protocol).clutter_distractors is not None:  # scenes of real occluders
+        from scorbot_gym.data.clutter_views import code_fingerprint as clutter_code
+
+        payload["clutter_code"] = clutter_code()
     return _key(payload)
 
 

@@ -7,12 +7,13 @@ from its model) into connected components, recognises each (FLR shortlist + appe
 single-object source does, on that blob's silhouette and pixels), and estimates the pose of the
 **target** (the task command, ``frame.object_name``) on the blob recognised as it. Where no
 blob is recognised as the target, the blob on which the target's model explains the most
-RANSAC inliers is taken (keypoint-to-model assignment). Once a valid estimate exists the target's
-blob is followed from step to step (the blob nearest the last estimate's projection, within a
-gate), so the full recognition runs only when the target is lost: during the grasp the arm splits
-and hides blobs, and recognising every blob at every step would cost one estimate per class. For
-the same reason a blob at about the place and size of one recognised earlier in the episode keeps
-that label.
+RANSAC inliers is taken (keypoint-to-model assignment; before the target is first found this
+includes blobs recognised as another object: objects touching in the image share a blob).
+Once a valid estimate exists the target's blob is followed from step to step (the blob
+nearest the last estimate's projection, within a gate), so the full recognition runs only when
+the target is lost: during the grasp the arm splits and hides blobs, and recognising every blob
+at every step would cost one estimate per class. For the same reason a blob at about the place
+and size of one recognised earlier in the episode keeps that label.
 
 A wrong pick is counted, never hidden: ``details["blobs"]`` lists every blob's recognition
 (``PoseEstimateObservation`` scores them against the ground truth in ``info["perception"]``).
@@ -220,9 +221,14 @@ class ClutterPoseSource:
         if best is not None:
             return best
         # No blob recognised as the target: the unrecognised blob where the target's model
-        # explains the most inliers. Blobs recognised as other objects are not tried: while
-        # the arm hides the target, its model would otherwise be fitted to a neighbour.
-        unknown = [i for i, r in enumerate(records) if r["recognised"] is None]
+        # explains the most inliers. Blobs recognised as other objects are tried only until
+        # the target is first found: two objects touching in the image share one blob, which
+        # is recognised as one of them, and the target's model explains its own keypoints on
+        # it; once an estimate exists, a lost target is one the arm hides, and its model would
+        # be fitted to a neighbour (the held estimate stands instead).
+        unknown = [
+            i for i, r in enumerate(records) if r["recognised"] is None or self._last is None
+        ]
         fits = {i: self.models.predict(View(image, cam, blobs[i], target)) for i in unknown}
         valid = {i: f for i, f in fits.items() if f.valid}
         if not valid:

@@ -52,11 +52,25 @@ def _clutter_source(**kwargs: Any) -> PoseSource:
     return ClutterPoseSource(**kwargs)
 
 
+def _blob_choice_source(choice: str) -> Callable[..., PoseSource]:
+    """A clutter baseline that takes the ``choice`` blob without recognising any
+    (``largest_blob``, ``random_blob``: :mod:`scorbot_gym.perception.blob_choice`)."""
+
+    def make(**kwargs: Any) -> PoseSource:
+        from scorbot_gym.perception.blob_choice import BlobChoicePoseSource
+
+        return BlobChoicePoseSource(choice=choice, **kwargs)
+
+    return make
+
+
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
     "manifold": _model_set_source,
     "manifold_clutter": _clutter_source,
+    "largest_blob": _blob_choice_source("largest"),
+    "random_blob": _blob_choice_source("random"),
 }
 
 
