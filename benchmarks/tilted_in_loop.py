@@ -20,7 +20,7 @@ an invalid estimate is not counted there, the valid rate is beside it), ms per e
 Both parts update their own section of ``benchmarks/results/tilted_in_loop.json``.
 
     python benchmarks/tilted_in_loop.py models [--jobs 2] [--objects box cylinder]
-    python benchmarks/tilted_in_loop.py loop [--episodes 70] [--tilts 10 20 30] [--jobs 2]
+    python benchmarks/tilted_in_loop.py loop [--episodes 70] [--tilts 0 10 20 30] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -36,24 +36,70 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 OUT = Path(__file__).parent / "results" / "tilted_in_loop.json"
-#: label -> TrainingSet keyword arguments; "in_loop" is IN_LOOP_TRAINING (checked at run time)
-CANDIDATES = {
+#: what is fitted: label -> TrainingSet keyword arguments
+FITS = {
     "resting/manifold": {},  # the previous default
     "resting/manifold-pnp": {"estimator": "manifold-pnp"},
     "resting+tilted/manifold": {"estimator": "manifold", "tilted_views": 216},
     "resting+tilted/manifold-pnp": {"estimator": "manifold-pnp", "tilted_views": 216},
-    "resting+tilted/manifold-pnp(upscale2,global)": {
-        "estimator": "manifold-pnp(keypoints__upscale=2, refiner__correspondences='ratio+global')",
+    "resting+tilted/manifold-pnp(upscale=2)": {
+        "estimator": "manifold-pnp(keypoints__upscale=2)",
         "tilted_views": 216,
     },
+}
+#: candidate -> (fit, predict-time parameters set on the fitted model: the PnP refiner's keep
+#: test and correspondences act only in ``predict``, so one fit serves several candidates)
+GLOBAL = {"refiner__correspondences": "ratio+global"}
+CANDIDATES = {
+    "resting/manifold": ("resting/manifold", {}),
+    "resting/manifold-pnp": ("resting/manifold-pnp", {}),
+    "resting/manifold-pnp(global)": ("resting/manifold-pnp", GLOBAL),
+    "resting+tilted/manifold": ("resting+tilted/manifold", {}),
+    "resting+tilted/manifold-pnp": ("resting+tilted/manifold-pnp", {}),
+    "resting+tilted/manifold-pnp(keep30)": (
+        "resting+tilted/manifold-pnp",
+        {"refiner__keep_margin": 30.0},
+    ),
+    "resting+tilted/manifold-pnp(global)": ("resting+tilted/manifold-pnp", GLOBAL),
+    "resting+tilted/manifold-pnp(global,keep30)": (
+        "resting+tilted/manifold-pnp",
+        {**GLOBAL, "refiner__keep_margin": 30.0},
+    ),
+    "resting/manifold-pnp(global,keep0)": (
+        "resting/manifold-pnp",
+        {**GLOBAL, "refiner__keep_margin": 0.0},
+    ),
+    "resting+tilted/manifold-pnp(global,keep0)": (
+        "resting+tilted/manifold-pnp",
+        {**GLOBAL, "refiner__keep_margin": 0.0},
+    ),
+    "resting+tilted/manifold-pnp(upscale=2,global)": (
+        "resting+tilted/manifold-pnp(upscale=2)",
+        GLOBAL,
+    ),
 }
 DEFAULT_CANDIDATES = [c for c in CANDIDATES if "upscale" not in c]
 TILT_BINS = (0.0, 10.0, 20.0, 30.0001)
 TIMED_VIEWS_PER_OBJECT = 4
 
 
-def _evaluate_candidate(label: str, name: str) -> dict:
-    """Train one candidate on one object, score it on the held-out views (a worker's job)."""
+def training_of(candidate: str):
+    """The :class:`TrainingSet` a candidate amounts to (its predict-time parameters written
+    into the estimator spec): what ``default_pose_models`` would train for it."""
+    from scorbot_gym.experiments.predict_params import with_param
+    from scorbot_gym.perception.training import TrainingSet
+
+    fit, predict = CANDIDATES[candidate]
+    kwargs = dict(FITS[fit])
+    spec = kwargs.pop("estimator", "manifold")
+    for k, v in predict.items():
+        spec = with_param(spec, k, v)
+    return TrainingSet(estimator=spec, **kwargs)
+
+
+def _evaluate_fit(fit: str, name: str, candidates: list[str]) -> dict:
+    """Train one fit on one object, score each of its candidates on the held-out views (a
+    worker's job)."""
     import cv2
     import numpy as np
 
@@ -64,19 +110,23 @@ def _evaluate_candidate(label: str, name: str) -> dict:
     from scorbot_gym.perception.training import TrainingSet, train_object
 
     cv2.setNumThreads(1)
-    arrays, info = train_object(name, progress=False, training=TrainingSet(**CANDIDATES[label]))
-    est = PoseManifoldEstimator.from_arrays(arrays)
+    arrays, info = train_object(name, progress=False, training=TrainingSet(**FITS[fit]))
     symmetry = get_object(name).symmetry
-    out = {"label": label, "object": name, "train": info, "arrays": arrays}
-    for protocol in ("tilted", "top-resting"):
-        rows = []
-        for lv in held_out_views(protocol, name, 0.0):
-            e = est.predict(lv.view)
-            R = lv.camera_from_object[:3, :3]
-            err = rotation_error_deg(e.rotation, R, symmetry) if e.valid else 180.0
-            t_err = np.linalg.norm(e.translation - lv.camera_from_object[:3, 3]) if e.valid else 1
-            rows.append((err, float(np.degrees(lv.sample.tilt)), float(t_err), bool(e.valid)))
-        out[protocol] = rows
+    tests = {p: held_out_views(p, name, 0.0) for p in ("tilted", "top-resting")}
+    out = []
+    for label in candidates:
+        est = PoseManifoldEstimator.from_arrays(arrays).set_params(**CANDIDATES[label][1])
+        rec = {"label": label, "object": name, "train": info, "arrays": est.to_arrays()}
+        for protocol, views in tests.items():
+            rows = []
+            for lv in views:
+                e = est.predict(lv.view)
+                R, t = lv.camera_from_object[:3, :3], lv.camera_from_object[:3, 3]
+                err = rotation_error_deg(e.rotation, R, symmetry) if e.valid else 180.0
+                t_err = float(np.linalg.norm(e.translation - t)) if e.valid else 1.0
+                rows.append((err, float(np.degrees(lv.sample.tilt)), t_err, bool(e.valid)))
+            rec[protocol] = rows
+        out.append(rec)
     return out
 
 
@@ -107,21 +157,23 @@ def run_models(args: argparse.Namespace) -> dict:
     from scorbot_gym.objects import CATALOGUE
     from scorbot_gym.perception.training import (
         IN_LOOP_TRAINING,
-        TrainingSet,
         default_models_path,
     )
 
     names = args.objects or list(CATALOGUE)
-    jobs = [(label, n) for label in args.candidates for n in names]
+    fits = list(dict.fromkeys(CANDIDATES[c][0] for c in args.candidates))
+    jobs = [
+        (f, n, [c for c in args.candidates if CANDIDATES[c][0] == f]) for f in fits for n in names
+    ]
     t0 = time.perf_counter()
     if args.jobs > 1:
         from scorbot_gym.experiments.workers import worker_pool
 
         with worker_pool(args.jobs) as pool:
-            futures = [pool.submit(_evaluate_candidate, *j) for j in jobs]
-            done = [f.result() for f in futures]
+            futures = [pool.submit(_evaluate_fit, *j) for j in jobs]
+            done = [d for f in futures for d in f.result()]
     else:
-        done = [_evaluate_candidate(*j) for j in jobs]
+        done = [d for j in jobs for d in _evaluate_fit(*j)]
     wall = time.perf_counter() - t0
     rows = []
     for label in args.candidates:
@@ -134,7 +186,7 @@ def run_models(args: argparse.Namespace) -> dict:
         rows.append(
             {
                 "candidate": label,
-                "training": TrainingSet(**CANDIDATES[label]).to_dict(),
+                "training": training_of(label).to_dict(),
                 "tilted": _rates(tilted),
                 "tilted_per_tilt_deg": per_tilt,
                 "resting": _rates([r for d in mine for r in d["top-resting"]]),
@@ -146,7 +198,7 @@ def run_models(args: argparse.Namespace) -> dict:
             }
         )
         if sorted(names) == sorted(CATALOGUE):  # spares default_pose_models the training
-            training = TrainingSet(**CANDIDATES[label])
+            training = training_of(label)
             path = default_models_path(training=training)
             if not path.is_file():
                 ms = PoseModelSet(
@@ -175,9 +227,7 @@ def run_models(args: argparse.Namespace) -> dict:
     latency = summarize_latency(
         {k: np.array(v) for k, v in per_view.items()}, reference=args.candidates[0]
     )
-    in_loop = next(
-        (c for c in args.candidates if TrainingSet(**CANDIDATES[c]) == IN_LOOP_TRAINING), None
-    )
+    in_loop = next((c for c in args.candidates if training_of(c) == IN_LOOP_TRAINING), None)
     return {
         "objects": names,
         "test_views_per_object": {"tilted": 30, "resting": 30},
@@ -189,13 +239,18 @@ def run_models(args: argparse.Namespace) -> dict:
     }
 
 
-def _loop_arm(label: str, pose: str, tilt: float, episodes: int, seed: int) -> dict:
+def _loop_arm(
+    label: str, pose: str, tilt: float, episodes: int, seed: int, objects, pose_model
+) -> dict:
     import cv2
 
     from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 
     cv2.setNumThreads(1)
-    config = RolloutConfig(pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed)
+    config = RolloutConfig(
+        pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed, objects=objects,
+        pose_model=pose_model if pose == "manifold" else None,
+    )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)
     results = summary.pop("results")
@@ -213,14 +268,16 @@ def _loop_arm(label: str, pose: str, tilt: float, episodes: int, seed: int) -> d
 
 
 def run_loop(args: argparse.Namespace) -> dict:
+    from scorbot_gym.evaluation.summary import wilson_interval
+    from scorbot_gym.perception.training import default_models_path, default_pose_models
+
+    objects = tuple(args.objects) if args.objects else None
+    default_pose_models(objects=objects, progress=True)  # trained once here, not per worker
+    model = str(default_models_path(objects=objects)) if objects else None
     runs = []
     for i, tilt in enumerate(args.tilts):
-        for label, pose in (("oracle", "oracle"), ("manifold", "manifold")):
-            runs.append((label, pose, tilt, args.episodes, args.seed + 1000 * i))
-    if "manifold" in {r[1] for r in runs}:
-        from scorbot_gym.perception.training import default_pose_models
-
-        default_pose_models(progress=True)  # trained once here, not in every worker
+        for label in ("oracle", "manifold"):
+            runs.append((label, label, tilt, args.episodes, args.seed + 1000 * i, objects, model))
     t0 = time.perf_counter()
     if args.jobs > 1:
         from scorbot_gym.experiments.workers import worker_pool
@@ -237,18 +294,29 @@ def run_loop(args: argparse.Namespace) -> dict:
             f"ms {p.get('median_estimate_ms')}",
             flush=True,
         )
-    totals = {}
+    totals = {}  # over the tilted arms, and over the resting ones (tilt 0) apart
     for label in ("oracle", "manifold"):
-        mine = [a for a in arms if a["label"] == label]
-        n, ok = sum(a["episodes"] for a in mine), sum(a["successes"] for a in mine)
-        valid = sum(a["estimates_valid"] for a in mine)
-        hits = sum(a["estimates_valid"] * (a["success_5deg_of_valid_estimates"] or 0) for a in mine)
-        totals[label] = {
-            "episodes": n,
-            "grasp_success": round(ok / n, 4),
-            "success_5deg_of_valid_estimates": round(hits / valid, 4) if valid else None,
-        }
+        for kind, keep in (("tilted", lambda t: t > 0), ("resting", lambda t: t == 0)):
+            mine = [a for a in arms if a["label"] == label and keep(a["tilt_deg"])]
+            if not mine:
+                continue
+            n, ok = sum(a["episodes"] for a in mine), sum(a["successes"] for a in mine)
+            valid = sum(a["estimates_valid"] for a in mine)
+            hits = sum(
+                a["estimates_valid"] * (a["success_5deg_of_valid_estimates"] or 0) for a in mine
+            )
+            totals[f"{label}_{kind}"] = {
+                "episodes": n,
+                "grasp_success": round(ok / n, 4),
+                "grasp_success_ci95": [round(v, 4) for v in wilson_interval(ok, n)],
+                "estimates_valid": valid,
+                "success_5deg_of_valid_estimates": round(hits / valid, 4) if valid else None,
+                "median_estimate_ms_of_arms": [
+                    (a.get("perception") or {}).get("median_estimate_ms") for a in mine
+                ],
+            }
     return {
+        "objects": list(objects) if objects else "catalogue",
         "tilts_deg": list(args.tilts),
         "episodes_per_tilt": args.episodes,
         "seed": args.seed,
@@ -272,19 +340,21 @@ def main(argv: list[str] | None = None) -> int:
     lp.add_argument("--tilts", type=float, nargs="+", default=[10.0, 20.0, 30.0])
     lp.add_argument("--seed", type=int, default=7000)
     lp.add_argument("--jobs", type=int, default=1)
+    lp.add_argument("--objects", nargs="+", default=None, help="default: the catalogue")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--section", default=None, help="key of the JSON to write (default: part)")
     args = ap.parse_args(argv)
     if args.jobs < 1 or getattr(args, "episodes", 1) < 1:
         ap.error("--jobs and --episodes must be >= 1")
-    if any(not 0 < t <= 45 for t in getattr(args, "tilts", [])):
-        ap.error("--tilts must be angles in (0, 45] degrees")
+    if any(not 0 <= t <= 45 for t in getattr(args, "tilts", [])):
+        ap.error("--tilts must be angles in [0, 45] degrees (0: resting, no stand)")
 
     from pose.fileio import atomic_write_json
 
     section = run_models(args) if args.part == "models" else run_loop(args)
     report = json.loads(args.out.read_text()) if args.out.is_file() else {}
     section["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count()}
-    report[args.part] = section
+    report[args.section or args.part] = section
     atomic_write_json(args.out, report)
     print(json.dumps({k: v for k, v in section.items() if k != "arms"}, indent=1)[:4000])
     print(f"wrote {args.out}")
