@@ -1,8 +1,9 @@
 """Tilted objects in the closed loop (issue 37, item 3): which default models, and the loop.
 
 ``models``: every candidate training set (:class:`~scorbot_gym.perception.training.TrainingSet`:
-views and estimator composition) is trained per object on the top camera at 320x240 and scored
-on the same held-out views: the ``tilted`` protocol's test poses (tilted 0-30 degrees out of a
+views and estimator composition) is trained per object on the top camera at 320x240 (candidates
+that differ only in predict-time parameters of the PnP refiner share one fit) and scored on the
+same held-out views: the ``tilted`` protocol's test poses (tilted 0-30 degrees out of a
 resting pose, seed 1) and the ``top-resting`` protocol's (resting, seed 1). success@5deg is
 symmetry-aware; ``per_tilt`` splits the tilted views by tilt. The cost per estimate is timed
 afterwards in one process pinned to one core, the candidates interleaved view by view

@@ -25,9 +25,11 @@ object across its narrow dimension (at most ``1 / cos(tilt)`` wider than the obj
 30 degrees). The grasp point is the object-frame grasp point carried by the full rotation (for a
 leaning object it is no longer above the pose origin), and the grasp height is taken from the
 object's highest point under that rotation, so that the palm clears a raised end. Leaning the
-tool to follow the tilt was not chosen: it is possible only for tilts within the radial plane,
-and it brings the fingers down onto the stand's plate and lip. For a resting object (the
-rotation a turn about the vertical) this is the top-down plan it always was.
+tool to follow the tilt was not chosen: it is possible only for the tilt's component within the
+radial plane, so every other tilt direction would still need the vertical plan. Its known cost:
+where the closing line runs down the slope (a marker rolled on the stand), the uphill finger of
+the open gripper can meet the stand's plate before the fingers reach the grasp height. For a
+resting object (the rotation a turn about the vertical) this is the top-down plan it always was.
 """
 
 from __future__ import annotations
