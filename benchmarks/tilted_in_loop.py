@@ -258,6 +258,8 @@ def _loop_arm(
     perception = [r["perception"] for r in results if r.get("perception")]
     valid = sum(p["valid"] for p in perception)
     hits = sum(p["valid"] * (p["success_5deg"] or 0.0) for p in perception)
+    if tilt > 0:
+        summary["settled_tilt_deg"] = _settled_tilts(config)
     summary.update(
         label=label,
         tilt_deg=tilt,
@@ -266,6 +268,29 @@ def _loop_arm(
         success_5deg_of_valid_estimates=round(hits / valid, 4) if valid else None,
     )
     return summary
+
+
+def _settled_tilts(config) -> dict:
+    """How far the targets of these episodes really lean once settled on the stand (the env's
+    ground truth at reset, for the record): an object can slide or roll against the stand's
+    lip and settle at another tilt than the stand's."""
+    import numpy as np
+
+    env = config.make_env()
+    try:
+        tilts = []
+        for seed in range(config.seed, config.seed + config.episodes):
+            _, info = env.reset(seed=seed, options=config.reset_options)
+            tilts.append(info["objects"][info["target_name"]]["tilt_deg"])
+    finally:
+        env.close()
+    t = np.array(tilts)
+    return {
+        "median": round(float(np.median(t)), 2),
+        "min": round(float(t.min()), 2),
+        "max": round(float(t.max()), 2),
+        "above_30deg": int((t > 30.0).sum()),
+    }
 
 
 def run_loop(args: argparse.Namespace) -> dict:
