@@ -63,19 +63,26 @@ def _random(n: int) -> Sampler:
     return sample
 
 
+def tilted_poses(n: int, n_resting: int, seed: int, max_tilt: float = MAX_TILT) -> list[PoseSample]:
+    """``n`` random positions, headings and resting faces (:func:`random_poses` in the
+    workspace), each tilted out of its resting pose by an angle uniform in ``[0, max_tilt]``
+    (radians) towards a uniform direction: objects propped on a stand or leaning."""
+    rng = np.random.default_rng(seed)
+    base = random_poses(n, n_resting, workspace_bounds(), seed)
+    tilts = rng.uniform(0.0, max_tilt, n)
+    dirs = rng.uniform(-np.pi, np.pi, n)
+    return [
+        PoseSample(s.x, s.y, s.yaw, s.resting_index, float(t), float(d))
+        for s, t, d in zip(base, tilts, dirs, strict=True)
+    ]
+
+
 def _tilted(n: int, max_tilt: float = MAX_TILT) -> Sampler:
     """Random resting face, heading and position, tilted by up to ``max_tilt`` (uniform in the
     tilt angle, uniform tilt direction)."""
 
     def sample(n_resting: int, seed: int) -> list[PoseSample]:
-        rng = np.random.default_rng(seed)
-        base = random_poses(n, n_resting, workspace_bounds(), seed)
-        tilts = rng.uniform(0.0, max_tilt, n)
-        dirs = rng.uniform(-np.pi, np.pi, n)
-        return [
-            PoseSample(s.x, s.y, s.yaw, s.resting_index, float(t), float(d))
-            for s, t, d in zip(base, tilts, dirs, strict=True)
-        ]
+        return tilted_poses(n, n_resting, seed, max_tilt)
 
     return sample
 
