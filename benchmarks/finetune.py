@@ -158,6 +158,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--noise", nargs="*", default=["0:20", "0.02:0"], help="pose-noise levels S:Y tested"
     )
+    p.add_argument(
+        "--arms",
+        default=f"{ARM_SCRIPTED},{ARM_IMITATION}",
+        help="comma-separated arms besides the fine-tuned ones (scripted, learned)",
+    )
     p.add_argument("--jobs", type=positive_int, default=1)
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"))
     p.add_argument("--skip-training", action="store_true", help="evaluate the runs in --runs")
@@ -198,7 +203,10 @@ def main(argv: list[str] | None = None) -> None:
     train_wall = time.perf_counter() - t0
     runs = {f"finetuned_s{s}": args.runs / f"seed_{s}" for s in args.seeds}
     folders = {name: policy_dir(run, args.checkpoint) for name, run in runs.items()}
-    policies = [ARM_SCRIPTED, ARM_IMITATION, *map(str, folders.values())]
+    arms = [a for a in args.arms.split(",") if a]
+    if ARM_IMITATION not in arms:
+        arms.append(ARM_IMITATION)  # the paired baseline of every fine-tuned policy
+    policies = [*arms, *map(str, folders.values())]
     report = compare(
         policies,
         ["oracle"],
@@ -212,6 +220,8 @@ def main(argv: list[str] | None = None) -> None:
     for r in report["results"]:
         r["policy"] = rename.get(r["policy"], r["policy"])
     report["arms"] = {rename.get(k, k): v for k, v in report["arms"].items()}
+    for name in runs:
+        report["arms"][name]["label"] = f"{name} (fine-tuned, {args.checkpoint})"
     for d in report["differences"]:
         d["a"] = rename.get(d["a"], d["a"])
     diffs = []

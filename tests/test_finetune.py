@@ -64,6 +64,7 @@ def tiny_run(tmp_path_factory):
     return out, state
 
 
+@pytest.mark.slow
 def test_actor_initialised_from_the_imitation_policy_acts_like_it():
     """Before any update, SAC's deterministic action (through the fine-tune's features and
     gripper execution) is the imitation policy's, step after step of a seeded episode."""
@@ -111,6 +112,7 @@ def test_demo_rows_are_in_every_batch():
     assert online.last_demo_rows == 8 and online.demo_rows_drawn == 8
 
 
+@pytest.mark.slow
 def test_tiny_fine_tune_writes_a_loadable_stand_alone_policy(tiny_run, tmp_path, capsys):
     out, state = tiny_run
     policy = load_policy(out, checkpoint="last")
@@ -137,11 +139,12 @@ def test_tiny_fine_tune_writes_a_loadable_stand_alone_policy(tiny_run, tmp_path,
     assert "success" in capsys.readouterr().out.lower()
 
 
+@pytest.mark.slow
 def test_same_seed_same_first_updates_and_the_actor_waits_for_the_critic():
     """Two fine-tunes with one seed make identical updates; another seed differs. During the
     critic warm-up only the critic moves."""
 
-    def after_updates(seed: int, steps: int):
+    def after_updates(seed: int):
         config = tiny(seed=seed)
         venv = make_vec_env(config)
         try:
@@ -152,22 +155,22 @@ def test_same_seed_same_first_updates_and_the_actor_waits_for_the_critic():
                 demo_transitions(episodes, load_init_policy("learned")), model
             )
             actor0, critic0 = _params(model.actor), _params(model.critic)
-            model.learn(steps)
-            assert model.replay_buffer.demo_rows_drawn == 8 * model._n_updates > 0
-            return actor0, critic0, _params(model.actor), _params(model.critic)
+            model.learn(16)  # 16 updates = critic_warmup: the actor is frozen
+            np.testing.assert_array_equal(actor0, _params(model.actor))
+            assert not np.array_equal(critic0, _params(model.critic))
+            model.learn(8, reset_num_timesteps=False)
+            assert not np.array_equal(actor0, _params(model.actor)), "then the actor moves"
+            assert model.replay_buffer.demo_rows_drawn == 8 * model._n_updates == 8 * 24
+            return _params(model.actor), _params(model.critic)
         finally:
             venv.close()
 
-    a0, c0, a1, c1 = after_updates(5, 16)  # 16 updates <= critic_warmup: actor frozen
-    np.testing.assert_array_equal(a0, a1)
-    assert not np.array_equal(c0, c1)
-    _, _, a2, c2 = after_updates(5, 24)
-    _, _, a3, c3 = after_updates(5, 24)
-    assert not np.array_equal(a0, a2), "after the warm-up the actor moves"
-    np.testing.assert_array_equal(a2, a3)
-    np.testing.assert_array_equal(c2, c3)
-    _, _, _, c4 = after_updates(6, 24)
-    assert not np.array_equal(c2, c4)
+    a1, c1 = after_updates(5)
+    a2, c2 = after_updates(5)
+    np.testing.assert_array_equal(a1, a2)
+    np.testing.assert_array_equal(c1, c2)
+    _, c3 = after_updates(6)
+    assert not np.array_equal(c1, c3)
 
 
 @pytest.mark.parametrize(
