@@ -3,10 +3,10 @@ imitation policy against its fine-tuned versions on the same fresh seeds (whole 
 
 Each seed is one ``scorbot-gym train --init-policy learned --bc-demos N`` run (run folder under
 ``--runs``; ``--jobs`` runs train at once, one process each); then the scripted controller, the
-imitation policy (``learned``) and every fine-tuned policy (the run's ``--checkpoint``: ``best``
-is chosen on the run's own evaluation seeds, never on the test seeds) play the same
-``--episodes`` seeded episodes from ``--eval-seed`` under the oracle pose and each ``--noise``
-level. Reported: success with 95 % Wilson CI, paired differences (fine-tuned - imitation, and
+imitation policy (``learned``) and every fine-tuned policy (the run's ``--checkpoint``: by
+default the last, after the stated budget; ``best`` is chosen on the run's own evaluation
+seeds, never on the test seeds) play the same ``--episodes`` seeded episodes from
+``--eval-seed`` under the oracle pose and each ``--noise`` level. Reported: success with 95 % Wilson CI, paired differences (fine-tuned - imitation, and
 each arm - scripted) with Newcombe CIs and McNemar p, the training cost (demonstrations, env
 steps, wall time; the imitation stage's from its policy.json) and the fine-tune's evaluation
 curve.
@@ -152,7 +152,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--hyperparams", nargs="+", default=[], metavar="KEY=VALUE")
     p.add_argument("--eval-every", type=positive_int, default=5000)
     p.add_argument("--eval-episodes", type=positive_int, default=30)
-    p.add_argument("--checkpoint", choices=("best", "last"), default="best")
+    p.add_argument(
+        "--checkpoint",
+        choices=("best", "last"),
+        default="last",
+        help="last: the policy after --timesteps; best: the run's best evaluation (its "
+        "evaluation at step 0 is the imitation policy itself, which a noisy small evaluation "
+        "can keep as best)",
+    )
     p.add_argument("--episodes", type=positive_int, default=200, help="test episodes per arm")
     p.add_argument("--eval-seed", type=int, default=50_000)
     p.add_argument(
