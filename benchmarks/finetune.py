@@ -6,10 +6,10 @@ Each seed is one ``scorbot-gym train --init-policy learned --bc-demos N`` run (r
 imitation policy (``learned``) and every fine-tuned policy (the run's ``--checkpoint``: by
 default the last, after the stated budget; ``best`` is chosen on the run's own evaluation
 seeds, never on the test seeds) play the same ``--episodes`` seeded episodes from
-``--eval-seed`` under the oracle pose and each ``--noise`` level. Reported: success with 95 % Wilson CI, paired differences (fine-tuned - imitation, and
-each arm - scripted) with Newcombe CIs and McNemar p, the training cost (demonstrations, env
-steps, wall time; the imitation stage's from its policy.json) and the fine-tune's evaluation
-curve.
+``--eval-seed`` under the oracle pose and each ``--noise`` level. Reported: success with 95 %
+Wilson CI, paired differences (fine-tuned - imitation, and each arm - scripted) with Newcombe
+CIs and McNemar p, the training cost (demonstrations, env steps, wall time; the imitation
+stage's from its policy.json) and the fine-tune's evaluation curve.
 
     nice -n 5 python benchmarks/finetune.py --timesteps 20000 --seeds 0 --episodes 200
     python benchmarks/finetune.py --timesteps 50000 --seeds 0,1,2 --jobs 16   # a big machine
@@ -81,6 +81,33 @@ def _run_record(run: Path, checkpoint: str) -> dict:
             {k: e[k] for k in ("timesteps", "wall_s", "episodes", "success_rate", "ci95")}
             for e in state["eval"]
         ],
+    }
+
+
+def _configs(args: argparse.Namespace, overrides: dict) -> dict[int, dict]:
+    """One checked training configuration per seed (as JSON)."""
+    from scorbot_gym.rl.training import TrainConfig
+
+    return {
+        seed: TrainConfig(
+            init_policy=args.init_policy,
+            normalize=False,
+            pose=args.pose,
+            noise_pos_m=args.noise_pos,
+            noise_yaw_deg=args.noise_yaw,
+            timesteps=args.timesteps,
+            bc_demos=args.bc_demos,
+            seed=seed,
+            hyperparams=overrides,
+            eval_every=args.eval_every,
+            eval_episodes=args.eval_episodes,
+            checkpoint_every=args.eval_every,
+            progress_bar=False,
+            tensorboard=False,
+        )
+        .validate()
+        .to_json()
+        for seed in args.seeds
     }
 
 
@@ -177,42 +204,25 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     from pose.fileio import atomic_write_json
-    from scorbot_gym.evaluation.compare import compare
+    from scorbot_gym.evaluation.compare import compare, resolve_arm
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.rl.runs import policy_dir
-    from scorbot_gym.rl.training import TrainConfig
 
-    overrides = hparams.parse_overrides(args.hyperparams)
-    configs = {
-        seed: TrainConfig(
-            init_policy=args.init_policy,
-            normalize=False,
-            pose=args.pose,
-            noise_pos_m=args.noise_pos,
-            noise_yaw_deg=args.noise_yaw,
-            timesteps=args.timesteps,
-            bc_demos=args.bc_demos,
-            seed=seed,
-            hyperparams=overrides,
-            eval_every=args.eval_every,
-            eval_episodes=args.eval_episodes,
-            checkpoint_every=args.eval_every,
-            progress_bar=False,
-            tensorboard=False,
-        )
-        .validate()
-        .to_json()
-        for seed in args.seeds
-    }
+    arms = [a for a in args.arms.split(",") if a]
+    if ARM_IMITATION not in arms:
+        arms.append(ARM_IMITATION)  # the paired baseline of every fine-tuned policy
+    try:  # every setting is checked before any training: a usage error, not a traceback
+        for arm in arms:
+            resolve_arm(arm)
+        configs = _configs(args, hparams.parse_overrides(args.hyperparams))
+    except (ValueError, FileNotFoundError) as exc:
+        p.error(str(exc))
     t0 = time.perf_counter()
     if not args.skip_training:
         _train(configs, args.runs, args.jobs)
     train_wall = time.perf_counter() - t0
     runs = {f"finetuned_s{s}": args.runs / f"seed_{s}" for s in args.seeds}
     folders = {name: policy_dir(run, args.checkpoint) for name, run in runs.items()}
-    arms = [a for a in args.arms.split(",") if a]
-    if ARM_IMITATION not in arms:
-        arms.append(ARM_IMITATION)  # the paired baseline of every fine-tuned policy
     policies = [*arms, *map(str, folders.values())]
     report = compare(
         policies,

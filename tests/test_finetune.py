@@ -188,3 +188,22 @@ def test_bad_fine_tune_options_are_one_line_errors(argv, message, tmp_path, caps
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err, err
     assert not out.exists()
+
+
+def test_the_benchmark_refuses_bad_settings_before_training(tmp_path):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run(
+        [sys.executable, "benchmarks/finetune.py", "--hyperparams", "bc_coef=-1"],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root), "MUJOCO_GL": "egl"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert "bc_coef must be a number in [0.0, inf)" in proc.stderr.strip().splitlines()[-1]
