@@ -125,6 +125,11 @@ def test_tiny_fine_tune_writes_a_loadable_stand_alone_policy(tiny_run, tmp_path,
     assert record["demonstration_episodes"] == record["imitation"]["demonstration_episodes"] + 1
     assert record["env_steps"] == record["imitation"]["env_steps"] + 48
     assert record["wall_time_s"] > record["imitation"]["wall_time_s"]
+    # compare's training column: both stages, although the run's own state counts RL steps only
+    from scorbot_gym.evaluation.compare import training_record
+
+    row = training_record(out / "policy", meta)
+    assert row["trained_from"] == "demonstrations" and row["env_steps"] == record["env_steps"]
     # the demonstrations were drawn in the batches: 48 updates, 8 demo rows each
     assert state["demos"]["transitions"] > 0
     env = make_policy_env(tiny())
