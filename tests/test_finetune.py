@@ -212,3 +212,17 @@ def test_the_benchmark_refuses_bad_settings_before_training(tmp_path):
     )
     assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     assert "bc_coef must be a number in [0.0, inf)" in proc.stderr.strip().splitlines()[-1]
+
+
+def test_the_packaged_fine_tuned_policy_loads_stand_alone_and_records_both_stages():
+    from pathlib import Path
+
+    import scorbot_gym
+
+    folder = Path(scorbot_gym.__file__).parent / "policies" / "data" / "imitation_rlpd_oracle"
+    size = sum(f.stat().st_size for f in folder.iterdir())
+    assert size < 2 * 2**20
+    policy = load_policy(folder)
+    assert isinstance(policy, ImitationPolicy) and policy.uses_scripted_controller is False
+    record = policy.meta["training"]
+    assert record["rl_finetune"]["env_steps"] > 0 and record["imitation"]["dagger_episodes"] > 0
