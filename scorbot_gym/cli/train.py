@@ -25,6 +25,7 @@ _NEW_RUN_OPTIONS = (
     "residual_scale",
     "bc_demos",
     "bc_steps",
+    "init_policy",
     "hyperparams",
     "net_arch",
     "learning_starts",
@@ -123,7 +124,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--bc-demos",
         type=non_negative_int,
         default=0,
-        help="scripted demonstration episodes: replay buffer + behaviour cloning",
+        help="scripted demonstration episodes: replay buffer + behaviour cloning (with "
+        "--init-policy: a demonstration buffer sampled in every batch)",
+    )
+    p.add_argument(
+        "--init-policy",
+        default=None,
+        metavar="learned|DIR",
+        help="fine-tune this imitation policy with SAC, RLPD-style (hyperparams sac.yml "
+        "'finetune'; the saved policies are imitation-format folders)",
     )
     p.add_argument(
         "--bc-steps", type=non_negative_int, default=2000, help="behaviour-cloning gradient steps"
@@ -196,6 +205,8 @@ def config_from_args(args: argparse.Namespace):
         residual_scale=args.residual_scale,
         bc_demos=args.bc_demos,
         bc_steps=args.bc_steps,
+        init_policy=args.init_policy,
+        normalize=args.init_policy is None,  # a fine-tune uses the policy's own statistics
         hyperparams=_overrides(args),
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,

@@ -266,7 +266,9 @@ def training_record(folder: Path, meta: dict[str, Any]) -> dict[str, Any]:
     env_steps = train.get("env_steps", meta.get("trained_timesteps"))
     wall = train.get("wall_time_s", train.get("wall_s"))
     seed = config.get("seed") if isinstance(config, dict) else None
-    if folder.name == runs.POLICY:  # a run folder's final export: the run's own bookkeeping
+    # a run folder's final export: the run's own bookkeeping (a fine-tune's policy.json already
+    # sums both stages, which the run's state, RL steps only, would undercount)
+    if folder.name == runs.POLICY and "rl_finetune" not in train:
         state = _read_json(folder.parent / runs.CHECKPOINT / runs.STATE) or {}
         env_steps = state.get("timesteps", env_steps)
         wall = state.get("wall_s", wall)

@@ -2,9 +2,11 @@
 
 As in RL Zoo, each algorithm has a file (``hyperparams/sac.yml``, ``tqc.yml``, ``ppo.yml``)
 with one entry per setting (``default``: the policy acts alone; ``residual``: a correction on
-top of the scripted controller). A run takes its entry, applies ``key=value`` overrides, checks
-every value, and records the resolved set in its folder (``config.json`` and
-``hyperparams.yml``), so a run is a function of its folder, not of the package version.
+top of the scripted controller; ``finetune``, SAC only: RLPD-style fine-tuning of a saved
+imitation policy, ``--init-policy``, see :mod:`scorbot_gym.rl.finetune`). A run takes its
+entry, applies ``key=value`` overrides, checks every value, and records the resolved set in
+its folder (``config.json`` and ``hyperparams.yml``), so a run is a function of its folder, not
+of the package version.
 
 ``train_freq`` and ``gradient_steps`` (off-policy) are counted per env, as if there were one:
 :func:`sb3_schedule` scales ``gradient_steps`` with the number of envs, so updates per env step
@@ -25,7 +27,8 @@ import yaml
 
 ALGOS = ("sac", "tqc", "ppo")
 POSES = ("oracle", "noisy", "manifold")  # the pose sources a run trains with
-SETTINGS = ("default", "residual")
+SETTINGS = ("default", "residual")  # every algorithm's file has these
+FINETUNE = "finetune"  # the setting of --init-policy (sac.yml only)
 OFF_POLICY = ("sac", "tqc")
 
 
@@ -86,6 +89,15 @@ def _finite(v: Any) -> float:
     return _float(-math.inf)(v)
 
 
+def _target_entropy(v: Any) -> float | str:
+    if v == "auto":
+        return v
+    try:
+        return _finite(v)
+    except ValueError:
+        raise ValueError("must be a number or 'auto' (minus the action dimension)") from None
+
+
 #: key -> (algorithms it applies to, check-and-convert, what it is)
 KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     "gamma": (ALGOS, _float(0.0, 1.0, low_open=True), "discount factor"),
@@ -109,7 +121,16 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     "clip_range": (("ppo",), _float(0.0, low_open=True), "PPO clip range"),
     "vf_coef": (("ppo",), _float(0.0), "value loss weight"),
     "max_grad_norm": (("ppo",), _float(0.0, low_open=True), "gradient clipping norm"),
+    "target_entropy": (OFF_POLICY, _target_entropy, "entropy the auto ent_coef aims at"),
+    # fine-tuning (--init-policy) only, see scorbot_gym.rl.finetune
+    "demo_ratio": (("sac",), _float(0.0, 1.0), "share of each batch drawn from demonstrations"),
+    "critic_warmup": (("sac",), _int(0), "first updates with actor and ent_coef frozen"),
+    "bc_coef": (("sac",), _float(0.0), "BC term on demo samples, times mean |Q|"),
+    "actor_learning_rate": (("sac",), _float(0.0, low_open=True), "the actor's Adam step size"),
 }
+
+#: keys that only the fine-tuning setting reads
+FINETUNE_KEYS = ("demo_ratio", "critic_warmup", "bc_coef", "actor_learning_rate")
 
 
 #: checks that differ by algorithm: PPO's entropy coefficient is a fixed number
@@ -121,8 +142,10 @@ def valid_keys(algo: str) -> list[str]:
     return sorted(k for k, (algos, _, _) in KEYS.items() if algo in algos)
 
 
-def setting_for(residual: bool) -> str:
+def setting_for(residual: bool, finetune: bool = False) -> str:
     """The entry of the algorithm's file a run uses."""
+    if finetune:
+        return FINETUNE
     return "residual" if residual else "default"
 
 
@@ -135,16 +158,23 @@ def load_defaults(algo: str, setting: str) -> dict[str, Any]:
     entries = yaml.safe_load(text)
     if setting not in entries:
         raise ValueError(f"hyperparams/{name} has no entry {setting!r}; it has {sorted(entries)}")
-    return check(algo, entries[setting], source=f"hyperparams/{name}[{setting}]")
+    return check(algo, entries[setting], source=f"hyperparams/{name}[{setting}]", setting=setting)
 
 
-def check(algo: str, values: dict[str, Any], source: str = "hyperparams") -> dict[str, Any]:
-    """``values`` with each value checked and converted; one-line errors naming the key."""
+def check(
+    algo: str, values: dict[str, Any], source: str = "hyperparams", setting: str | None = None
+) -> dict[str, Any]:
+    """``values`` with each value checked and converted; one-line errors naming the key.
+    With ``setting`` given, the fine-tuning keys are refused outside the fine-tuning setting."""
     if not isinstance(values, dict):
         raise ValueError(f"{source} must be a mapping of hyperparameter names to values")
     valid = valid_keys(algo)
+    if setting is not None and setting != FINETUNE:
+        valid = [k for k in valid if k not in FINETUNE_KEYS]
     out = {}
     for key, value in values.items():
+        if key not in valid and key in FINETUNE_KEYS and algo in KEYS[key][0]:
+            raise ValueError(f"{source}: {key} applies only to fine-tuning (--init-policy)")
         if key not in valid:
             raise ValueError(
                 f"{source}: unknown hyperparameter {key!r} for {algo}; valid: {', '.join(valid)}"
@@ -174,10 +204,13 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
     return out
 
 
-def resolve(algo: str, residual: bool, overrides: dict[str, Any]) -> dict[str, Any]:
+def resolve(
+    algo: str, residual: bool, overrides: dict[str, Any], finetune: bool = False
+) -> dict[str, Any]:
     """The shipped entry for (``algo``, setting) updated by the checked ``overrides``."""
-    resolved = load_defaults(algo, setting_for(residual))
-    resolved.update(check(algo, overrides))
+    setting = setting_for(residual, finetune)
+    resolved = load_defaults(algo, setting)
+    resolved.update(check(algo, overrides, setting=setting))
     return dict(sorted(resolved.items()))
 
 
@@ -204,6 +237,8 @@ def sb3_schedule(algo: str, hp: dict[str, Any], n_envs: int) -> dict[str, Any]:
 
 __all__ = [
     "ALGOS",
+    "FINETUNE",
+    "FINETUNE_KEYS",
     "KEYS",
     "POSES",
     "SETTINGS",

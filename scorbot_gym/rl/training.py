@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import yaml
 
 from pose.fileio import atomic_write_bytes, atomic_write_json
@@ -81,6 +82,7 @@ class TrainConfig:
     residual_scale: float = 0.3
     bc_demos: int = 0
     bc_steps: int = 2000
+    init_policy: str | None = None  # fine-tune this imitation policy ("learned" or a folder)
     hyperparams: dict[str, Any] = field(default_factory=dict)
     normalize: bool = True
     eval_every: int = 5000
@@ -128,8 +130,38 @@ class TrainConfig:
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
-        hparams.resolve(self.algo, self.residual, self.hyperparams)
+        if self.init_policy is not None:
+            self._check_finetune()
+        hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
         return self
+
+    @property
+    def finetune(self) -> bool:
+        """Whether this run fine-tunes an imitation policy (:mod:`scorbot_gym.rl.finetune`)."""
+        return self.init_policy is not None
+
+    def _check_finetune(self) -> None:
+        if self.algo != "sac":
+            raise ValueError(f"init_policy fine-tunes with algo 'sac', got {self.algo!r}")
+        if self.residual:
+            raise ValueError(
+                "init_policy and residual exclude each other (a fine-tuned policy acts alone)"
+            )
+        if self.normalize:
+            raise ValueError(
+                "normalize must be false with init_policy (the features are "
+                "normalised with the initial policy's statistics)"
+            )
+        from scorbot_gym.rl.finetune import load_init_policy
+
+        init = load_init_policy(self.init_policy, self.action_type)
+        hidden = list(init.meta["network"]["hidden"])
+        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, finetune=True)
+        if list(hp["net_arch"]) != hidden:
+            raise ValueError(
+                f"net_arch must be the initial policy's hidden layers {hidden} to "
+                f"fine-tune it, got {hp['net_arch']}"
+            )
 
     def _check_types(self) -> None:
         """A hand-edited config.json fails here, naming the key, rather than deep in SB3."""
@@ -144,7 +176,7 @@ class TrainConfig:
                     isinstance(value, list) and all(isinstance(v, str) for v in value)
                 )
                 kind = "a list of names"
-            elif f.name == "pose_model":
+            elif f.name in ("pose_model", "init_policy"):
                 ok, kind = value is None or isinstance(value, str), "a path"
             else:
                 want = type(default)
@@ -157,7 +189,7 @@ class TrainConfig:
 
     def resolved(self) -> TrainConfig:
         """A copy whose ``hyperparams`` is the full set the run uses."""
-        hp = hparams.resolve(self.algo, self.residual, self.hyperparams)
+        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
         return dataclasses.replace(self, hyperparams=hp)
 
     @property
@@ -185,7 +217,7 @@ class TrainConfig:
 
     def schedule(self) -> dict[str, Any]:
         """SB3's arguments for this many envs and the updates per env step they give."""
-        hp = hparams.resolve(self.algo, self.residual, self.hyperparams)
+        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
         return hparams.sb3_schedule(self.algo, hp, self.n_envs)
 
     def to_json(self) -> dict[str, Any]:
@@ -232,10 +264,15 @@ def make_policy_env(config: TrainConfig, objects: list[str] | None = None) -> gy
 
 
 def make_training_env(config: TrainConfig) -> gym.Env:
-    """One training env: the policy env, wrapped as a residual problem if asked."""
+    """One training env: the policy env, wrapped as a residual problem if asked, or as the
+    initial imitation policy's features when fine-tuning it."""
     env = make_policy_env(config)
     if config.residual:
         env = ResidualActionWrapper(env, scale=config.residual_scale)
+    if config.finetune:
+        from scorbot_gym.rl.finetune import ImitationFeatures, load_init_policy
+
+        env = ImitationFeatures(env, load_init_policy(config.init_policy))
     return env
 
 
@@ -342,7 +379,7 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
     from sb3_contrib import TQC
     from stable_baselines3 import PPO, SAC
 
-    hp = hparams.resolve(config.algo, config.residual, config.hyperparams)
+    hp = hparams.resolve(config.algo, config.residual, config.hyperparams, config.finetune)
     sched = hparams.sb3_schedule(config.algo, hp, config.n_envs)
     policy_kwargs: dict[str, Any] = {"net_arch": list(hp["net_arch"])}
     for key in ("log_std_init", "n_critics", "n_quantiles"):
@@ -368,10 +405,13 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
             **{k: hp[k] for k in ppo_keys if k in hp},
             **common,
         )
+    elif config.finetune:
+        return _build_finetune_model(config, hp, sched, common)
     else:
         cls = SAC if config.algo == "sac" else TQC
         keys = ("tau", "buffer_size", "batch_size", "learning_starts", "target_update_interval")
-        extra = {k: hp[k] for k in (*keys, "top_quantiles_to_drop_per_net") if k in hp}
+        keys += ("target_entropy", "top_quantiles_to_drop_per_net")
+        extra = {k: hp[k] for k in keys if k in hp}
         model = cls(
             train_freq=sched["train_freq"],
             gradient_steps=sched["gradient_steps"],
@@ -380,6 +420,28 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
         )
     if config.residual:
         _zero_init_actor(model, hp["log_std_init"])
+    return model
+
+
+def _build_finetune_model(config: TrainConfig, hp: dict, sched: dict, common: dict):
+    """:class:`~scorbot_gym.rl.finetune.RLPDSAC` with the demonstration-mixing replay buffer,
+    its actor initialised from the imitation policy (see :mod:`scorbot_gym.rl.finetune`)."""
+    from scorbot_gym.rl.finetune import RLPDSAC, DemoMixReplayBuffer, init_actor, load_init_policy
+
+    keys = ("tau", "buffer_size", "batch_size", "learning_starts", "target_update_interval")
+    extra = {k: hp[k] for k in (*keys, "target_entropy") if k in hp}
+    model = RLPDSAC(
+        train_freq=sched["train_freq"],
+        gradient_steps=sched["gradient_steps"],
+        replay_buffer_class=DemoMixReplayBuffer,
+        replay_buffer_kwargs={"demo_ratio": hp["demo_ratio"]},
+        critic_warmup=hp["critic_warmup"],
+        bc_coef=hp["bc_coef"],
+        actor_learning_rate=hp.get("actor_learning_rate"),
+        **extra,
+        **{**common, "policy": "MlpPolicy"},
+    )
+    init_actor(model, load_init_policy(config.init_policy), hp["log_std_init"])
     return model
 
 
@@ -392,13 +454,21 @@ class _Run:
         self.clock = TrainingClock(state.get("wall_s", 0.0))
         self.eval_env = make_policy_env(config)
         self.meta_env = make_training_env(config)  # observation space incl. base_action
+        self.init_policy = None
+        if config.finetune:
+            from scorbot_gym.rl.finetune import load_init_policy
+
+            self.init_policy = load_init_policy(config.init_policy)
 
     def normalizer(self) -> ObservationNormalizer | None:
         return (
             ObservationNormalizer.from_vec_normalize(self.venv) if self.config.normalize else None
         )
 
-    def policy(self, model) -> SB3Policy:
+    def policy(self, model):
+        """The policy as it is exported: an SB3 policy, or a fine-tune's imitation policy."""
+        if self.init_policy is not None:
+            return self._finetuned(model)
         return SB3Policy(
             model, policy_meta(self.config, self.meta_env, model.num_timesteps), self.normalizer()
         )
@@ -420,7 +490,29 @@ class _Run:
         self.export(model, self.out / runs.BEST)
         self.state["best"] = {k: record[k] for k in ("timesteps", "success_rate", "ci95")}
 
+    def _finetuned(self, model):
+        from scorbot_gym.rl.finetune import to_imitation_policy
+
+        c = self.config
+        demos = self.state.get("demos") or {}
+        record = {
+            "algo": "sac (RLPD-style: demonstrations in every batch, critic warm-up)",
+            "init_policy": c.init_policy,
+            "demonstration_episodes": int(demos.get("episodes", 0)),
+            "demonstration_transitions": int(demos.get("transitions", 0)),
+            "env_steps": int(model.num_timesteps),
+            "gradient_updates": int(model._n_updates),
+            "wall_time_s": round(self.clock.seconds, 2),
+            "pose": c.pose,
+            "seed": c.seed,
+            "hyperparams": c.hyperparams,
+        }
+        return to_imitation_policy(model, self.init_policy, record)
+
     def export(self, model, path: Path) -> None:
+        if self.init_policy is not None:  # numpy weights + policy.json, as the imitation trainer
+            self._finetuned(model).save(path)
+            return
         path.mkdir(parents=True, exist_ok=True)
         atomic_save(path / "model.zip", model.save)
         meta = policy_meta(self.config, self.meta_env, model.num_timesteps)
@@ -473,6 +565,8 @@ def _seed_with_demos(run: _Run) -> dict[str, Any]:
     from scorbot_gym.rl.demos import add_to_replay_buffer, behaviour_clone, collect_demonstrations
 
     c = run.config
+    if c.finetune:
+        return _fill_demo_buffer(run)
     demos = collect_demonstrations(run.meta_env, c.bc_demos, seed=c.seed * 1000 + 500_000)
     if c.normalize:
         for k, v in demos.obs.items():
@@ -489,6 +583,30 @@ def _seed_with_demos(run: _Run) -> dict[str, Any]:
     }
 
 
+def _fill_demo_buffer(run: _Run) -> dict[str, Any]:
+    """Fine-tuning: scripted demonstrations (DART noise as in the imitation trainer) into the
+    replay buffer's demonstration part, which every batch samples."""
+    from scorbot_gym.rl.finetune import demo_buffer, demo_transitions
+    from scorbot_gym.rl.imitation import ImitationConfig, collect_episodes
+
+    c = run.config
+    start = c.seed * 1000 + 500_000
+    rng = np.random.default_rng(start)
+    sigma = ImitationConfig().dart_sigma
+    episodes = collect_episodes(
+        run.eval_env, range(start, start + c.bc_demos), dart_sigma=sigma, rng=rng
+    )
+    transitions = demo_transitions(episodes, run.init_policy)
+    run.model.replay_buffer.demos = demo_buffer(transitions, run.model)
+    return {
+        "episodes": c.bc_demos,
+        "transitions": len(transitions["actions"]),
+        "demo_success_rate": float(np.mean([ep.success for ep in episodes])),
+        "dart_sigma": sigma,
+        "demo_ratio": c.hyperparams["demo_ratio"],
+    }
+
+
 def _limit_threads(n: int) -> None:
     """Torch's intra-op threads: on busy shared cores, several threads make the updates of
     small networks many times slower than one (see the README's learned-policy section)."""
@@ -502,7 +620,7 @@ def _hyperparams_record(config: TrainConfig) -> bytes:
     """``hyperparams.yml``: the resolved set, where it came from, and SB3's schedule."""
     record = {
         "algo": config.algo,
-        "setting": hparams.setting_for(config.residual),
+        "setting": hparams.setting_for(config.residual, config.finetune),
         "n_envs": config.n_envs,
         "hyperparams": config.hyperparams,
         "sb3": config.schedule(),
@@ -671,8 +789,6 @@ def resume(
     ``--seeds`` folder continues every seed."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from scorbot_gym.policies.sb3 import _algorithms
-
     out = Path(out)
     if not out.is_dir():
         raise FileNotFoundError(f"cannot resume {out}: no such run folder")
@@ -725,9 +841,7 @@ def resume(
         model = _load_checkpoint_file(
             ck / "model.zip",
             f"a {config.algo} model",
-            lambda p: _algorithms()[config.algo].load(
-                p, env=venv, device="cpu", tensorboard_log=tb
-            ),
+            lambda p: _model_class(config).load(p, env=venv, device="cpu", tensorboard_log=tb),
         )
         if (ck / "replay_buffer.pkl").is_file() and hasattr(model, "replay_buffer"):
             _load_checkpoint_file(
@@ -745,6 +859,16 @@ def resume(
     finally:
         run.close()
     return run.state
+
+
+def _model_class(config: TrainConfig):
+    if config.finetune:
+        from scorbot_gym.rl.finetune import RLPDSAC
+
+        return RLPDSAC
+    from scorbot_gym.policies.sb3 import _algorithms
+
+    return _algorithms()[config.algo]
 
 
 def _resume_seeds(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
