@@ -11,6 +11,16 @@ demonstrations with DART noise, then DAgger.
   *oracle* pose (:func:`oracle_view`, from ``info["object_pose"]``), labels every visited
   state; the union of all data trains the next policy.
 
+**Estimation error** (``ImitationConfig.poses``): the learner's observation may come from a
+noisy or an estimated pose while the expert still labels from the oracle pose, so the learner
+is taught the right action for the *true* state in the states its *estimate* leads it into
+(what DAgger with privileged labels does; "asymmetric" imitation). Episode ``i`` (of the
+demonstrations and of every DAgger round) runs under ``poses[i % len(poses)]``: e.g.
+``("oracle", "noisy@0:20", "noisy@0.02:0", "manifold")``. Its features already hold
+``pose_valid``, ``pose_confidence`` and ``pose_age``: trained on the oracle alone they never
+vary and the policy ignores them (a stale estimate held while the gripper hides the object
+then looks like an object left behind); trained on estimates it can learn when to trust them.
+
 The expert is stateful (its phase and waypoint evolve with the states the learner visits); the
 learner is not given any of that state: its features are the observation plus its own
 executed-action history (:mod:`scorbot_gym.policies.imitation`).
@@ -30,6 +40,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from scorbot_gym.envs.factory import make_env
 from scorbot_gym.policies.imitation import (
     ALGO,
     MLP,
@@ -266,10 +277,18 @@ class ImitationConfig:
     seed: int = 0
     torch_threads: int = 1
     sync_expert: bool = True
+    #: pose conditions the learner observes, round-robin over episodes (module docstring;
+    #: :func:`learner_pose`); the expert labels from the oracle pose under every one
+    poses: tuple[str, ...] = ("oracle",)
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
             self.history = HistorySpec(**self.history)
+        if isinstance(self.poses, str) or not self.poses:
+            raise ValueError(f"poses must be a non-empty list of pose names, got {self.poses!r}")
+        self.poses = tuple(self.poses)
+        for name in self.poses:
+            learner_pose(name)  # a bad name fails here, before any episode
         for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -283,6 +302,74 @@ class ImitationConfig:
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
         self.hidden = tuple(int(h) for h in self.hidden)
+
+
+def learner_pose(name: str) -> tuple[str, dict[str, Any], str]:
+    """A pose condition for the learner's observations -> ``(source, source kwargs,
+    identity)`` for :func:`scorbot_gym.make_env`. Names as ``scorbot-gym compare`` takes them:
+    ``oracle``; ``noisy@S`` / ``noisy@S:Y`` (x-y position std S metres, heading std Y degrees)
+    with an optional ``:D`` (each estimate lost with probability D: ``pose_valid`` 0 and the
+    last estimate held, as when the gripper hides the object); ``manifold`` (the default
+    pose-manifold models with no privileged input, as ``compare``'s ``manifold``: background
+    masks, recognised identity). One-line error for anything else."""
+    from scorbot_gym.evaluation import compare  # lazily: evaluation imports rl
+
+    if name == "oracle":
+        return "oracle", {}, "given"
+    if name == "manifold":
+        (cond,) = compare.pose_conditions(["manifold"])
+        return cond.source, dict(cond.kwargs), cond.identity
+    if name.startswith("noisy@"):
+        parts = name[len("noisy@") :].split(":")
+        try:
+            dropout = float(parts[2]) if len(parts) == 3 else 0.0
+            if len(parts) > 3 or not 0.0 <= dropout <= 1.0:
+                raise ValueError
+            pos, yaw = compare.noise_level(":".join(parts[:2]))
+        except (ValueError, IndexError):
+            pass
+        else:
+            kwargs = {"pos_sigma_m": pos, "yaw_sigma_deg": yaw, "dropout": dropout}
+            return "noisy_oracle", kwargs, "given"
+    raise ValueError(
+        f"learner pose {name!r}: expected oracle, manifold, or noisy@S[:Y[:D]] (position std "
+        "in metres, heading std in degrees, dropout probability), e.g. noisy@0.02:20:0.5"
+    )
+
+
+def make_learner_envs(
+    config: ImitationConfig, env_id: str = "ScorbotGraspCartesian-v0", **env_kwargs: Any
+) -> list[gym.Env]:
+    """One env per ``config.poses`` entry, in order (what :func:`train_imitation` takes);
+    ``env_kwargs`` go to every one (e.g. ``objects``). ``manifold`` gets the default models
+    (trained on first use and cached), loaded once for all."""
+    envs = []
+    models = None
+    for name in config.poses:
+        source, kwargs, identity = learner_pose(name)
+        if source == "manifold":
+            if models is None:
+                from scorbot_gym.perception.training import default_pose_models
+
+                models = default_pose_models(progress=False)
+            kwargs["models"] = models
+        envs.append(
+            make_env(env_id, pose=source, pose_kwargs=kwargs, identity=identity, **env_kwargs)
+        )
+    return envs
+
+
+def _collect_round_robin(
+    envs: Sequence[gym.Env], seeds: Sequence[int], **kwargs: Any
+) -> list[LabelledEpisode]:
+    """:func:`collect_episodes` with episode ``i`` on ``envs[i % len(envs)]``, in seed order
+    (one env: exactly ``collect_episodes(env, seeds)``)."""
+    seeds = list(seeds)
+    by_env = [collect_episodes(env, seeds[i :: len(envs)], **kwargs) for i, env in enumerate(envs)]
+    out: list[LabelledEpisode] = []
+    for j in range(len(seeds)):
+        out.append(by_env[j % len(envs)][j // len(envs)])
+    return out
 
 
 def _skeleton(env: gym.Env, config: ImitationConfig, extra: dict | None = None) -> ImitationPolicy:
@@ -370,6 +457,15 @@ def fit_policy(
     return losses
 
 
+def _success_by_pose(episodes: Sequence[LabelledEpisode], poses: Sequence[str]) -> dict:
+    """A DAgger round's success per learner pose (episode ``i`` ran under ``poses[i % n]``)."""
+    return {
+        name: float(np.mean([ep.success for ep in episodes[i :: len(poses)]]))
+        for i, name in enumerate(poses)
+        if episodes[i :: len(poses)]
+    }
+
+
 def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarray) -> dict:
     """How closely the policy reproduces the labels (arm RMSE, gripper sign agreement)."""
     pred = to_action(policy.net(policy.normalise(feats)))
@@ -380,22 +476,32 @@ def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarra
 
 
 def train_imitation(
-    env: gym.Env,
+    env: gym.Env | Sequence[gym.Env],
     config: ImitationConfig,
     demonstrations: Sequence[LabelledEpisode] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> tuple[ImitationPolicy, dict[str, Any]]:
     """BC on the demonstrations (recorded with :func:`collect_episodes`, or collected here with
     ``config.demos`` seeds ``seed, seed + 1, ...``), then ``config.dagger_rounds`` DAgger
-    rounds on fresh seeds. Returns the policy and the training record (also in its meta)."""
+    rounds on fresh seeds. Returns the policy and the training record (also in its meta).
+
+    ``env``: one env per ``config.poses`` entry (:func:`make_learner_envs`), episode ``i`` on
+    ``env[i % n]``; a single env stands for ``config.poses == ("oracle",)`` whatever its pose
+    source (the caller's choice)."""
+    envs = [env] if isinstance(env, gym.Env) else list(env)
+    if len(envs) != len(config.poses):
+        raise ValueError(
+            f"give one env per learner pose: {len(config.poses)} poses {list(config.poses)}, "
+            f"{len(envs)} envs (make_learner_envs builds them)"
+        )
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     rng = np.random.default_rng(config.seed)
     if demonstrations is None:
         seeds = range(config.seed, config.seed + config.demos)
-        demonstrations = collect_episodes(env, seeds, dart_sigma=config.dart_sigma, rng=rng)
+        demonstrations = _collect_round_robin(envs, seeds, dart_sigma=config.dart_sigma, rng=rng)
     data = list(demonstrations)
-    policy = _skeleton(env, config)
+    policy = _skeleton(envs[0], config)
     pairs = [episode_features(ep, policy) for ep in data]
     feats = np.concatenate([f for f, _ in pairs])
     labels = np.concatenate([y for _, y in pairs])
@@ -417,8 +523,8 @@ def train_imitation(
         beta = config.beta * config.beta_decay ** (r - 1)
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
-        new = collect_episodes(
-            env, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
+        new = _collect_round_robin(
+            envs, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
         )
         data += new
         new_pairs = [episode_features(ep, policy) for ep in new]
@@ -431,6 +537,7 @@ def train_imitation(
                 "beta": beta,
                 "episodes": len(new),
                 "success": float(np.mean([ep.success for ep in new])),
+                "success_by_pose": _success_by_pose(new, config.poses),
                 "env_steps": int(sum(len(ep) for ep in new)),
                 "final_loss": float(np.mean(losses[-100:])),
                 **label_accuracy(policy, feats, labels),
@@ -446,6 +553,7 @@ def train_imitation(
         "wall_time_s": time.perf_counter() - start,
         "rounds": rounds,
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
+        "learner_poses": list(config.poses),
     }
     policy.meta["training"] = record
     policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
