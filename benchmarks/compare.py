@@ -41,7 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
-    parser.add_argument("--jobs", type=int, default=1, help="arms run at a time (processes)")
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
+    )
     args = parser.parse_args(argv)
 
     import scorbot_gym

@@ -143,3 +143,26 @@ def test_compare_runs_the_manifold_arm_on_recognised_identity(tmp_path):
     (rec,) = report["results"]
     assert rec["pose"] == "manifold" and rec["perception"]["privileged"] is False
     assert rec["perception"]["recognition_accuracy"] is not None  # identity was recognised
+
+
+def test_chunks_cover_every_seed_once_in_order():
+    for episodes, tasks, jobs in ((200, 16, 14), (50, 2, 2), (2, 6, 2), (7, 1, 3), (200, 12, 1)):
+        chunks = cmp._chunks(episodes, 100, tasks, jobs)
+        seeds = [s for n, first in chunks for s in range(first, first + n)]
+        assert seeds == list(range(100, 100 + episodes))
+        assert all(n >= min(episodes, cmp.MIN_CHUNK_EPISODES) for n, _ in chunks)
+    assert len(cmp._chunks(200, 0, 16, 14)) == 4  # slow arms spread over the processes
+
+
+@pytest.mark.slow
+def test_chunked_arms_give_the_same_episodes(monkeypatch):
+    """Split into one-episode chunks over two processes: episode by episode the same results
+    as one process running each arm whole."""
+    monkeypatch.setattr(cmp, "MIN_CHUNK_EPISODES", 1)
+    kw = dict(objects=["box"], noise=["0.02:20"], progress=False)
+    whole = cmp.compare(["scripted", "learned"], ["oracle"], 3, seed=4, jobs=1, **kw)
+    chunked = cmp.compare(["scripted", "learned"], ["oracle"], 3, seed=4, jobs=2, **kw)
+    for a, b in zip(whole["results"], chunked["results"], strict=True):
+        assert (a["policy"], a["pose"]) == (b["policy"], b["pose"])
+        assert a["episode_success"] == b["episode_success"]
+        assert a["steps_to_success"] == b["steps_to_success"]

@@ -451,17 +451,41 @@ def noise_curves(results: list[dict]) -> dict[str, list[dict[str, Any]]]:
     return curves
 
 
+#: under ``jobs > 1`` an arm's episodes are split into chunks (each a process's job), about
+#: this many chunks per process in all, so that slow arms (the estimator's) do not leave the
+#: other processes idle; never chunks under MIN_CHUNK_EPISODES (each builds its own env)
+CHUNKS_PER_JOB = 4
+MIN_CHUNK_EPISODES = 10
+
+
+def _chunks(episodes: int, seed: int, n_tasks: int, jobs: int) -> list[tuple[int, int]]:
+    """``(episodes, first seed)`` of each chunk of one arm's seeds, in seed order."""
+    k = min(-(-CHUNKS_PER_JOB * jobs // n_tasks), -(-episodes // MIN_CHUNK_EPISODES))
+    bounds = np.linspace(0, episodes, max(1, k) + 1).round().astype(int)
+    return [(int(b - a), seed + int(a)) for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
+
+
 def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
     """Run :func:`_run_arm` over ``tasks``, in ``jobs`` spawned processes when > 1 (a forked
-    child of a process that has rendered cannot render)."""
-    if jobs <= 1 or len(tasks) <= 1:
+    child of a process that has rendered cannot render), each task split into chunks of its
+    seeds (:func:`_chunks`); every episode depends only on its seed, so the results do not
+    depend on ``jobs``."""
+    if jobs <= 1:
         return [_run_arm(*t) for t in tasks]
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
-        futures = [pool.submit(_run_arm, *t[:-1], False, 1) for t in tasks]
-        return [f.result() for f in futures]
+    parts = [
+        [
+            (t[0], t[1], n, first, *t[4:-1], False, 1)
+            for n, first in _chunks(t[2], t[3], len(tasks), jobs)
+        ]
+        for t in tasks
+    ]
+    workers = min(jobs, sum(len(p) for p in parts))
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = [[pool.submit(_run_arm, *c) for c in chunks] for chunks in parts]
+        return [[r for f in fs for r in f.result()] for fs in futures]
 
 
 def compare(
@@ -478,7 +502,7 @@ def compare(
     jobs: int = 1,
 ) -> dict[str, Any]:
     """Run every policy under every pose condition on the same seeds; returns the report
-    described in the module docstring (``jobs`` arms at a time in separate processes; the
+    described in the module docstring (``jobs`` processes, each running a chunk of an arm; the
     results do not depend on it)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
