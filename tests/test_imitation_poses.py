@@ -67,7 +67,9 @@ def test_learner_sees_the_estimate_while_the_expert_labels_from_the_oracle(learn
     oracle view of the same state; the trained policy records what it was trained on."""
     with pytest.raises(ValueError, match="one env per learner pose"):
         train_imitation(learner_envs[:1], TINY)
-    policy, record = train_imitation(learner_envs, TINY)
+    fits = []
+    policy, record = train_imitation(learner_envs, TINY, on_round=lambda p, r: fits.append(r))
+    assert fits == record["rounds"]  # a checkpoint hook after BC and every DAgger round
     assert record["learner_poses"] == ["oracle", NOISY]
     assert set(record["rounds"][1]["success_by_pose"]) == {"oracle", NOISY}
     policy.save(tmp_path / "p")

@@ -480,6 +480,7 @@ def train_imitation(
     config: ImitationConfig,
     demonstrations: Sequence[LabelledEpisode] | None = None,
     progress: Callable[[str], None] | None = None,
+    on_round: Callable[[ImitationPolicy, dict[str, Any]], None] | None = None,
 ) -> tuple[ImitationPolicy, dict[str, Any]]:
     """BC on the demonstrations (recorded with :func:`collect_episodes`, or collected here with
     ``config.demos`` seeds ``seed, seed + 1, ...``), then ``config.dagger_rounds`` DAgger
@@ -487,7 +488,8 @@ def train_imitation(
 
     ``env``: one env per ``config.poses`` entry (:func:`make_learner_envs`), episode ``i`` on
     ``env[i % n]``; a single env stands for ``config.poses == ("oracle",)`` whatever its pose
-    source (the caller's choice)."""
+    source (the caller's choice). ``on_round(policy, round_record)`` is called after every fit
+    (BC, then each DAgger round), e.g. to save a checkpoint of a long run."""
     envs = [env] if isinstance(env, gym.Env) else list(env)
     if len(envs) != len(config.poses):
         raise ValueError(
@@ -518,6 +520,8 @@ def train_imitation(
         }
     ]
     say(f"BC on {len(data)} demonstrations ({len(feats)} steps): {rounds[-1]}")
+    if on_round is not None:
+        on_round(policy, rounds[-1])
     next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
     for r in range(1, config.dagger_rounds + 1):
         beta = config.beta * config.beta_decay ** (r - 1)
@@ -544,6 +548,8 @@ def train_imitation(
             }
         )
         say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
+        if on_round is not None:
+            on_round(policy, rounds[-1])
     record = {
         "config": {**asdict(config), "hidden": list(config.hidden)},
         "demonstration_episodes": len(demonstrations),
