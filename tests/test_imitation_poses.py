@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -30,6 +31,8 @@ NOISY = "noisy@0.05:30:0.5"
 TINY = ImitationConfig(
     demos=2, dagger_rounds=1, dagger_episodes=2, fit_steps=20, hidden=(16,), poses=("oracle", NOISY)
 )
+
+TINY_ORACLE = replace(TINY, poses=("oracle",))
 
 
 @pytest.fixture(scope="module")
@@ -168,3 +171,21 @@ def test_chunked_arms_give_the_same_episodes(monkeypatch):
         assert (a["policy"], a["pose"]) == (b["policy"], b["pose"])
         assert a["episode_success"] == b["episode_success"]
         assert a["steps_to_success"] == b["steps_to_success"]
+
+
+def test_fine_tuning_starts_from_a_saved_policy_and_counts_its_cost(learner_envs, tmp_path):
+    """``init_policy``: the first fit starts from the saved network (fine-tuning it on
+    estimated poses); the record's totals include what the starting policy cost."""
+    base, base_record = train_imitation(learner_envs[0], TINY_ORACLE)
+    base.save(tmp_path / "base")
+    config = replace(TINY, init_policy=str(tmp_path / "base"), fit_steps=1, learning_rate=1e-9)
+    tuned, record = train_imitation(learner_envs, config)
+    for w_base, w_tuned in zip(base.net.weights, tuned.net.weights, strict=True):
+        np.testing.assert_allclose(w_base, w_tuned, atol=1e-4)  # (almost) no step taken
+    assert record["init_policy"]["env_steps"] == base_record["env_steps"]
+    own = sum(r["env_steps"] for r in record["rounds"])
+    assert record["env_steps"] == own + base_record["env_steps"]
+    wider = replace(TINY, init_policy=str(tmp_path / "base"), hidden=(8,))
+    with pytest.raises(ValueError, match="does not fit this run") as err:
+        train_imitation(learner_envs, wider)
+    assert "\n" not in str(err.value)

@@ -280,6 +280,10 @@ class ImitationConfig:
     #: pose conditions the learner observes, round-robin over episodes (module docstring;
     #: :func:`learner_pose`); the expert labels from the oracle pose under every one
     poses: tuple[str, ...] = ("oracle",)
+    #: a saved imitation policy folder (or ``"learned"``: the shipped one) whose network the
+    #: first fit starts from: fine-tuning it on these episodes (e.g. on estimated poses)
+    #: instead of training from scratch; ``None``: from scratch
+    init_policy: str | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
@@ -457,6 +461,36 @@ def fit_policy(
     return losses
 
 
+def _init_policy(config: ImitationConfig, skeleton: ImitationPolicy) -> ImitationPolicy | None:
+    """``config.init_policy`` loaded and checked against the policy being trained (the same
+    features, classes and network layout); one-line error otherwise."""
+    if config.init_policy is None:
+        return None
+    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+
+    path = SHIPPED_LEARNED_POLICY if config.init_policy == "learned" else config.init_policy
+    init = ImitationPolicy.load(path)
+    shapes = [w.shape for w in init.net.weights]
+    want = [w.shape for w in skeleton.net.weights]
+    if shapes != want or init.classes != skeleton.classes:
+        raise ValueError(
+            f"init_policy {config.init_policy!r} does not fit this run: layers {shapes} and "
+            f"{len(init.classes)} classes, this config gives {want} and {len(skeleton.classes)}"
+        )
+    return init
+
+
+def _init_training(init: ImitationPolicy | None) -> dict[str, Any]:
+    """The starting policy's recorded training cost (zeros when training from scratch)."""
+    t = (init.meta.get("training") or {}) if init is not None else {}
+    return {
+        "demonstration_episodes": int(t.get("demonstration_episodes", 0)),
+        "dagger_episodes": int(t.get("dagger_episodes", 0)),
+        "env_steps": int(t.get("env_steps", 0)),
+        "wall_time_s": float(t.get("wall_time_s", 0.0)),
+    }
+
+
 def _success_by_pose(episodes: Sequence[LabelledEpisode], poses: Sequence[str]) -> dict:
     """A DAgger round's success per learner pose (episode ``i`` ran under ``poses[i % n]``)."""
     return {
@@ -504,10 +538,15 @@ def train_imitation(
         demonstrations = _collect_round_robin(envs, seeds, dart_sigma=config.dart_sigma, rng=rng)
     data = list(demonstrations)
     policy = _skeleton(envs[0], config)
+    init = _init_policy(config, policy)
+    if init is not None:
+        policy.net = init.net
     pairs = [episode_features(ep, policy) for ep in data]
     feats = np.concatenate([f for f, _ in pairs])
     labels = np.concatenate([y for _, y in pairs])
-    losses = fit_policy(policy, feats, labels, config, seed=config.seed)
+    losses = fit_policy(
+        policy, feats, labels, config, seed=config.seed, warm_start=init is not None
+    )
     rounds = [
         {
             "round": 0,
@@ -550,13 +589,15 @@ def train_imitation(
         say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
         if on_round is not None:
             on_round(policy, rounds[-1])
+    before = _init_training(init)  # what the starting policy cost, counted in the totals
     record = {
         "config": {**asdict(config), "hidden": list(config.hidden)},
-        "demonstration_episodes": len(demonstrations),
-        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])),
-        "env_steps": int(sum(r["env_steps"] for r in rounds)),
+        "demonstration_episodes": len(demonstrations) + before["demonstration_episodes"],
+        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])) + before["dagger_episodes"],
+        "env_steps": int(sum(r["env_steps"] for r in rounds)) + before["env_steps"],
         "labelled_steps": int(len(feats)),
-        "wall_time_s": time.perf_counter() - start,
+        "wall_time_s": time.perf_counter() - start + before["wall_time_s"],
+        "init_policy": None if init is None else {"source": config.init_policy, **before},
         "rounds": rounds,
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
         "learner_poses": list(config.poses),
@@ -564,7 +605,7 @@ def train_imitation(
     policy.meta["training"] = record
     policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
         "residual_base": False,
-        "bc_demo_episodes": len(demonstrations),
+        "bc_demo_episodes": record["demonstration_episodes"],
         "dagger_labelled_episodes": record["dagger_episodes"],
     }
     return policy, record
