@@ -9,6 +9,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--dagger-episodes 80] [--episodes 110] [--out scorbot_gym/policies/data/...]
         [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
         [--poses oracle,noisy@0:20,noisy@0.02:0,manifold]   # what the learner observes
+        [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -73,6 +74,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--eval-seed", type=int, default=50_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
+    p.add_argument("--beta", type=non_negative_float, default=0.5, help="DAgger's first beta")
+    p.add_argument(
+        "--init-policy",
+        default=None,
+        help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
+        "training from scratch",
+    )
     p.add_argument(
         "--poses",
         default="oracle",
@@ -97,6 +105,8 @@ def main(argv: list[str] | None = None) -> None:
             seed=args.seed,
             sync_expert=not args.no_sync_expert,
             poses=tuple(v for v in args.poses.split(",") if v),
+            beta=args.beta,
+            init_policy=args.init_policy,
         )
         demos = None
         if args.dataset:
