@@ -189,3 +189,26 @@ def test_fine_tuning_starts_from_a_saved_policy_and_counts_its_cost(learner_envs
     with pytest.raises(ValueError, match="does not fit this run") as err:
         train_imitation(learner_envs, wider)
     assert "\n" not in str(err.value)
+
+
+def test_features_before_the_first_estimate_do_not_set_the_normalisation(learner_envs):
+    """Rows before any valid estimate hold placeholder zeros for the pose: AGE_FEATURE finds
+    them, and the feature statistics come from the rows with an estimate."""
+    from scorbot_gym.policies.imitation import AGE_FEATURE, ActionHistory
+    from scorbot_gym.rl.imitation import _skeleton, fit_policy
+
+    policy = _skeleton(learner_envs[0], TINY)
+    obs, _ = learner_envs[0].reset(seed=0)
+    history = ActionHistory(policy.history_spec)
+    fresh = policy.features(obs, history)
+    assert fresh[AGE_FEATURE] == 0.0  # the oracle: estimated at once
+    never = policy.features(
+        {**obs, "pose_age": np.array([1000.0]), "object_pos": np.zeros(3)}, history
+    )
+    assert never[AGE_FEATURE] == 1.0
+    rng = np.random.default_rng(0)
+    estimated = fresh + rng.normal(0, 0.01, (50, len(fresh)))
+    feats = np.vstack([estimated, np.repeat(never[None], 10, axis=0)]).astype(np.float32)
+    labels = np.zeros((len(feats), 6), np.float32)
+    fit_policy(policy, feats, labels, replace(TINY, fit_steps=1), seed=0)
+    np.testing.assert_allclose(policy.mean, estimated.mean(axis=0), atol=1e-5)

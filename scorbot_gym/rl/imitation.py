@@ -42,6 +42,7 @@ import numpy as np
 
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.policies.imitation import (
+    AGE_FEATURE,
     ALGO,
     MLP,
     OBSERVATION_KEYS,
@@ -421,8 +422,13 @@ def fit_policy(
     th.set_num_threads(config.torch_threads)
     th.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    policy.mean = feats.mean(axis=0).astype(np.float32)
-    policy.std = feats.std(axis=0).astype(np.float32)
+    # Statistics over the rows with a pose estimate: the placeholder zeros before the first
+    # one (lost estimates, e.g. noisy@S:Y:D) would inflate the position features' spread
+    # several-fold and cost the policy its resolution where it has a pose.
+    estimated = feats[:, AGE_FEATURE] < 1.0 - 1e-6
+    stats = feats[estimated] if estimated.any() else feats
+    policy.mean = stats.mean(axis=0).astype(np.float32)
+    policy.std = stats.std(axis=0).astype(np.float32)
     x = th.as_tensor(policy.normalise(feats))
     arm = th.as_tensor(np.clip(labels[:, :-1], -1.0, 1.0), dtype=th.float32)
     grip = th.as_tensor((labels[:, -1] > 0).astype(np.float32))
