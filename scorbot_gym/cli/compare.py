@@ -57,7 +57,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=["oracle"],
         help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
         "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
-        "images) (default oracle)",
+        "images, no privileged input: background masks, recognised identity) (default oracle)",
     )
     p.add_argument(
         "--noise",
