@@ -6,13 +6,15 @@ residual, or policy / training-run folders) on the whole catalogue, every arm on
 seeds, under the oracle pose and the noisy-oracle levels (``S`` metres of position noise with
 ``S * 500`` degrees of heading noise, or ``S:Y`` for Y degrees). The default levels are the
 issue's two: heading σ 20° alone (``0:20``) and position σ 2 cm alone (``0.02:0``), under which
-the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.json``. With
-``--pose-model`` also under the pose-manifold estimator.
+the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.json``.
+``--poses oracle,manifold`` adds the pose-manifold estimator with no privileged input
+(background-subtraction masks, recognised identity: the main arm of ``closed_loop.py``; the
+default top-camera models, or ``--pose-model``); ``--noise ""`` runs no noise level.
 Writes ``benchmarks/results/compare.json`` (the report documented in
 :mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``.
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned] [--episodes 200] \
-        [--noise 0:20,0.02:0] [--pose-model pose_models_320.npz] [--jobs 6]
+        [--poses oracle,manifold] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
 """
 
 from __future__ import annotations
@@ -34,9 +36,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=200)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--noise", default="0:20,0.02:0", help="noise levels: S or S:Y")
-    parser.add_argument("--pose-model", type=Path, default=None, help="adds the manifold arms")
+    parser.add_argument(
+        "--poses", default="oracle", help="oracle and/or manifold (besides --noise)"
+    )
+    parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
-    parser.add_argument("--jobs", type=int, default=1, help="arms run at a time (processes)")
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
+    )
     args = parser.parse_args(argv)
 
     import scorbot_gym
@@ -45,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     from scorbot_gym.evaluation.compare import compare, plot_comparison
 
     policies = ["scripted"] + [p for p in args.policies.split(",") if p and p != "scripted"]
-    poses = ["oracle"] + (["manifold"] if args.pose_model is not None else [])
+    poses = [p for p in args.poses.split(",") if p]
     report = compare(
         policies,
         poses,

@@ -8,6 +8,12 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
     nice -n 5 python benchmarks/learned_policy.py [--demos 200] [--dagger-rounds 8]
         [--dagger-episodes 80] [--episodes 110] [--out scorbot_gym/policies/data/...]
         [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
+        [--poses oracle,noisy@0:20,noisy@0.02:0,manifold]   # what the learner observes
+        [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
+
+``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
+from, round-robin over episodes, while the scripted controller labels from the oracle pose:
+the policy learns to act on estimates (default: ``oracle``, the shipped policy's recipe).
 
 Writes ``benchmarks/results/learned_policy.json`` and saves the policy folder (``--out``,
 default: the shipped ``imitation_dagger_oracle``).
@@ -68,15 +74,26 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--eval-seed", type=int, default=50_000)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
+    p.add_argument("--beta", type=non_negative_float, default=0.5, help="DAgger's first beta")
+    p.add_argument(
+        "--init-policy",
+        default=None,
+        help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
+        "training from scratch",
+    )
+    p.add_argument(
+        "--poses",
+        default="oracle",
+        help="comma-separated learner pose conditions: oracle, noisy@S[:Y[:D]], manifold",
+    )
     p.add_argument("--out", type=Path, default=SHIPPED_LEARNED_POLICY)
     p.add_argument("--json", type=Path, default=RESULTS / "learned_policy.json")
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
     args = p.parse_args(argv)
 
     from pose.fileio import atomic_write_json
-    from scorbot_gym.envs.factory import make_env
     from scorbot_gym.policies.imitation import ImitationPolicy
-    from scorbot_gym.rl.imitation import ImitationConfig, train_imitation
+    from scorbot_gym.rl.imitation import ImitationConfig, make_learner_envs, train_imitation
 
     if not args.skip_training:
         config = ImitationConfig(
@@ -87,17 +104,21 @@ def main(argv: list[str] | None = None) -> None:
             fit_steps=args.fit_steps,
             seed=args.seed,
             sync_expert=not args.no_sync_expert,
+            poses=tuple(v for v in args.poses.split(",") if v),
+            beta=args.beta,
+            init_policy=args.init_policy,
         )
         demos = None
         if args.dataset:
             from scorbot_gym.rl.datasets import load_demonstrations
 
             demos = load_demonstrations(args.dataset)
-        env = make_env("ScorbotGraspCartesian-v0", pose="oracle")
+        envs = make_learner_envs(config)
         try:
-            policy, _ = train_imitation(env, config, demos, progress=print)
+            policy, _ = train_imitation(envs, config, demos, progress=print)
         finally:
-            env.close()
+            for env in envs:
+                env.close()
         policy.save(args.out)
         print(f"policy saved to {args.out}")
     policy = ImitationPolicy.load(args.out)
@@ -111,6 +132,7 @@ def main(argv: list[str] | None = None) -> None:
         "description": "stand-alone imitation policy (BC + DART + DAgger, oracle pose labels) "
         "vs the scripted controller, same seeds, whole catalogue, oracle pose, cartesian actions",
         "uses_scripted_controller": policy.meta["uses_scripted_controller"],
+        "learner_poses": training.get("learner_poses", ["oracle"]),
         "eval_seeds": [args.eval_seed, args.eval_seed + args.episodes - 1],
         "arms": arms,
         "training": {

@@ -198,6 +198,11 @@ def _condition_words(cond: dict) -> str:
     """``with the true pose`` / ``with heading noise σ 20°`` / ... for a compare condition."""
     if cond["source"] == "oracle":
         return "with the true pose"
+    if cond["source"] == "manifold" and cond.get("identity") == "recognize":
+        return (
+            "with the pose-manifold estimator and no privileged input (background masks, "
+            "recognised identity)"
+        )
     if cond["source"] != "noisy_oracle":
         return f"with the `{cond['label']}` pose"
     pos, yaw = cond["noise_pos_m"], cond["noise_yaw_deg"]

@@ -57,7 +57,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=["oracle"],
         help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
         "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
-        "images) (default oracle)",
+        "images, no privileged input: background masks, recognised identity) (default oracle)",
     )
     p.add_argument(
         "--noise",
@@ -97,7 +97,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--jobs",
         type=positive_int,
         default=1,
-        help="run this many arms at a time, one process each (results do not depend on it)",
+        help="processes, each running a chunk of an arm's episodes (results do not depend on it)",
     )
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
     p.add_argument("--png", type=Path, default=None, help="write the comparison figure here")

@@ -19,7 +19,10 @@ seeds).
 metres and heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees);
 ``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``manifold`` (the
 pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
-models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses).
+models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses) with
+**no privileged input**, as the main arm of ``benchmarks/closed_loop.py``: masks from background
+subtraction (:data:`MANIFOLD_SEGMENTER`) and the object's identity recognised
+(:data:`MANIFOLD_RECOGNIZER`, fused over :data:`MANIFOLD_CAMERAS`), never given.
 
 **The report** (what :func:`compare` returns and ``--json`` writes):
 
@@ -28,7 +31,9 @@ models of the top camera, trained on first use and cached, as ``scorbot-gym roll
   against: ``scripted`` when it is an arm, else the first), ``difference_method``,
   ``noise_heading_deg_per_m``, ``min_per_object_episodes`` (the figure's threshold for
   per-object bars), ``wall_s`` (of the whole comparison);
-- ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg}]`` in run order;
+- ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg, identity, segmenter}]`` in
+  run order (``identity``: ``given`` to the pose source, or ``recognize``d by it; ``segmenter``:
+  where the estimator's masks come from, ``null`` for the oracle sources);
 - ``arms``: ``{policy: {label, training}}`` where ``training`` is :func:`training_record`:
   ``trained_from`` (``scripted``: the hand-written controller itself; ``residual``: a learned
   correction on top of it; ``demonstrations``: imitation of scripted demonstrations, perhaps
@@ -57,7 +62,7 @@ from __future__ import annotations
 import io
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -76,6 +81,10 @@ DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S 
 #: objects with fewer are pooled (at 2-6 episodes an interval spans most of [0, 1])
 MIN_PER_OBJECT_EPISODES = 20
 REFERENCE = "scripted"
+#: the ``manifold`` condition: no privileged input (the main arm of benchmarks/closed_loop.py)
+MANIFOLD_SEGMENTER = "background"  # masks by background subtraction, not the renderer's
+MANIFOLD_RECOGNIZER = "flr+appearance"  # identity recognised, not given
+MANIFOLD_CAMERAS = ("top", "side")  # pose from the first; recognition fused over both
 
 
 # ---- pose conditions ----------------------------------------------------------------------
@@ -88,6 +97,18 @@ class PoseCondition:
     kwargs: dict[str, Any]
     noise_m: float | None  # position noise (0 for the oracle; None when not a noise level)
     noise_yaw_deg: float | None = None  # heading noise (0 for the oracle)
+    identity: str = "given"  # or "recognize": the pose source is not told the object
+
+    def record(self) -> dict[str, Any]:
+        """The condition as the report's ``conditions`` lists it."""
+        return {
+            "label": self.label,
+            "source": self.source,
+            "noise_pos_m": self.noise_m,
+            "noise_yaw_deg": self.noise_yaw_deg,
+            "identity": self.identity,
+            "segmenter": self.kwargs.get("segmenter"),
+        }
 
 
 def noise_level(level: float | str | tuple[float, float]) -> tuple[float, float]:
@@ -136,8 +157,14 @@ def pose_conditions(
         if p == "oracle":
             out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
         elif p == "manifold":
-            kw = {} if pose_model is None else {"models": str(pose_model)}
-            out.append(PoseCondition("manifold", "manifold", kw, None))
+            kw: dict[str, Any] = {
+                "segmenter": MANIFOLD_SEGMENTER,
+                "recognizer": MANIFOLD_RECOGNIZER,
+                "cameras": list(MANIFOLD_CAMERAS),
+            }
+            if pose_model is not None:
+                kw["models"] = str(pose_model)
+            out.append(PoseCondition("manifold", "manifold", kw, None, identity="recognize"))
         elif p == "noisy":
             noise = list(noise) or [0.01]
         else:
@@ -354,6 +381,7 @@ def _run_arm(
         pose=cond.source,
         pose_kwargs=cond.kwargs,
         estimate_every=estimate_every,
+        identity=cond.identity,
         objects=objects,
         **kw,
     )
@@ -425,17 +453,41 @@ def noise_curves(results: list[dict]) -> dict[str, list[dict[str, Any]]]:
     return curves
 
 
+#: under ``jobs > 1`` an arm's episodes are split into chunks (each a process's job), about
+#: this many chunks per process in all, so that slow arms (the estimator's) do not leave the
+#: other processes idle; never chunks under MIN_CHUNK_EPISODES (each builds its own env)
+CHUNKS_PER_JOB = 4
+MIN_CHUNK_EPISODES = 10
+
+
+def _chunks(episodes: int, seed: int, n_tasks: int, jobs: int) -> list[tuple[int, int]]:
+    """``(episodes, first seed)`` of each chunk of one arm's seeds, in seed order."""
+    k = min(-(-CHUNKS_PER_JOB * jobs // n_tasks), -(-episodes // MIN_CHUNK_EPISODES))
+    bounds = np.linspace(0, episodes, max(1, k) + 1).round().astype(int)
+    return [(int(b - a), seed + int(a)) for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
+
+
 def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
     """Run :func:`_run_arm` over ``tasks``, in ``jobs`` spawned processes when > 1 (a forked
-    child of a process that has rendered cannot render)."""
-    if jobs <= 1 or len(tasks) <= 1:
+    child of a process that has rendered cannot render), each task split into chunks of its
+    seeds (:func:`_chunks`); every episode depends only on its seed, so the results do not
+    depend on ``jobs``."""
+    if jobs <= 1:
         return [_run_arm(*t) for t in tasks]
     import multiprocessing as mp
     from concurrent.futures import ProcessPoolExecutor
 
-    with ProcessPoolExecutor(min(jobs, len(tasks)), mp_context=mp.get_context("spawn")) as pool:
-        futures = [pool.submit(_run_arm, *t[:-1], False, 1) for t in tasks]
-        return [f.result() for f in futures]
+    parts = [
+        [
+            (t[0], t[1], n, first, *t[4:-1], False, 1)
+            for n, first in _chunks(t[2], t[3], len(tasks), jobs)
+        ]
+        for t in tasks
+    ]
+    workers = min(jobs, sum(len(p) for p in parts))
+    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+        futures = [[pool.submit(_run_arm, *c) for c in chunks] for chunks in parts]
+        return [[r for f in fs for r in f.result()] for fs in futures]
 
 
 def compare(
@@ -452,7 +504,7 @@ def compare(
     jobs: int = 1,
 ) -> dict[str, Any]:
     """Run every policy under every pose condition on the same seeds; returns the report
-    described in the module docstring (``jobs`` arms at a time in separate processes; the
+    described in the module docstring (``jobs`` processes, each running a chunk of an arm; the
     results do not depend on it)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
@@ -469,7 +521,7 @@ def compare(
 
         models = default_pose_models(progress=progress)  # once, for every arm
         conds = [
-            PoseCondition(c.label, c.source, {"models": models}, c.noise_m)
+            replace(c, kwargs={**c.kwargs, "models": models})
             if c.source == "manifold" and "models" not in c.kwargs
             else c
             for c in conds
@@ -506,15 +558,7 @@ def compare(
         "noise_heading_deg_per_m": DEG_PER_M,
         "min_per_object_episodes": MIN_PER_OBJECT_EPISODES,
         "wall_s": time.perf_counter() - start,
-        "conditions": [
-            {
-                "label": c.label,
-                "source": c.source,
-                "noise_pos_m": c.noise_m,
-                "noise_yaw_deg": c.noise_yaw_deg,
-            }
-            for c in conds
-        ],
+        "conditions": [c.record() for c in conds],
         "arms": {p: {"label": a.label, "training": a.training} for p, a in arms.items()},
         "results": results,
         "differences": diffs,

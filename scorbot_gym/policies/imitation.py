@@ -52,6 +52,9 @@ OBSERVATION_KEYS = (
     "pose_confidence",
     "pose_age",
 )
+#: index of the scaled ``pose_age`` in the features: 1.0 before the episode's first valid
+#: estimate, when the pose entries are the wrapper's placeholders (zeros), not a pose
+AGE_FEATURE = 46
 #: normalised features are clipped to this many standard deviations
 FEATURE_CLIP = 10.0
 #: a feature whose training std is below this never varied: it is pinned to 0

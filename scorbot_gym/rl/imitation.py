@@ -11,6 +11,22 @@ demonstrations with DART noise, then DAgger.
   *oracle* pose (:func:`oracle_view`, from ``info["object_pose"]``), labels every visited
   state; the union of all data trains the next policy.
 
+**Estimation error** (``ImitationConfig.poses``): the learner's observation may come from a
+noisy or an estimated pose while the expert still labels from the oracle pose, so the learner
+is taught the right action for the *true* state in the states its *estimate* leads it into
+(what DAgger with privileged labels does; "asymmetric" imitation). Episode ``i`` (of the
+demonstrations and of every DAgger round) runs under ``poses[i % len(poses)]``: e.g.
+``("oracle", "noisy@0:20", "noisy@0.02:0", "manifold")``. Its features already hold
+``pose_valid``, ``pose_confidence`` and ``pose_age``: trained on the oracle alone they never
+vary and the policy ignores them (a stale estimate held while the gripper hides the object
+then looks like an object left behind); trained on estimates it can learn when to trust them.
+Measured (``benchmarks/results/compare_noise_augmented.json``): per-step independent noise
+(``noisy@...``) does *not* teach this policy robustness. It sees one estimate and no history of
+estimates, so under such noise the oracle labels are not a function of its input; the fit
+averages them, the learner drifts, and short DAgger fine-tunes of the shipped policy fell to
+14-16 % (the same recipe on the oracle: 90-92 %). Noise that persists, as an estimator's does,
+or a pose history in the features are what such training needs.
+
 The expert is stateful (its phase and waypoint evolve with the states the learner visits); the
 learner is not given any of that state: its features are the observation plus its own
 executed-action history (:mod:`scorbot_gym.policies.imitation`).
@@ -30,7 +46,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from scorbot_gym.envs.factory import make_env
 from scorbot_gym.policies.imitation import (
+    AGE_FEATURE,
     ALGO,
     MLP,
     OBSERVATION_KEYS,
@@ -271,10 +289,22 @@ class ImitationConfig:
     seed: int = 0
     torch_threads: int = 1
     sync_expert: bool = True
+    #: pose conditions the learner observes, round-robin over episodes (module docstring;
+    #: :func:`learner_pose`); the expert labels from the oracle pose under every one
+    poses: tuple[str, ...] = ("oracle",)
+    #: a saved imitation policy folder (or ``"learned"``: the shipped one) whose network the
+    #: first fit starts from: fine-tuning it on these episodes (e.g. on estimated poses)
+    #: instead of training from scratch; ``None``: from scratch
+    init_policy: str | None = None
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
             self.history = HistorySpec(**self.history)
+        if isinstance(self.poses, str) or not self.poses:
+            raise ValueError(f"poses must be a non-empty list of pose names, got {self.poses!r}")
+        self.poses = tuple(self.poses)
+        for name in self.poses:
+            learner_pose(name)  # a bad name fails here, before any episode
         for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -288,6 +318,74 @@ class ImitationConfig:
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
         self.hidden = tuple(int(h) for h in self.hidden)
+
+
+def learner_pose(name: str) -> tuple[str, dict[str, Any], str]:
+    """A pose condition for the learner's observations -> ``(source, source kwargs,
+    identity)`` for :func:`scorbot_gym.make_env`. Names as ``scorbot-gym compare`` takes them:
+    ``oracle``; ``noisy@S`` / ``noisy@S:Y`` (x-y position std S metres, heading std Y degrees)
+    with an optional ``:D`` (each estimate lost with probability D: ``pose_valid`` 0 and the
+    last estimate held, as when the gripper hides the object); ``manifold`` (the default
+    pose-manifold models with no privileged input, as ``compare``'s ``manifold``: background
+    masks, recognised identity). One-line error for anything else."""
+    from scorbot_gym.evaluation import compare  # lazily: evaluation imports rl
+
+    if name == "oracle":
+        return "oracle", {}, "given"
+    if name == "manifold":
+        (cond,) = compare.pose_conditions(["manifold"])
+        return cond.source, dict(cond.kwargs), cond.identity
+    if name.startswith("noisy@"):
+        parts = name[len("noisy@") :].split(":")
+        try:
+            dropout = float(parts[2]) if len(parts) == 3 else 0.0
+            if len(parts) > 3 or not 0.0 <= dropout <= 1.0:
+                raise ValueError
+            pos, yaw = compare.noise_level(":".join(parts[:2]))
+        except (ValueError, IndexError):
+            pass
+        else:
+            kwargs = {"pos_sigma_m": pos, "yaw_sigma_deg": yaw, "dropout": dropout}
+            return "noisy_oracle", kwargs, "given"
+    raise ValueError(
+        f"learner pose {name!r}: expected oracle, manifold, or noisy@S[:Y[:D]] (position std "
+        "in metres, heading std in degrees, dropout probability), e.g. noisy@0.02:20:0.5"
+    )
+
+
+def make_learner_envs(
+    config: ImitationConfig, env_id: str = "ScorbotGraspCartesian-v0", **env_kwargs: Any
+) -> list[gym.Env]:
+    """One env per ``config.poses`` entry, in order (what :func:`train_imitation` takes);
+    ``env_kwargs`` go to every one (e.g. ``objects``). ``manifold`` gets the default models
+    (trained on first use and cached), loaded once for all."""
+    envs = []
+    models = None
+    for name in config.poses:
+        source, kwargs, identity = learner_pose(name)
+        if source == "manifold":
+            if models is None:
+                from scorbot_gym.perception.training import default_pose_models
+
+                models = default_pose_models(progress=False)
+            kwargs["models"] = models
+        envs.append(
+            make_env(env_id, pose=source, pose_kwargs=kwargs, identity=identity, **env_kwargs)
+        )
+    return envs
+
+
+def _collect_round_robin(
+    envs: Sequence[gym.Env], seeds: Sequence[int], **kwargs: Any
+) -> list[LabelledEpisode]:
+    """:func:`collect_episodes` with episode ``i`` on ``envs[i % len(envs)]``, in seed order
+    (one env: exactly ``collect_episodes(env, seeds)``)."""
+    seeds = list(seeds)
+    by_env = [collect_episodes(env, seeds[i :: len(envs)], **kwargs) for i, env in enumerate(envs)]
+    out: list[LabelledEpisode] = []
+    for j in range(len(seeds)):
+        out.append(by_env[j % len(envs)][j // len(envs)])
+    return out
 
 
 def _skeleton(env: gym.Env, config: ImitationConfig, extra: dict | None = None) -> ImitationPolicy:
@@ -335,8 +433,13 @@ def fit_policy(
     th.set_num_threads(config.torch_threads)
     th.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    policy.mean = feats.mean(axis=0).astype(np.float32)
-    policy.std = feats.std(axis=0).astype(np.float32)
+    # Statistics over the rows with a pose estimate: the placeholder zeros before the first
+    # one (lost estimates, e.g. noisy@S:Y:D) would inflate the position features' spread
+    # several-fold and cost the policy its resolution where it has a pose.
+    estimated = feats[:, AGE_FEATURE] < 1.0 - 1e-6
+    stats = feats[estimated] if estimated.any() else feats
+    policy.mean = stats.mean(axis=0).astype(np.float32)
+    policy.std = stats.std(axis=0).astype(np.float32)
     x = th.as_tensor(policy.normalise(feats))
     arm = th.as_tensor(np.clip(labels[:, :-1], -1.0, 1.0), dtype=th.float32)
     grip = th.as_tensor((labels[:, -1] > 0).astype(np.float32))
@@ -375,6 +478,45 @@ def fit_policy(
     return losses
 
 
+def _init_policy(config: ImitationConfig, skeleton: ImitationPolicy) -> ImitationPolicy | None:
+    """``config.init_policy`` loaded and checked against the policy being trained (the same
+    features, classes and network layout); one-line error otherwise."""
+    if config.init_policy is None:
+        return None
+    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+
+    path = SHIPPED_LEARNED_POLICY if config.init_policy == "learned" else config.init_policy
+    init = ImitationPolicy.load(path)
+    shapes = [w.shape for w in init.net.weights]
+    want = [w.shape for w in skeleton.net.weights]
+    if shapes != want or init.classes != skeleton.classes:
+        raise ValueError(
+            f"init_policy {config.init_policy!r} does not fit this run: layers {shapes} and "
+            f"{len(init.classes)} classes, this config gives {want} and {len(skeleton.classes)}"
+        )
+    return init
+
+
+def _init_training(init: ImitationPolicy | None) -> dict[str, Any]:
+    """The starting policy's recorded training cost (zeros when training from scratch)."""
+    t = (init.meta.get("training") or {}) if init is not None else {}
+    return {
+        "demonstration_episodes": int(t.get("demonstration_episodes", 0)),
+        "dagger_episodes": int(t.get("dagger_episodes", 0)),
+        "env_steps": int(t.get("env_steps", 0)),
+        "wall_time_s": float(t.get("wall_time_s", 0.0)),
+    }
+
+
+def _success_by_pose(episodes: Sequence[LabelledEpisode], poses: Sequence[str]) -> dict:
+    """A DAgger round's success per learner pose (episode ``i`` ran under ``poses[i % n]``)."""
+    return {
+        name: float(np.mean([ep.success for ep in episodes[i :: len(poses)]]))
+        for i, name in enumerate(poses)
+        if episodes[i :: len(poses)]
+    }
+
+
 def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarray) -> dict:
     """How closely the policy reproduces the labels (arm RMSE, gripper sign agreement)."""
     pred = to_action(policy.net(policy.normalise(feats)))
@@ -385,26 +527,43 @@ def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarra
 
 
 def train_imitation(
-    env: gym.Env,
+    env: gym.Env | Sequence[gym.Env],
     config: ImitationConfig,
     demonstrations: Sequence[LabelledEpisode] | None = None,
     progress: Callable[[str], None] | None = None,
+    on_round: Callable[[ImitationPolicy, dict[str, Any]], None] | None = None,
 ) -> tuple[ImitationPolicy, dict[str, Any]]:
     """BC on the demonstrations (recorded with :func:`collect_episodes`, or collected here with
     ``config.demos`` seeds ``seed, seed + 1, ...``), then ``config.dagger_rounds`` DAgger
-    rounds on fresh seeds. Returns the policy and the training record (also in its meta)."""
+    rounds on fresh seeds. Returns the policy and the training record (also in its meta).
+
+    ``env``: one env per ``config.poses`` entry (:func:`make_learner_envs`), episode ``i`` on
+    ``env[i % n]``; a single env stands for ``config.poses == ("oracle",)`` whatever its pose
+    source (the caller's choice). ``on_round(policy, round_record)`` is called after every fit
+    (BC, then each DAgger round), e.g. to save a checkpoint of a long run."""
+    envs = [env] if isinstance(env, gym.Env) else list(env)
+    if len(envs) != len(config.poses):
+        raise ValueError(
+            f"give one env per learner pose: {len(config.poses)} poses {list(config.poses)}, "
+            f"{len(envs)} envs (make_learner_envs builds them)"
+        )
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     rng = np.random.default_rng(config.seed)
     if demonstrations is None:
         seeds = range(config.seed, config.seed + config.demos)
-        demonstrations = collect_episodes(env, seeds, dart_sigma=config.dart_sigma, rng=rng)
+        demonstrations = _collect_round_robin(envs, seeds, dart_sigma=config.dart_sigma, rng=rng)
     data = list(demonstrations)
-    policy = _skeleton(env, config)
+    policy = _skeleton(envs[0], config)
+    init = _init_policy(config, policy)
+    if init is not None:
+        policy.net = init.net
     pairs = [episode_features(ep, policy) for ep in data]
     feats = np.concatenate([f for f, _ in pairs])
     labels = np.concatenate([y for _, y in pairs])
-    losses = fit_policy(policy, feats, labels, config, seed=config.seed)
+    losses = fit_policy(
+        policy, feats, labels, config, seed=config.seed, warm_start=init is not None
+    )
     rounds = [
         {
             "round": 0,
@@ -417,13 +576,15 @@ def train_imitation(
         }
     ]
     say(f"BC on {len(data)} demonstrations ({len(feats)} steps): {rounds[-1]}")
+    if on_round is not None:
+        on_round(policy, rounds[-1])
     next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
     for r in range(1, config.dagger_rounds + 1):
         beta = config.beta * config.beta_decay ** (r - 1)
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
-        new = collect_episodes(
-            env, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
+        new = _collect_round_robin(
+            envs, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
         )
         data += new
         new_pairs = [episode_features(ep, policy) for ep in new]
@@ -436,26 +597,32 @@ def train_imitation(
                 "beta": beta,
                 "episodes": len(new),
                 "success": float(np.mean([ep.success for ep in new])),
+                "success_by_pose": _success_by_pose(new, config.poses),
                 "env_steps": int(sum(len(ep) for ep in new)),
                 "final_loss": float(np.mean(losses[-100:])),
                 **label_accuracy(policy, feats, labels),
             }
         )
         say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
+        if on_round is not None:
+            on_round(policy, rounds[-1])
+    before = _init_training(init)  # what the starting policy cost, counted in the totals
     record = {
         "config": {**asdict(config), "hidden": list(config.hidden)},
-        "demonstration_episodes": len(demonstrations),
-        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])),
-        "env_steps": int(sum(r["env_steps"] for r in rounds)),
+        "demonstration_episodes": len(demonstrations) + before["demonstration_episodes"],
+        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])) + before["dagger_episodes"],
+        "env_steps": int(sum(r["env_steps"] for r in rounds)) + before["env_steps"],
         "labelled_steps": int(len(feats)),
-        "wall_time_s": time.perf_counter() - start,
+        "wall_time_s": time.perf_counter() - start + before["wall_time_s"],
+        "init_policy": None if init is None else {"source": config.init_policy, **before},
         "rounds": rounds,
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
+        "learner_poses": list(config.poses),
     }
     policy.meta["training"] = record
     policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
         "residual_base": False,
-        "bc_demo_episodes": len(demonstrations),
+        "bc_demo_episodes": record["demonstration_episodes"],
         "dagger_labelled_episodes": record["dagger_episodes"],
     }
     return policy, record
