@@ -50,8 +50,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=_policy,
         default="scripted",
         help=f"who acts: {', '.join(POLICIES)} (scripted: PBVS controller; rl: the shipped "
-        "learned policy), or a folder: a policy, or a `scorbot-gym train` run (replays its "
-        "--checkpoint)",
+        "residual; learned: the shipped imitation policy; finetuned: it after RL fine-tuning), "
+        "or a folder: a policy, or a `scorbot-gym train` run (replays its --checkpoint)",
     )
     p.add_argument(
         "--checkpoint",

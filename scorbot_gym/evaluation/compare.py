@@ -9,7 +9,8 @@ exact test on the discordant episodes), steps to success, failure causes, per-ob
 Per policy: success against pose-noise level.
 
 **Policies** (arms) are names from :data:`BUILTIN_ARMS` (``scripted``, ``random``, ``rl``: the
-shipped residual, ``learned``: the shipped stand-alone imitation policy; a new built-in is one
+shipped residual, ``learned``: the shipped stand-alone imitation policy, ``finetuned``: that
+policy after RLPD-style fine-tuning; a new built-in is one
 entry there) or any policy folder (with ``policy.json``, loaded by
 :func:`scorbot_gym.policies.loading.load_policy`), or a ``scorbot-gym train`` run folder (its
 final ``policy/``; not ``best/``, which was chosen on evaluation episodes that may share these
@@ -72,7 +73,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.imitation import SHIPPED_FINETUNED_POLICY, SHIPPED_LEARNED_POLICY
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY
 from scorbot_gym.rl import runs
 
@@ -236,6 +237,7 @@ BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
     "random": _random_arm,
     "rl": _shipped(SHIPPED_POLICY),
     "learned": _shipped(SHIPPED_LEARNED_POLICY),
+    "finetuned": _shipped(SHIPPED_FINETUNED_POLICY),
 }
 
 

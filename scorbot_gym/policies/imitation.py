@@ -37,6 +37,8 @@ from scorbot_gym.policies.scripted import yaw_from_quat
 
 ALGO = "imitation"
 SHIPPED_LEARNED_POLICY = Path(__file__).parent / "data" / "imitation_dagger_oracle"
+#: that policy after RLPD-style SAC fine-tuning (scorbot_gym.rl.finetune; benchmarks/finetune.py)
+SHIPPED_FINETUNED_POLICY = Path(__file__).parent / "data" / "imitation_rlpd_oracle"
 #: pose_age is scaled as log1p(age) / log1p(AGE_SCALE): 0 fresh, 1 never estimated
 AGE_SCALE = 1000.0
 #: proprioception and pose entries the features read (besides ``object_class``)

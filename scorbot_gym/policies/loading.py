@@ -4,7 +4,8 @@
 stand-alone); ``"pixel_imitation"`` → :class:`~scorbot_gym.policies.pixel.PixelPolicy` (CNN on
 the top camera image, no pose estimate); ``sac``/``tqc``/``ppo`` →
 :class:`~scorbot_gym.policies.sb3.SB3Policy`. The names ``rl`` (the shipped residual) and
-``learned`` (the shipped stand-alone imitation policy) stand for the policies in the package.
+``learned`` (the shipped stand-alone imitation policy) and ``finetuned`` (that policy after
+RL fine-tuning) stand for the policies in the package.
 """
 
 from __future__ import annotations
@@ -12,17 +13,26 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from scorbot_gym.policies.imitation import ALGO, SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.imitation import (
+    ALGO,
+    SHIPPED_FINETUNED_POLICY,
+    SHIPPED_LEARNED_POLICY,
+)
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, read_policy_json
 
 PIXEL_ALGO = "pixel_imitation"  # scorbot_gym.policies.pixel.ALGO, without importing cv2/torch
 
-SHIPPED = {"rl": SHIPPED_POLICY, "learned": SHIPPED_LEARNED_POLICY}
+SHIPPED = {
+    "rl": SHIPPED_POLICY,
+    "learned": SHIPPED_LEARNED_POLICY,
+    "finetuned": SHIPPED_FINETUNED_POLICY,
+}
 
 
 def load_policy(path: str | Path, checkpoint: str = "best") -> Any:
-    """A saved policy (folder, ``rl`` / ``learned``, or a ``scorbot-gym train`` run folder whose
-    ``checkpoint``, ``best`` or ``last``, is loaded), with one-line errors for bad files."""
+    """A saved policy (folder, ``rl`` / ``learned`` / ``finetuned``, or a ``scorbot-gym train``
+    run folder whose ``checkpoint``, ``best`` or ``last``, is loaded), with one-line errors for
+    bad files."""
     from scorbot_gym.rl.runs import policy_dir
 
     if str(path) in SHIPPED:
