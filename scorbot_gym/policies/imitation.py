@@ -165,6 +165,24 @@ def to_action(raw: np.ndarray) -> np.ndarray:
     return np.concatenate([arm, grip], axis=-1).astype(np.float32)
 
 
+def open_policy_folder(path: str | Path, algo: str) -> tuple[Path, Path, dict[str, Any]]:
+    """``policy.json`` (which must say ``algo``) and ``weights.npz`` of a numpy policy folder:
+    their paths and the metadata; a missing or mismatched file is a one-line error."""
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(
+            f"no policy folder at {path} (expected policy.json and weights.npz)"
+        )
+    meta_path, weights_path = path / "policy.json", path / "weights.npz"
+    for p in (meta_path, weights_path):
+        if not p.is_file():
+            raise FileNotFoundError(f"policy {path} is missing {p.name}")
+    meta = read_policy_json(meta_path)
+    if meta.get("algo") != algo:
+        raise ValueError(f"{meta_path}: algo must be {algo!r}, got {meta.get('algo')!r}")
+    return meta_path, weights_path, meta
+
+
 class ImitationPolicy:
     """The learned policy: features of (observation, own action history) → MLP → action.
 
@@ -271,18 +289,7 @@ class ImitationPolicy:
     @classmethod
     def load(cls, path: str | Path) -> ImitationPolicy:
         """A policy folder; a missing, corrupt or incompatible file is a one-line error."""
-        path = Path(path)
-        if not path.is_dir():
-            raise FileNotFoundError(
-                f"no policy folder at {path} (expected policy.json and weights.npz)"
-            )
-        meta_path, weights_path = path / "policy.json", path / "weights.npz"
-        for p in (meta_path, weights_path):
-            if not p.is_file():
-                raise FileNotFoundError(f"policy {path} is missing {p.name}")
-        meta = read_policy_json(meta_path)
-        if meta.get("algo") != ALGO:
-            raise ValueError(f"{meta_path}: algo must be {ALGO!r}, got {meta.get('algo')!r}")
+        meta_path, weights_path, meta = open_policy_folder(path, ALGO)
         try:
             norm = meta["normalization"]
             mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)

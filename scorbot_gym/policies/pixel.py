@@ -42,9 +42,10 @@ from scorbot_gym.policies.imitation import (
     ActionHistory,
     HistorySpec,
     _atomic,
+    open_policy_folder,
     to_action,
 )
-from scorbot_gym.policies.sb3 import FORMAT, VERSION, check_action_type, read_policy_json
+from scorbot_gym.policies.sb3 import FORMAT, VERSION, check_action_type
 
 ALGO = "pixel_imitation"
 #: proprioception the features read, in this order
@@ -306,18 +307,7 @@ class PixelPolicy:
     @classmethod
     def load(cls, path: str | Path) -> PixelPolicy:
         """A policy folder; a missing, corrupt or incompatible file is a one-line error."""
-        path = Path(path)
-        if not path.is_dir():
-            raise FileNotFoundError(
-                f"no policy folder at {path} (expected policy.json and weights.npz)"
-            )
-        meta_path, weights_path = path / "policy.json", path / "weights.npz"
-        for p in (meta_path, weights_path):
-            if not p.is_file():
-                raise FileNotFoundError(f"policy {path} is missing {p.name}")
-        meta = read_policy_json(meta_path)
-        if meta.get("algo") != ALGO:
-            raise ValueError(f"{meta_path}: algo must be {ALGO!r}, got {meta.get('algo')!r}")
+        meta_path, weights_path, meta = open_policy_folder(path, ALGO)
         try:
             norm = meta["normalization"]
             mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
