@@ -159,6 +159,15 @@ def test_tilted_target_rests_at_the_asked_tilt(tilt):
     np.testing.assert_allclose(tilts, tilt, atol=4.0)  # leaning on the lip adds a little
 
 
+def test_a_one_object_catalogue_can_be_tilted():
+    """One object and ``tilt_deg`` still builds the scene with the stand (it failed on reset)."""
+    env = gym.make("ScorbotGrasp-v0", object_name="box", tilt_deg=20.0)
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    np.testing.assert_allclose(info["objects"]["box"]["tilt_deg"], 20.0, atol=4.0)
+    env.close()
+
+
 def test_check_env_with_distractors():
     env = gym.make("ScorbotGrasp-v0", objects=["box", "banana", "golf_ball"], distractors=2)
     check_env(env.unwrapped, skip_render_check=True)

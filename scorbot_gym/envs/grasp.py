@@ -262,6 +262,7 @@ class ScorbotGraspEnv(gym.Env):
                 shadows=self.shadows,
                 renderer=self._renderer,
                 others=others,
+                cluttered=True,
             )
             robot = Robot(sim)
             task = GraspTask(sim, robot, self.reward_type)

@@ -114,7 +114,8 @@ class Simulation:
     ``others`` adds more free objects (a scene for clutter, see
     :func:`~scorbot_gym.sim.scene.build_multi_scene`): all parked at reset; a task puts some on
     the table with :meth:`unpark` and picks the one the ``object_*`` members refer to with
-    :meth:`select_object`.
+    :meth:`select_object`. ``cluttered=True`` builds that scene (parking, the support stand) even
+    for one object: a one-object catalogue with the target propped on the stand.
 
     ``shadows=True`` turns on the key light's shadow map (slower in software rendering).
 
@@ -132,6 +133,7 @@ class Simulation:
         shadows: bool = False,
         renderer: SceneRenderer | None = None,
         others: Sequence[str | ObjectSpec] = (),
+        cluttered: bool = False,
     ) -> None:
         spec = object_name if isinstance(object_name, ObjectSpec) else get_object(object_name)
         check_render_size(render_width, render_height)
@@ -140,7 +142,8 @@ class Simulation:
         self.render_width, self.render_height = render_width, render_height
         self.shadows = shadows
         other_specs = [o if isinstance(o, ObjectSpec) else get_object(o) for o in others]
-        if other_specs:  # several objects: parked until placed (see build_multi_scene)
+        multi = bool(other_specs) or cluttered
+        if multi:  # several objects: parked until placed (see build_multi_scene)
             mjcf_model = build_multi_scene([spec, *other_specs], cameras)
         else:
             mjcf_model = build_scene(spec, cameras)
@@ -154,9 +157,7 @@ class Simulation:
         self.renderer = renderer or SceneRenderer(render_width, render_height, shadows)
 
         m = self.model
-        self.objects = {
-            s.name: SceneObject.find(m, s, multi=bool(other_specs)) for s in [spec, *other_specs]
-        }
+        self.objects = {s.name: SceneObject.find(m, s, multi=multi) for s in [spec, *other_specs]}
         self.select_object(spec.name)
         self.arm_qpos = np.array([m.joint(ARM_PREFIX + j).qposadr[0] for j in ARM_JOINTS])
         self.reset()
