@@ -93,6 +93,22 @@ def discard_cache_entry(path: str | os.PathLike, error: BaseException) -> None:
     Path(path).unlink(missing_ok=True)
 
 
+def cached_npz(path: str | os.PathLike, load, build):
+    """``load(path)`` of a content-keyed ``.npz`` cache entry: built first (``build()`` returns
+    the arrays, written atomically) if it is missing, discarded and rebuilt if it is unreadable.
+    Temporary files of dead writers in its folder are removed on the way."""
+    path = Path(path)
+    if path.parent.is_dir():
+        remove_orphaned_tmp(path.parent)
+    if path.is_file():
+        try:
+            return load(path)
+        except UNREADABLE as exc:
+            discard_cache_entry(path, exc)
+    atomic_savez(path, **build())
+    return load(path)
+
+
 def _writer() -> str:
     """``host-pid`` of this process, as temporary file names carry it (dots would split it)."""
     return f"{socket.gethostname().replace('.', '_')}-{os.getpid()}"

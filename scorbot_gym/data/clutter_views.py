@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
+from pose.fileio import cached_npz
 from scorbot_gym.data import cache_folder
 from scorbot_gym.data.views import (
     MAX_OCCLUSION,
@@ -108,18 +108,13 @@ def render_clutter_views(
         "code": code_fingerprint(),
         "texture": _file_stamp(spec.texture_path),
     }
-    folder = cache_folder(cache_dir) / "views"
-    if folder.is_dir():
-        remove_orphaned_tmp(folder)
-    path = folder / f"clutter-{_cache_key(payload)}.npz"
-    if path.is_file():
-        try:
-            return _load(path, spec.name, samples)
-        except UNREADABLE as exc:
-            discard_cache_entry(path, exc)
-    arrays = _render(spec.name, samples, camera, width, height, distractors, pool, seed, progress)
-    atomic_savez(path, **arrays)
-    return _load(path, spec.name, samples)
+    return cached_npz(
+        cache_folder(cache_dir) / "views" / f"clutter-{_cache_key(payload)}.npz",
+        lambda p: _load(p, spec.name, samples),
+        lambda: _render(
+            spec.name, samples, camera, width, height, distractors, pool, seed, progress
+        ),
+    )
 
 
 def _render(name, samples, camera, width, height, k, pool, seed, progress) -> dict:

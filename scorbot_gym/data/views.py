@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pose.camera import CameraModel
-from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry, remove_orphaned_tmp
+from pose.fileio import cached_npz
 from pose.view import View
 from scorbot_gym.data import cache_folder, default_cache_dir  # noqa: F401  (re-exported)
 from scorbot_gym.data.perturbations import Perturbation, ScenePerturber
@@ -240,20 +240,13 @@ def render_views(
     if perturbation is not None and perturbation.active:  # keys of unperturbed views unchanged
         payload["perturbation"] = perturbation.to_dict()
         payload["perturbation_code"] = perturbation_code_fingerprint()
-    folder = cache_folder(cache_dir) / "views"
-    if folder.is_dir():
-        remove_orphaned_tmp(folder)
-    path = folder / f"{_cache_key(payload)}.npz"
-    if path.is_file():
-        try:
-            return _load(path, spec.name, samples)
-        except UNREADABLE as exc:
-            discard_cache_entry(path, exc)
-    arrays = _render(
-        spec.name, samples, camera, width, height, occ, seed, progress, depth, perturbation
+    return cached_npz(
+        cache_folder(cache_dir) / "views" / f"{_cache_key(payload)}.npz",
+        lambda p: _load(p, spec.name, samples),
+        lambda: _render(
+            spec.name, samples, camera, width, height, occ, seed, progress, depth, perturbation
+        ),
     )
-    atomic_savez(path, **arrays)
-    return _load(path, spec.name, samples)
 
 
 def _render(
