@@ -17,20 +17,28 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 - a robustness curve: success vs ``noisy_oracle`` heading noise (0-30 deg) and position noise
   (0-3 cm), re-estimated every step.
 
-``--jobs N`` runs the arms in N processes; the in-loop timing runs afterwards, alone.
-Writes ``benchmarks/results/closed_loop.json`` and ``closed_loop.png``.
+``--jobs N`` runs the arms' episodes in chunks of seeds over N processes
+(:func:`scorbot_gym.evaluation.rollout.run_rollouts`: every episode depends on its seed alone, so
+the figures do not depend on N); the in-loop timing runs afterwards, alone. ``--arms`` runs a
+subset (``robustness``: the noise curves; the timing goes with ``manifold``), and ``--merge
+PART.json ...`` joins the reports of such runs into the one a whole run writes, so a long batch
+can be split over several commands. Writes ``benchmarks/results/closed_loop.json`` and
+``closed_loop.png``.
 
 ``--perturbations "none;lighting=0.5;..."`` runs instead the ``manifold`` arm once per env
 perturbation (``scorbot_gym.data.perturbations``, redrawn every episode; the pose models are the
 unperturbed ones): the perturbation axes in the loop. Writes ``closed_loop_perturbations.json``
 and ``.png``.
 
-    python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 2] [--quick]
+    python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 16] [--quick]
+    python benchmarks/closed_loop.py --arms "oracle;manifold;robustness" --out part1.json
+    python benchmarks/closed_loop.py --merge part1.json part2.json
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -39,46 +47,35 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+#: the ``--arms`` name of the noise curves (the ``robustness`` section of the report)
+ROBUSTNESS = "robustness"
 YAW_SIGMAS = (0.0, 5.0, 10.0, 20.0, 30.0)
 POS_SIGMAS_CM = (0.0, 0.5, 1.0, 2.0, 3.0)
 # at 320 x 240 the small objects are too few pixels from the hand camera's home pose to train
 EYE_IN_HAND_SIZE = (640, 480)
 
 
-def _arm(label: str, config, progress: bool) -> dict:
-    import cv2
-
-    from scorbot_gym.evaluation.rollout import run_rollout
-
-    cv2.setNumThreads(1)  # also in the spawned workers of --jobs: one core per arm
-
-    t0 = time.perf_counter()
-    summary, results = run_rollout(config, progress=progress)
-    summary.pop("results", None)
-    summary["label"] = label
-    summary["wall_s"] = time.perf_counter() - t0
-    lo, hi = summary["success_rate_ci95"]
-    p = summary.get("perception") or {}
-    print(
-        f"{label:>28}: success {summary['success_rate']:6.1%} (95% CI {lo:.1%}-{hi:.1%}) "
-        f"n={summary['episodes']}  valid {p.get('valid_rate', 0):.1%}  "
-        f"recog {p.get('recognition_accuracy')}  failures {summary['failure_causes']}",
-        flush=True,
-    )
-    return summary
-
-
 def _run_arms(runs: list, jobs: int, progress: bool) -> dict[str, dict]:
-    """Run ``(label, config)`` pairs, in ``jobs`` spawned processes when ``jobs > 1`` (spawned,
-    not forked: a fork of a process that has rendered inherits a GL context it cannot use)."""
-    if jobs <= 1:
-        return {label: _arm(label, config, progress) for label, config in runs}
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    """Run ``(label, config)`` pairs, their episodes in chunks over ``jobs`` processes
+    (:func:`~scorbot_gym.evaluation.rollout.run_rollouts`: the same episodes for any ``jobs``);
+    per label the summary without its per-episode rows, ``wall_s`` its one-core seconds."""
+    from scorbot_gym.evaluation.rollout import run_rollouts
 
-    with ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as pool:
-        futures = {label: pool.submit(_arm, label, config, False) for label, config in runs}
-        return {label: future.result() for label, future in futures.items()}
+    done = run_rollouts([config for _, config in runs], jobs=jobs, progress=progress)
+    out = {}
+    for (label, _), (summary, _) in zip(runs, done, strict=True):
+        summary.pop("results", None)
+        summary["label"] = label
+        lo, hi = summary["success_rate_ci95"]
+        p = summary.get("perception") or {}
+        print(
+            f"{label:>28}: success {summary['success_rate']:6.1%} (95% CI {lo:.1%}-{hi:.1%}) "
+            f"n={summary['episodes']}  valid {p.get('valid_rate', 0):.1%}  "
+            f"recog {p.get('recognition_accuracy')}  failures {summary['failure_causes']}",
+            flush=True,
+        )
+        out[label] = summary
+    return out
 
 
 def _plot(report: dict, path: Path) -> None:
@@ -132,16 +129,33 @@ def main(argv: list[str] | None = None) -> int:
         "--out", type=Path, default=None, help="default: benchmarks/results/closed_loop.json"
     )
     parser.add_argument("--progress", action="store_true")
-    parser.add_argument("--jobs", type=int, default=1, help="arms run in this many processes")
     parser.add_argument(
-        "--arms", default=None, help="semicolon-separated arm labels to run (default: all + curves)"
+        "--jobs", type=int, default=1, help="processes, each running chunks of an arm's episodes"
+    )
+    parser.add_argument(
+        "--arms",
+        default=None,
+        help=f'";"-separated arm labels to run, "{ROBUSTNESS}" for the noise curves '
+        "(default: every arm and the curves)",
     )
     parser.add_argument(
         "--perturbations",
         default=None,
         help='";"-separated env perturbations ("none": unperturbed), the manifold arm under each',
     )
+    parser.add_argument(
+        "--merge",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="PART",
+        help="join the JSONs of runs of disjoint --arms (or --perturbations) into --out",
+    )
     args = parser.parse_args(argv)
+    if args.jobs < 1:
+        parser.error(f"--jobs must be >= 1, got {args.jobs}")
+    if args.merge is not None:
+        return _merge(parser, args)
     labels = _perturbation_labels(parser, args)
     if args.out is None:
         stem = "closed_loop_perturbations" if labels else "closed_loop"
@@ -149,10 +163,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.quick:
         args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
         args.eye_in_hand_episodes = 2
+    only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]
+    if only is not None:
+        unknown = [a for a in only if a not in (*_arm_configs(args), ROBUSTNESS)]
+        if unknown:
+            parser.error(f"unknown arms {unknown}; valid: {[*_arm_configs(args), ROBUSTNESS]}")
 
     import cv2
 
-    import scorbot_gym
     from pose.fileio import atomic_write_json
     from scorbot_gym.evaluation.rollout import RolloutConfig
     from scorbot_gym.perception.training import default_pose_models
@@ -162,16 +180,57 @@ def main(argv: list[str] | None = None) -> int:
     default_pose_models("top", 320, 240, progress=args.progress)
     if labels:
         return _perturbation_arms(args, labels, time.perf_counter() - t0)
-    default_pose_models("side", 320, 240, progress=args.progress)  # for the side fallback
-    if args.arms is None or "eye-in-hand" in args.arms:
+    arms = {k: v for k, v in _arm_configs(args).items() if only is None or k in only}
+    # trained here, once, not by every worker at the same time
+    if any(c.fallback_cameras for c in arms.values()):
+        default_pose_models("side", 320, 240, progress=args.progress)
+    if any(c.pose_cameras[0] == "eye_in_hand" for c in arms.values()):
         default_pose_models("eye_in_hand", *EYE_IN_HAND_SIZE, progress=args.progress)
     train_s = time.perf_counter() - t0
 
     n, seed = args.episodes, args.seed
-    m_push = args.push_episodes
+    report: dict = {
+        "benchmark": "closed_loop",
+        "episodes_per_arm": n,
+        "episodes_per_disturbed_arm": args.push_episodes,
+        "seed": seed,
+        "pose_model_ready_s": train_s,
+        "arms": {},
+        "robustness": {"yaw": [], "pos": []},
+    }
+    curves = _curves() if only is None or ROBUSTNESS in only else []
+    runs = list(arms.items()) + [
+        (label, RolloutConfig(pose="noisy", noise=noise, episodes=args.curve_episodes, seed=seed))
+        for _, _, label, noise in curves
+    ]
+    done = _run_arms(runs, args.jobs, args.progress)
+    for label in arms:
+        report["arms"][label] = done[label]
+    for key, sigma, label, _ in curves:
+        report["robustness"][key].append({"sigma": sigma, **_curve_point(done[label])})
+    atomic_write_json(args.out, report)
+    if "manifold" in arms:  # alone, after the arms: a timing shares the machine with nothing
+        timing = _loop_timing(arms["manifold"], max(2, n // 20))
+        report["loop_timing_320x240_one_thread"] = timing
+        print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
+    report["machine"] = _machine(args.jobs)
+    atomic_write_json(args.out, report)
+    if only is None:
+        _plot(report, args.out.with_suffix(".png"))
+        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    else:
+        print(f"written {args.out}")
+    return 0
+
+
+def _arm_configs(args) -> dict:
+    """The arms of the main run, by label (in the report's order)."""
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    n, seed, m_push = args.episodes, args.seed, args.push_episodes
     manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
     fallback = {**manifold, "fallback_cameras": ("side",)}
-    arms = {
+    return {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
         "manifold, FLR recognition": RolloutConfig(
@@ -211,55 +270,80 @@ def main(argv: list[str] | None = None) -> int:
             seed=seed,
         ),
     }
-    only = None if args.arms is None else [a.strip() for a in args.arms.split(";")]
-    if only is not None:
-        unknown = [a for a in only if a not in arms]
-        if unknown:
-            parser.error(f"unknown arms {unknown}; valid: {list(arms)}")
-        arms = {k: v for k, v in arms.items() if k in only}
-    report: dict = {
-        "benchmark": "closed_loop",
-        "episodes_per_arm": n,
-        "episodes_per_disturbed_arm": m_push,
-        "seed": seed,
-        "pose_model_ready_s": train_s,
-        "arms": {},
-        "robustness": {"yaw": [], "pos": []},
-    }
-    m = args.curve_episodes
+
+
+def _curves() -> list[tuple[str, float, str, dict]]:
+    """The robustness points ``(curve, sigma, label, noisy_oracle parameters)``."""
     curves = []
-    for yaw in YAW_SIGMAS if only is None else ():
+    for yaw in YAW_SIGMAS:
         noise = {"yaw_sigma_deg": yaw, "pos_sigma_m": 0.0}
         curves.append(("yaw", yaw, f"noisy yaw sigma {yaw:g} deg", noise))
-    for pos_cm in POS_SIGMAS_CM if only is None else ():
+    for pos_cm in POS_SIGMAS_CM:
         noise = {"yaw_sigma_deg": 0.0, "pos_sigma_m": pos_cm / 100}
         curves.append(("pos", pos_cm, f"noisy pos sigma {pos_cm:g} cm", noise))
-    runs = list(arms.items()) + [
-        (label, RolloutConfig(pose="noisy", noise=noise, episodes=m, seed=seed))
-        for _, _, label, noise in curves
-    ]
-    done = _run_arms(runs, args.jobs, args.progress)
-    for label in arms:
-        report["arms"][label] = done[label]
-    for key, sigma, label, _ in curves:
-        report["robustness"][key].append({"sigma": sigma, **_curve_point(done[label])})
-    atomic_write_json(args.out, report)
-    if only is None:  # alone, after the arms: a timing shares the machine with nothing
-        timing = _loop_timing(arms["manifold"], max(2, n // 20))
-        report["loop_timing_320x240_one_thread"] = timing
-        print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
-    report["machine"] = {
+    return curves
+
+
+def _machine(jobs: int) -> dict:
+    import scorbot_gym
+
+    return {
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
         "load_avg": os.getloadavg(),
         "scorbot_gym": scorbot_gym.__version__,
+        "jobs": jobs,
     }
-    atomic_write_json(args.out, report)
-    if only is None:
-        _plot(report, args.out.with_suffix(".png"))
-        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+
+
+def _merge(parser: argparse.ArgumentParser, args) -> int:
+    """Join the reports of runs of disjoint ``--arms`` (or ``--perturbations``) of the same
+    episodes into one, as one run over them all would have written it."""
+    from pose.fileio import atomic_write_json
+
+    parts = []
+    for path in args.merge:
+        try:
+            parts.append(json.loads(path.read_text()))
+        except (OSError, ValueError) as exc:
+            parser.error(f"--merge: {path} is not a readable JSON ({exc})")
+    kinds = {p.get("benchmark") for p in parts}
+    if len(kinds) != 1 or not kinds <= {"closed_loop", "closed_loop_perturbations"}:
+        parser.error(f"--merge: parts must all be closed_loop or all perturbation runs: {kinds}")
+    (kind,) = kinds
+    same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm")
+    for key in same:
+        if len({json.dumps(p.get(key)) for p in parts}) > 1:
+            parser.error(f"--merge: the parts differ in {key!r}: they are not one run's arms")
+    labels = [k for p in parts for k in p["arms"]]
+    twice = sorted({k for k in labels if labels.count(k) > 1})
+    if twice:
+        parser.error(f"--merge: arms in more than one part: {twice}")
+    out = args.out or Path("benchmarks/results") / f"{kind}.json"
+    report = {k: v for k, v in parts[0].items() if k in ("benchmark", *same)}
+    report["pose_model_ready_s"] = max(p["pose_model_ready_s"] for p in parts)
+    if kind == "closed_loop_perturbations":
+        report["wall_s"] = sum(p["wall_s"] for p in parts)
+        report["perturbations"] = [k for p in parts for k in p["perturbations"]]
+        report["arms"] = {k: a for p in parts for k, a in p["arms"].items()}
     else:
-        print(f"written {args.out}")
+        arms = {k: a for p in parts for k, a in p["arms"].items()}
+        order = list(_arm_configs(args))
+        report["arms"] = {k: arms[k] for k in sorted(arms, key=order.index)}
+        report["robustness"] = {
+            c: [pt for p in parts for pt in p["robustness"][c]] for c in ("yaw", "pos")
+        }
+        for p in parts:
+            if "loop_timing_320x240_one_thread" in p:
+                report["loop_timing_320x240_one_thread"] = p["loop_timing_320x240_one_thread"]
+        missing = [k for k in order if k not in arms]
+        if missing or not all(report["robustness"].values()):
+            print(f"note: the merged report lacks arms {missing} or robustness curves")
+    report["machine"] = {**parts[0]["machine"], "merged_from": [str(p) for p in args.merge]}
+    atomic_write_json(out, report)
+    plot = _plot_perturbations if kind == "closed_loop_perturbations" else _plot
+    plot(report, out.with_suffix(".png"))
+    print(f"written {out} and {out.with_suffix('.png')}")
     return 0
 
 
@@ -282,7 +366,6 @@ def _perturbation_labels(parser: argparse.ArgumentParser, args) -> list[str]:
 
 def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
     """The ``manifold`` arm of the main run under each env perturbation, on the same episodes."""
-    import scorbot_gym
     from pose.fileio import atomic_write_json
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
@@ -305,12 +388,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         "wall_s": time.perf_counter() - t0,
         "perturbations": labels,
         "arms": {label: done[label] for label in labels},
-        "machine": {
-            "platform": platform.platform(),
-            "cpu_count": os.cpu_count(),
-            "load_avg": os.getloadavg(),
-            "scorbot_gym": scorbot_gym.__version__,
-        },
+        "machine": _machine(args.jobs),
     }
     atomic_write_json(args.out, report)
     _plot_perturbations(report, args.out.with_suffix(".png"))

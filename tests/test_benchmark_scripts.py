@@ -78,6 +78,9 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
         ("closed_loop.py", ["--perturbations", "none;glare=2"], "glare"),
         ("closed_loop.py", ["--perturbations", "none", "--arms", "oracle"], "--arms does not"),
+        ("closed_loop.py", ["--arms", "oracle;robustnes"], "unknown arms ['robustnes']"),
+        ("closed_loop.py", ["--jobs", "0"], "--jobs must be >= 1"),
+        ("closed_loop.py", ["--merge", "no-such-part.json"], "no-such-part.json"),
         ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
         ("pose_ablation.py", ["--protocols", "clutter", "--occlusion", "0,25"], "bin edges"),
         ("clutter_closed_loop.py", ["--episodes", "0"], "--episodes"),
@@ -216,6 +219,31 @@ def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
             k: cells[(r["estimator"], r["occlusion"])][k] for k in keys
         }
     assert all(s["fit_errors"] == 0 for s in report["stats"].values())
+
+
+def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(tmp_path):
+    """A batch split by ``--arms`` over several commands joins into the report one run writes:
+    the committed report cut in two parts and merged gives back its arms and curves."""
+    whole = json.loads((RESULTS / "closed_loop.json").read_text())
+    labels = list(whole["arms"])
+    first = {**whole, "arms": {k: whole["arms"][k] for k in labels[1::2]}}
+    second = {**whole, "arms": {k: whole["arms"][k] for k in labels[::2]}}
+    second["robustness"] = {"yaw": [], "pos": []}
+    del second["loop_timing_320x240_one_thread"]
+    parts = [tmp_path / "a.json", tmp_path / "b.json"]
+    for path, part in zip(parts, (first, second), strict=True):
+        atomic_write_json(path, part)
+    out = tmp_path / "closed_loop.json"
+    script = str(BENCHMARKS / "closed_loop.py")
+    proc = _run(script, "--merge", *map(str, parts), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    merged = json.loads(out.read_text())
+    assert list(merged["arms"]) == labels  # in the run's order, not the parts'
+    for key in ("arms", "robustness", "loop_timing_320x240_one_thread", "seed"):
+        assert merged[key] == whole[key]
+    assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+    line = _usage_error(_run(script, "--merge", str(parts[0]), str(parts[0]), "--out", str(out)))
+    assert "arms in more than one part" in line, line
 
 
 def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm():

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from scorbot_gym.cli import main
+from scorbot_gym.evaluation import chunks
 from scorbot_gym.evaluation import compare as cmp
 from scorbot_gym.policies.loading import load_policy
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
@@ -150,20 +151,11 @@ def test_compare_runs_the_manifold_arm_on_recognised_identity(tmp_path):
     assert rec["perception"]["recognition_accuracy"] is not None  # identity was recognised
 
 
-def test_chunks_cover_every_seed_once_in_order():
-    for episodes, tasks, jobs in ((200, 16, 14), (50, 2, 2), (2, 6, 2), (7, 1, 3), (200, 12, 1)):
-        chunks = cmp._chunks(episodes, 100, tasks, jobs)
-        seeds = [s for n, first in chunks for s in range(first, first + n)]
-        assert seeds == list(range(100, 100 + episodes))
-        assert all(n >= min(episodes, cmp.MIN_CHUNK_EPISODES) for n, _ in chunks)
-    assert len(cmp._chunks(200, 0, 16, 14)) == 4  # slow arms spread over the processes
-
-
 @pytest.mark.slow
 def test_chunked_arms_give_the_same_episodes(monkeypatch):
     """Split into one-episode chunks over two processes: episode by episode the same results
     as one process running each arm whole."""
-    monkeypatch.setattr(cmp, "MIN_CHUNK_EPISODES", 1)
+    monkeypatch.setattr(chunks, "MIN_CHUNK_EPISODES", 1)
     kw = dict(objects=["box"], noise=["0.02:20"], progress=False)
     whole = cmp.compare(["scripted", "learned"], ["oracle"], 3, seed=4, jobs=1, **kw)
     chunked = cmp.compare(["scripted", "learned"], ["oracle"], 3, seed=4, jobs=2, **kw)

@@ -70,6 +70,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
@@ -455,41 +456,18 @@ def noise_curves(results: list[dict]) -> dict[str, list[dict[str, Any]]]:
     return curves
 
 
-#: under ``jobs > 1`` an arm's episodes are split into chunks (each a process's job), about
-#: this many chunks per process in all, so that slow arms (the estimator's) do not leave the
-#: other processes idle; never chunks under MIN_CHUNK_EPISODES (each builds its own env)
-CHUNKS_PER_JOB = 4
-MIN_CHUNK_EPISODES = 10
-
-
-def _chunks(episodes: int, seed: int, n_tasks: int, jobs: int) -> list[tuple[int, int]]:
-    """``(episodes, first seed)`` of each chunk of one arm's seeds, in seed order."""
-    k = min(-(-CHUNKS_PER_JOB * jobs // n_tasks), -(-episodes // MIN_CHUNK_EPISODES))
-    bounds = np.linspace(0, episodes, max(1, k) + 1).round().astype(int)
-    return [(int(b - a), seed + int(a)) for a, b in zip(bounds, bounds[1:], strict=False) if b > a]
-
-
 def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
-    """Run :func:`_run_arm` over ``tasks``, in ``jobs`` spawned processes when > 1 (a forked
-    child of a process that has rendered cannot render), each task split into chunks of its
-    seeds (:func:`_chunks`); every episode depends only on its seed, so the results do not
-    depend on ``jobs``."""
-    if jobs <= 1:
-        return [_run_arm(*t) for t in tasks]
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    """Run :func:`_run_arm` over ``tasks``, under ``jobs > 1`` in spawned processes, each task
+    cut into chunks of its seeds (:func:`~scorbot_gym.evaluation.chunks.run_chunked`; one
+    thread, no progress bar in a worker); every episode depends only on its seed, so the
+    results do not depend on ``jobs``."""
 
-    parts = [
-        [
-            (t[0], t[1], n, first, *t[4:-1], False, 1)
-            for n, first in _chunks(t[2], t[3], len(tasks), jobs)
-        ]
-        for t in tasks
-    ]
-    workers = min(jobs, sum(len(p) for p in parts))
-    with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-        futures = [[pool.submit(_run_arm, *c) for c in chunks] for chunks in parts]
-        return [[r for f in fs for r in f.result()] for fs in futures]
+    def chunk_args(i: int, n: int, first: int) -> tuple:
+        t = tasks[i]  # a worker: no progress bar, one thread
+        return (*t[:2], n, first, *t[4:]) if jobs == 1 else (*t[:2], n, first, *t[4:-1], False, 1)
+
+    done = run_chunked(_run_arm, [(t[2], t[3]) for t in tasks], chunk_args, jobs)
+    return [[r for chunk in chunks for r in chunk] for chunks in done]
 
 
 def compare(

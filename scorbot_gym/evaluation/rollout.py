@@ -5,12 +5,15 @@ what the README's main job measures is what the benchmark measures.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.names import POLICIES, POSE_ALIASES
@@ -221,6 +224,41 @@ def run_rollout(
     config: RolloutConfig, progress: bool = False
 ) -> tuple[dict[str, Any], list[EpisodeResult]]:
     """Run the configured episodes; returns the summary (with the configuration) and results."""
+    results, _ = _episodes(config, progress)
+    return rollout_summary(config, results), results
+
+
+def run_rollouts(
+    configs: Sequence[RolloutConfig], jobs: int = 1, progress: bool = False
+) -> list[tuple[dict[str, Any], list[EpisodeResult]]]:
+    """:func:`run_rollout` for each configuration, its episodes cut into chunks of seeds run in
+    ``jobs`` worker processes (:mod:`scorbot_gym.evaluation.chunks`); the results are the
+    same for any ``jobs``. A summary's ``wall_s`` is the seconds its episodes took, added over
+    its chunks (one core's time: a worker runs OpenCV on one thread)."""
+
+    def chunk_args(i: int, n: int, first: int) -> tuple:
+        chunk = replace(configs[i], episodes=n, seed=first)
+        return (chunk, progress) if jobs == 1 else (chunk, False, 1)
+
+    done = run_chunked(_episodes, [(c.episodes, c.seed) for c in configs], chunk_args, jobs)
+    out = []
+    for config, chunks in zip(configs, done, strict=True):
+        results = [r for rs, _ in chunks for r in rs]
+        summary = rollout_summary(config, results)
+        summary["wall_s"] = sum(s for _, s in chunks)
+        out.append((summary, results))
+    return out
+
+
+def _episodes(
+    config: RolloutConfig, progress: bool = False, cv_threads: int | None = None
+) -> tuple[list[EpisodeResult], float]:
+    """The configured episodes (a worker's chunk under :func:`run_rollouts`) and their seconds."""
+    if cv_threads is not None:
+        import cv2
+
+        cv2.setNumThreads(cv_threads)
+    t0 = time.perf_counter()
     env = config.make_env(progress=progress)
     try:
         policy = config.make_policy(env)
@@ -229,6 +267,12 @@ def run_rollout(
         )
     finally:
         env.close()
+    return results, time.perf_counter() - t0
+
+
+def rollout_summary(config: RolloutConfig, results: list[EpisodeResult]) -> dict[str, Any]:
+    """The summary of ``results`` (:func:`~scorbot_gym.evaluation.summary.summarize`) with the
+    configuration that ran them."""
     summary = summarize(results)
     summary.update(
         policy=config.policy,
@@ -240,4 +284,4 @@ def run_rollout(
         seed=config.seed,
         config=config.to_dict(),
     )
-    return summary, results
+    return summary
