@@ -45,6 +45,8 @@ import sys
 import time
 from pathlib import Path
 
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # one core per worker (inherited): --jobs N uses N cores
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 #: the ``--arms`` name of the noise curves (the ``robustness`` section of the report)
@@ -337,8 +339,9 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
             if "loop_timing_320x240_one_thread" in p:
                 report["loop_timing_320x240_one_thread"] = p["loop_timing_320x240_one_thread"]
         missing = [k for k in order if k not in arms]
-        if missing or not all(report["robustness"].values()):
-            print(f"note: the merged report lacks arms {missing} or robustness curves")
+        missing += [] if all(report["robustness"].values()) else [ROBUSTNESS]
+        if missing:
+            print(f"note: no part ran {missing}; the merged report lacks them")
     report["machine"] = {**parts[0]["machine"], "merged_from": [str(p) for p in args.merge]}
     atomic_write_json(out, report)
     plot = _plot_perturbations if kind == "closed_loop_perturbations" else _plot
