@@ -313,6 +313,7 @@ def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[
         "target_recognised": None,
         "n_components": details.get("n_components"),  # blobs before splitting
         "n_blobs": len(details["blobs"]),  # after
+        "n_objects": len(info["objects"]),  # on the table (some may be out of view)
     }
     if camera is None or not names:
         return out
