@@ -67,7 +67,9 @@ def _check_components(image: np.ndarray, components: Sequence[np.ndarray]) -> No
 class WholeComponents:
     """No splitting: each component is one region (what a pipeline without a splitter does)."""
 
-    def split(self, image: np.ndarray, components: Sequence[np.ndarray]) -> list[Region]:
+    def split(
+        self, image: np.ndarray, components: Sequence[np.ndarray], camera: Any = None
+    ) -> list[Region]:
         _check_components(image, components)
         return [Region(np.asarray(c, bool), i) for i, c in enumerate(components)]
 
