@@ -210,6 +210,11 @@ class KeypointWatershedSplitter(BaseEstimator):
         :class:`~pose.camera.CameraModel`, which the pose models' views need)."""
         if not hasattr(self, "index_"):
             raise RuntimeError("KeypointWatershedSplitter.split before fit(estimators)")
+        if camera is None and len(components):
+            raise ValueError(
+                "KeypointWatershedSplitter.split needs the image's camera model (the pose "
+                "models' views are calibrated), got camera=None"
+            )
         _check_components(image, components)
         out: list[Region] = []
         with shared_keypoints():  # the models re-read the same crop's SIFT
@@ -239,7 +244,7 @@ class KeypointWatershedSplitter(BaseEstimator):
     ) -> list[Region]:
         whole = [Region(comp, index)]
         names = self.candidates(image, comp)
-        if len(names) < 2 or camera is None:
+        if len(names) < 2:
             return whole
         from pose.view import View  # the splitter needs it only to ask the models
 

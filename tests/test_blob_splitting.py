@@ -201,6 +201,8 @@ def test_touching_objects_are_split_and_each_region_recognised(models, touching_
     assert (comps[shared] & truth[neighbour]).sum() > 100
 
     splitter = KeypointWatershedSplitter().fit(models.estimators)
+    with pytest.raises(ValueError, match="needs the image's camera model"):
+        splitter.split(image, comps)
     regions = splitter.split(image, comps, cam)
     parts = [r for r in regions if r.component == shared]
     assert len(parts) == 2
