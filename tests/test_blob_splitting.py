@@ -125,6 +125,12 @@ def test_a_rollout_names_its_splitter():
         RolloutConfig(pose="manifold_clutter", splitter="magic")
     with pytest.raises(ValueError, match="only applies to the clutter pose sources"):
         RolloutConfig(pose="manifold", splitter="keypoints")
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.rollout import config_from_args
+
+    argv = ["rollout", "--pose", "manifold_clutter", "--distractors", "2"]
+    argv += ["--splitter", "keypoints"]
+    assert config_from_args(build_parser().parse_args(argv)).splitter == "keypoints"
 
 
 # --- a rendered table with two objects touching in the top image ---------------------------------
