@@ -18,7 +18,7 @@ splits the same components:
 
 Writes ``benchmarks/results/blob_split.json`` (medians, rates; no per-view arrays).
 
-    python benchmarks/blob_split.py --scenes 40
+    python benchmarks/blob_split.py --scenes 200
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def score_view(regions, comps, truth) -> dict[str, list]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", type=int, default=40, help="seeded tables (one per seed)")
+    ap.add_argument("--scenes", type=int, default=200, help="seeded tables (one per seed)")
     ap.add_argument("--seed", type=int, default=7000, help="first table's seed")
     ap.add_argument("--distractors", type=int, default=2)
     ap.add_argument("--out", type=Path, default=RESULTS / "blob_split.json")
