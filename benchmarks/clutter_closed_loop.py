@@ -46,8 +46,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core per worker: the per-estimate times are 1-core
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from scorbot_gym.names import SPLITTERS  # noqa: E402 (imports nothing heavy)
-
 RESULTS = Path(__file__).resolve().parent / "results"
 ARMS = ("oracle", "manifold_clutter", "largest_blob", "random_blob")
 CHUNK = 10  # episodes per task
@@ -165,6 +163,8 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.names import SPLITTERS  # imports nothing heavy
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=200)
     ap.add_argument("--distractors", type=int, nargs="+", default=[2, 4])
