@@ -24,6 +24,10 @@ a PNG.
 
     python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
 
+``--splitter`` swaps the stage that splits blobs several objects share (``none``, the default:
+left whole; ``keypoints``; ``distance``) in every arm that reads blobs; run once per splitter
+with ``--out`` to compare them on the same seeds.
+
 ``--distractors 0`` runs the same targets in the same poses alone on the table (the target is
 placed before its neighbours, with the same draws): what the neighbours cost each arm.
 """
@@ -54,19 +58,28 @@ TARGETS = (
 )
 
 
-def run_chunk(arm: str, distractors: int, seed: int, episodes: int) -> list:
+def _config(arm: str, distractors: int, seed: int, episodes: int, splitter: str):
+    from scorbot_gym.evaluation.rollout import CLUTTER_POSE_SOURCES, RolloutConfig
+
+    split = splitter if arm in CLUTTER_POSE_SOURCES else "none"  # the oracle reads no blobs
+    return RolloutConfig(
+        pose=arm, episodes=episodes, seed=seed, distractors=distractors, splitter=split
+    )
+
+
+def run_chunk(arm: str, distractors: int, seed: int, episodes: int, splitter: str = "none") -> list:
     """One chunk of an arm's episodes (a top-level function: it runs in a worker process)."""
     import cv2
 
-    from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+    from scorbot_gym.evaluation.rollout import run_rollout
 
     cv2.setNumThreads(1)
-    config = RolloutConfig(pose=arm, episodes=episodes, seed=seed, distractors=distractors)
-    return run_rollout(config)[1]
+    return run_rollout(_config(arm, distractors, seed, episodes, splitter))[1]
 
 
-def arm_summary(arm: str, distractors: int, seed: int, results: list) -> dict:
-    from scorbot_gym.evaluation.rollout import RolloutConfig
+def arm_summary(
+    arm: str, distractors: int, seed: int, results: list, splitter: str = "none"
+) -> dict:
     from scorbot_gym.evaluation.summary import summarize, wilson_interval
 
     summary = summarize(results)
@@ -75,9 +88,7 @@ def arm_summary(arm: str, distractors: int, seed: int, results: list) -> dict:
     wrong = summary["failure_causes"].get("wrong_object", 0)
     summary["wrong_object_rate"] = wrong / n
     summary["wrong_object_rate_ci95"] = list(wilson_interval(wrong, n))
-    summary["config"] = RolloutConfig(
-        pose=arm, episodes=n, seed=seed, distractors=distractors
-    ).to_dict()
+    summary["config"] = _config(arm, distractors, seed, n, splitter).to_dict()
     summary["failed_episodes"] = failed_episodes(rows)
     return summary
 
@@ -152,6 +163,8 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.names import SPLITTERS  # imports nothing heavy
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=200)
     ap.add_argument("--distractors", type=int, nargs="+", default=[2, 4])
@@ -160,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
     ap.add_argument("--out", type=Path, default=None, help="JSON path (the PNG goes beside it)")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
+    ap.add_argument(
+        "--splitter",
+        choices=SPLITTERS,
+        default="none",
+        help="how the blob-reading arms split blobs several objects share (default: none)",
+    )
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.jobs < 1 or any(k < 0 for k in args.distractors):
         ap.error("--episodes and --jobs must be >= 1, --distractors >= 0")
@@ -170,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
 
     default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
     tasks = [
-        (arm, k, s, min(CHUNK, args.seed + episodes - s))
+        (arm, k, s, min(CHUNK, args.seed + episodes - s), args.splitter)
         for k in args.distractors
         for arm in args.arms
         for s in range(args.seed, args.seed + episodes, CHUNK)
@@ -190,7 +209,7 @@ def main(argv: list[str] | None = None) -> int:
         for arm in args.arms:
             results = [r for t, c in zip(tasks, chunks, strict=True) if t[:2] == (arm, k)
                        for r in c]  # fmt: skip
-            s = arm_summary(arm, k, args.seed, results)
+            s = arm_summary(arm, k, args.seed, results, args.splitter)
             runs.setdefault(str(k), {})[arm] = s
             p = s["perception"] or {}
             lo, hi = s["success_rate_ci95"]
@@ -206,6 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         "distractors": args.distractors,
         "seed": args.seed,
         "arms": list(args.arms),
+        "splitter": args.splitter,
         "runs": runs,
         "wall_s": wall,
         "jobs": args.jobs,

@@ -33,6 +33,8 @@ MOVING_CAMERAS = ("eye_in_hand",)
 
 #: :func:`scorbot_gym.perception.segmenters.segmenter_names` (sorted)
 SEGMENTERS = ("background", "depth", "privileged")
+#: :mod:`scorbot_gym.perception.splitters` takes them from here (``none``: blobs left whole)
+SPLITTERS = ("none", "keypoints", "distance")
 #: :mod:`scorbot_gym.perception.recognizers` takes them from here
 RECOGNIZERS = ("flr", "appearance", "flr+appearance")
 #: :func:`scorbot_gym.perception.motion.motion_names` (sorted)

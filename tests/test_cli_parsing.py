@@ -90,6 +90,7 @@ from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES
 from scorbot_gym.perception import pose_source_names, segmenter_names
 from scorbot_gym.perception.motion import motion_names
 from scorbot_gym.perception.recognizers import RECOGNIZERS
+from scorbot_gym.perception.splitters import SPLITTERS
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
 from scorbot_gym.sim.simulation import MOVING_CAMERAS
 from scorbot_gym.tasks.disturbance import DISTURBANCES
@@ -98,7 +99,7 @@ print(json.dumps({
     "POLICIES": POLICIES, "POSE_ALIASES": POSE_ALIASES, "POSE_SOURCES": pose_source_names(),
     "FIXED_CAMERAS": [c.name for c in DEFAULT_CAMERAS], "MOVING_CAMERAS": MOVING_CAMERAS,
     "SEGMENTERS": segmenter_names(), "RECOGNIZERS": RECOGNIZERS, "MOTIONS": motion_names(),
-    "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(),
+    "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(), "SPLITTERS": SPLITTERS,
 }))
 """
 

@@ -69,7 +69,7 @@ def test_blob_choice_sources_run_from_a_rollout_config():
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     config = RolloutConfig(pose="largest_blob", pose_model="m.npz", distractors=2)
-    assert config.pose_kwargs() == {"models": "m.npz"}
+    assert config.pose_kwargs() == {"models": "m.npz", "splitter": "none"}
     with pytest.raises(ValueError, match="chooses its blob itself: drop recognize"):
         RolloutConfig(pose="random_blob", recognize=True)
 

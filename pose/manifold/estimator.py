@@ -304,6 +304,26 @@ class PoseManifoldEstimator(ScoredEstimator, BaseEstimator):
         check_is_fitted(self, "regressor_")
         return predict_each(self._predict_one, view)
 
+    def explained_keypoints(self, view: View) -> np.ndarray:
+        """Pixel positions ``(K, 2)`` of the view's keypoints that this model explains: the
+        inliers of the RANSAC homographies from its training views (stages a and b of
+        :meth:`predict`, without the pose). Where several objects share a mask, each object's
+        model explains its own keypoints, which is what splitting the mask between them needs
+        (:class:`pose.splitting.KeypointWatershedSplitter`). Empty when too few keypoints or
+        no training view matches."""
+        check_is_fitted(self, "regressor_")
+        f = self.keypoints.extract(view.image, view.mask)
+        if len(f) < self.matcher.min_inliers:
+            return np.zeros((0, 2), np.float32)
+        neighbours = self._index.nearest(f.descriptors)
+        matches = self.matcher.match(
+            f.descriptors, f.xy, self._index, neighbours, self.db_xy_, self._view_start,
+            self.random_state,
+        )  # fmt: skip
+        if not matches:
+            return np.zeros((0, 2), np.float32)
+        return f.xy[np.unique(np.concatenate([m.inliers for m in matches]))]
+
     def _predict_one(self, view: View) -> PoseEstimate:
         tm: dict[str, float] = {}
         t0 = tic = time.perf_counter()

@@ -28,6 +28,7 @@ from scorbot_gym.names import (
     POSE_SOURCES,
     RECOGNIZERS,
     SEGMENTERS,
+    SPLITTERS,
 )
 from scorbot_gym.objects import CATALOGUE
 
@@ -115,6 +116,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="flr+appearance",
         help="with --recognize: flr (silhouettes), appearance (the model with most inliers) or "
         "flr+appearance (default: FLR's three best classes, decided by appearance)",
+    )
+    p.add_argument(
+        "--splitter",
+        choices=SPLITTERS,
+        default="none",
+        help="with --distractors: how blobs that several objects share are split before "
+        "recognition: none (default: left whole), keypoints (each object's keypoints, assigned "
+        "to the model that explains them, seed a watershed) or distance (distance transform)",
     )
     p.add_argument(
         "--recognize",
@@ -231,6 +240,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         segmenter=args.segmenter,
         recognizer=args.recognizer,
         recognize=args.recognize,
+        splitter=args.splitter,
         estimate_every=args.estimate_every,
         disturbance=None if args.disturb == "none" else args.disturb,
         noise=noise,

@@ -77,14 +77,18 @@ def _clutter_record(ran: list[dict[str, Any]]) -> dict[str, Any]:
     if not any("objects" in r for r in ran):
         return {}  # not a source that splits a cluttered table
     picks = [r["target_recognised"] for r in ran if r.get("target_recognised") is not None]
-    first = next((r["objects"] for r in ran if r.get("objects")), [])
-    blobs = [b for b in first if b.get("recognised") is not None]
-    return {
+    view = next((r for r in ran if r.get("objects")), {})
+    blobs = [b for b in view.get("objects", []) if b.get("recognised") is not None]
+    out = {
         "target_recognised_rate": float(np.mean(picks)) if picks else 0.0,  # never found: 0
         "blob_recognition_correct": (
             float(np.mean([b["recognised"] == b["true_class"] for b in blobs])) if blobs else None
         ),
     }
+    if view.get("n_components") is not None:  # blobs before and after splitting, first view
+        keys = ("objects", "components", "blobs")
+        out["first_view_blobs"] = {k: view.get(f"n_{k}") for k in keys}
+    return out
 
 
 def _perception(env: gym.Env, info: dict) -> dict[str, Any]:

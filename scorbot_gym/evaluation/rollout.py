@@ -16,7 +16,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
-from scorbot_gym.names import POLICIES, POSE_ALIASES
+from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
 #: the pose sources that split a cluttered table into blobs and estimate the named target on
@@ -47,7 +47,9 @@ class RolloutConfig:
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
     pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
     ``objects``) share the table with the target, which is ``target`` in every episode or
-    drawn; ``tilt_deg`` props the target on a stand, tilted that much.
+    drawn; ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
+    the stage of the clutter sources that splits blobs several objects share
+    (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole).
     """
 
     policy: str = "scripted"
@@ -72,6 +74,7 @@ class RolloutConfig:
     distractors: int = 0
     target: str | None = None
     tilt_deg: float = 0.0
+    splitter: str = "none"
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -110,6 +113,13 @@ class RolloutConfig:
                 f"pose {self.pose!r} is told the target (the task command) and chooses its blob "
                 "itself: drop recognize"
             )
+        if self.splitter not in SPLITTERS:
+            raise ValueError(f"splitter must be one of {SPLITTERS}, got {self.splitter!r}")
+        if self.splitter != "none" and self.pose not in CLUTTER_POSE_SOURCES:
+            raise ValueError(
+                f"splitter only applies to the clutter pose sources {CLUTTER_POSE_SOURCES}, "
+                f"not {self.pose!r}"
+            )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
         self.pose_cameras = tuple(self.pose_cameras)
@@ -137,9 +147,13 @@ class RolloutConfig:
         if self.pose == "noisy_oracle":
             return dict(self.noise)
         if self.pose == "manifold_clutter":  # one camera; blobs split, each recognised
-            return {"models": self._models(progress), "recognizer": self.recognizer}
+            return {
+                "models": self._models(progress),
+                "recognizer": self.recognizer,
+                "splitter": self.splitter,
+            }
         if self.pose in CLUTTER_POSE_SOURCES:  # the same blobs, chosen without recognition
-            return {"models": self._models(progress)}
+            return {"models": self._models(progress), "splitter": self.splitter}
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models

@@ -72,10 +72,22 @@ def _clutter_summary(recs: list[dict]) -> dict:
         return {}
     blobs = [p.get("blob_recognition_correct") for p in recs]
     blobs = [b for b in blobs if b is not None]
-    return {
+    out = {
         "target_recognition_accuracy": float(np.mean([r > 0.5 for r in rates])),
         "blob_recognition_accuracy": float(np.mean(blobs)) if blobs else None,
     }
+    views = [p["first_view_blobs"] for p in recs if p.get("first_view_blobs")]
+    if views:  # how often objects shared a blob in the first view, and how often it was split
+        out["first_view_blobs"] = {
+            "episodes": len(views),
+            "fewer_components_than_objects": float(
+                np.mean([v["components"] < v["objects"] for v in views])
+            ),
+            "split": float(np.mean([v["blobs"] > v["components"] for v in views])),
+            "mean_components": float(np.mean([v["components"] for v in views])),
+            "mean_blobs": float(np.mean([v["blobs"] for v in views])),
+        }
+    return out
 
 
 def summarize(results: list[EpisodeResult]) -> dict:

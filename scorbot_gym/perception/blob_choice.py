@@ -68,6 +68,7 @@ class BlobChoicePoseSource(ClutterPoseSource):
         self._last, self._known, self._chosen_at = None, [], None
         self._rng = rng
         self.segmenter.reset(frame, self.camera)
+        self._reset_splitter()
 
     def _recognise_all(
         self,

@@ -15,6 +15,12 @@ the target is lost: during the grasp the arm splits and hides blobs, and recogni
 at every step would cost one estimate per class. For the same reason a blob at about the place
 and size of one recognised earlier in the episode keeps that label.
 
+Blobs that several objects share can be split before recognition (``splitter``, a component
+of :mod:`scorbot_gym.perception.splitters`: ``"keypoints"`` assigns each blob's keypoints to
+the models that explain them and splits its pixels by a watershed seeded with them; the
+default ``"none"`` leaves blobs whole), so that each object is recognised, and the target's
+pose estimated, on its own pixels. ``details`` then counts the blobs before and after.
+
 A wrong pick is counted, never hidden: ``details["blobs"]`` lists every blob's recognition
 (``PoseEstimateObservation`` scores them against the ground truth in ``info["perception"]``).
 """
@@ -35,6 +41,7 @@ from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.model_set import _load, _world_pose
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import BackgroundSegmenter
+from scorbot_gym.perception.splitters import make_splitter
 
 #: pixels (at 320 x 240) a blob needs to count as an object
 MIN_BLOB_AREA = 120
@@ -84,8 +91,10 @@ class ClutterPoseSource:
     ``models`` (a :class:`PoseModelSet` or its file) must hold every class that may be on the
     table: recognition decides among them. ``recognizer`` is a name from
     :mod:`scorbot_gym.perception.recognizers` or an object (reading one camera's silhouette and
-    view). The target's identity is the task command, so the wrapper must pass it
-    (``identity="given"``, the env's ``target_class`` / ``info["object_name"]``).
+    view). ``splitter`` names the stage that splits blobs several objects share
+    (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole) or is one. The
+    target's identity is the task command, so the wrapper must pass it (``identity="given"``,
+    the env's ``target_class`` / ``info["object_name"]``).
     """
 
     privileged = False
@@ -97,6 +106,7 @@ class ClutterPoseSource:
         segmenter: BlobSegmenter | None = None,
         cameras: Sequence[str] | None = None,
         track_gate_px: float = TRACK_GATE_PX,
+        splitter: str | Any = "none",
     ) -> None:
         self.models = _load(models)
         meta = self.models.meta
@@ -109,6 +119,8 @@ class ClutterPoseSource:
             )
         self.segmenter = segmenter if segmenter is not None else BlobSegmenter()
         self.recognizer = recognizer
+        self.splitter = splitter
+        self._splitter: Any = None  # built on first use (the keypoint one indexes the models)
         self.track_gate_px = float(track_gate_px)
         self._recognizer: Any = None
         self._last: WorldPose | None = None
@@ -131,10 +143,19 @@ class ClutterPoseSource:
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
         self._last, self._known = None, []
         self.segmenter.reset(frame, self.camera)
+        self._reset_splitter()
         if self._recognizer is None and len(self.models.object_names) > 1:
             self._recognizer = make_recognizer(
                 self.recognizer, self.models, [self.camera], self.width, self.height
             )
+
+    def _reset_splitter(self) -> None:
+        """Build the splitter on first use (the keypoint one indexes every model's training
+        descriptors: seconds, outside any timed step) and make it forget the last table."""
+        if self._splitter is None:
+            self._splitter = make_splitter(self.splitter, self.models)
+        if hasattr(self._splitter, "reset"):
+            self._splitter.reset()
 
     # --- estimate ------------------------------------------------------------------------------
     def estimate(self, frame: PerceptionFrame) -> WorldPose:
@@ -147,12 +168,16 @@ class ClutterPoseSource:
         cam = frame.cameras[self.camera]
         image = np.asarray(frame.observation[f"{self.camera}_rgb"])
         t0 = time.perf_counter()
-        blobs = self.segmenter.blobs(frame, self.camera)
+        components = self.segmenter.blobs(frame, self.camera)
+        t1 = time.perf_counter()
+        regions = self._splitter.split(image, components, cam) if components else []
         timings = {"segment": (time.perf_counter() - t0) * 1e3}
         timings.update({f"segment_{k}": v for k, v in self.segmenter.timings_ms.items()})
-        if not blobs:
+        timings["segment_split"] = (time.perf_counter() - t1) * 1e3
+        if not regions:
             return WorldPose.invalid("no object in view", object_name=target, timings_ms=timings)
-        records = [_blob_record(b) for b in blobs]
+        blobs = [r.mask for r in regions]
+        records = [_blob_record(r.mask, r.component, r.label) for r in regions]
         t0 = time.perf_counter()
         chosen, est = self._follow(blobs, cam, image, target)
         how = "followed"
@@ -170,7 +195,12 @@ class ClutterPoseSource:
             )
         else:
             pose = _world_pose(est, cam, target, timings, self.camera)
-        pose.details = {"blobs": records, "chosen": chosen, "how": how}
+        pose.details = {
+            "blobs": records,
+            "chosen": chosen,
+            "how": how,
+            "n_components": len(components),  # blobs before splitting
+        }
         if pose.valid:
             self._last = pose
         return pose
@@ -257,11 +287,15 @@ class ClutterPoseSource:
         return rec.recognize(view)
 
 
-def _blob_record(blob: np.ndarray) -> dict[str, Any]:
+def _blob_record(blob: np.ndarray, component: int = 0, split_label: str | None = None) -> dict:
+    """A blob for the record: its size and place, the connected component it was split from
+    and the class whose keypoints seeded it (``None``: left whole), and its recognition."""
     ys, xs = np.nonzero(blob)
     return {
         "area": int(len(xs)),
         "centroid_px": [float(xs.mean()), float(ys.mean())],
+        "component": int(component),
+        "split_label": split_label,
         "recognised": None,
     }
 

@@ -308,7 +308,13 @@ def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[
     """Each blob's true class (the object whose projected centre is nearest the blob's
     centroid) beside its recognition, and whether the blob taken for the target is it."""
     names = list(info["objects"])
-    out: dict[str, Any] = {"objects": [], "target_recognised": None}
+    out: dict[str, Any] = {
+        "objects": [],
+        "target_recognised": None,
+        "n_components": details.get("n_components"),  # blobs before splitting
+        "n_blobs": len(details["blobs"]),  # after
+        "n_objects": len(info["objects"]),  # on the table (some may be out of view)
+    }
     if camera is None or not names:
         return out
     centres = camera.project(np.array([info["objects"][n]["position"] for n in names]))
