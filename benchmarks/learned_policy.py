@@ -10,6 +10,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
         [--poses oracle,noisy@0:20,noisy@0.02:0,manifold]   # what the learner observes
         [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
+        [--pose-window 8]   # the policy remembers its last 8 fresh estimates
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -76,6 +77,12 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
     p.add_argument("--beta", type=non_negative_float, default=0.5, help="DAgger's first beta")
     p.add_argument(
+        "--pose-window",
+        type=non_negative_int,
+        default=0,
+        help="fresh estimates the policy remembers (HistorySpec.pose_window; 0: none)",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -92,7 +99,7 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     from pose.fileio import atomic_write_json
-    from scorbot_gym.policies.imitation import ImitationPolicy
+    from scorbot_gym.policies.imitation import HistorySpec, ImitationPolicy
     from scorbot_gym.rl.imitation import ImitationConfig, make_learner_envs, train_imitation
 
     if not args.skip_training:
@@ -107,6 +114,7 @@ def main(argv: list[str] | None = None) -> None:
             poses=tuple(v for v in args.poses.split(",") if v),
             beta=args.beta,
             init_policy=args.init_policy,
+            history=HistorySpec(pose_window=args.pose_window),
         )
         demos = None
         if args.dataset:

@@ -171,7 +171,12 @@ def test_damaged_or_incompatible_files_give_one_line_errors(trained, tmp_path):
     meta = json.loads((no_camera / "policy.json").read_text())
     del meta["camera"]
     (no_camera / "policy.json").write_text(json.dumps(meta))
+    pose_window = copy("pose_window")
+    meta = json.loads((pose_window / "policy.json").read_text())
+    meta["history"]["pose_window"] = 8
+    (pose_window / "policy.json").write_text(json.dumps(meta))
     for folder, words in [
+        (pose_window, "reads no pose estimate"),
         (bad_zip, "could not be read"),
         (bad_json, "not valid JSON"),
         (wrong_net, "do not fit the network"),
@@ -188,6 +193,7 @@ def test_bad_settings_are_refused_in_one_line():
         ({"device": "tpu"}, "device must be"),
         ({"net": {"channels": 2}}, "channels must be 1"),
         ({"net": NetSpec(frame_size=84), "fit_steps": 0}, "fit_steps must be >= 1"),
+        ({"history": {"pose_window": 4}}, "reads no pose estimate"),
     ]:
         with pytest.raises(ValueError, match=words):
             PixelImitationConfig(**kwargs)

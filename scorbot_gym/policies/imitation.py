@@ -8,7 +8,14 @@ ception, the estimated object pose, ``pose_valid``/``pose_confidence``/``pose_ag
 - the gripper commands of the last ``gripper_commands`` steps (+1 open / -1 closed): how long
   the fingers have been closing. The scripted controller lifts a fixed time after it starts
   closing (an internal timer); behaviour cloning without this history cannot tell "closing"
-  from "closed, now lift" (the earlier probe's failures held the object and never lifted).
+  from "closed, now lift" (the earlier probe's failures held the object and never lifted);
+- optionally (``pose_window`` > 0) the last ``pose_window`` *fresh* estimates of the object
+  (``pose_valid`` set and ``pose_age`` 0), summarised as their mean position, the circular mean
+  of their doubled heading, and their spread. One estimate is all a policy sees otherwise:
+  under per-step estimation noise the expert's action is then not a function of the input,
+  and a fit averages it away. The scripted controller filters its estimates
+  (:class:`~scorbot_gym.policies.pose_filter.GraspPoseFilter`); this is the learned policy's
+  equivalent, computed from its own observations only.
 
 A few features are computed from the observation, as a feature extractor would: the object
 relative to the TCP, and the object's heading relative to the base and wrist (sin/cos of twice
@@ -69,6 +76,7 @@ class HistorySpec:
 
     previous_actions: int = 2
     gripper_commands: int = 20
+    pose_window: int = 0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -76,12 +84,26 @@ class HistorySpec:
                 raise ValueError(f"history {name} must be an int >= 0, got {value!r}")
 
 
+#: values summarising the window of fresh estimates (:meth:`ActionHistory.pose_features`)
+N_POSE_WINDOW_FEATURES = 17
+
+
 def n_features(n_classes: int, history: HistorySpec) -> int:
-    return 47 + n_classes + 6 * history.previous_actions + history.gripper_commands
+    window = N_POSE_WINDOW_FEATURES if history.pose_window else 0
+    return 47 + n_classes + 6 * history.previous_actions + history.gripper_commands + window
+
+
+def _fresh_estimate(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float] | None:
+    """The observation's (position, heading) if it carries a new estimate, else None (a lost
+    estimate, a held one between estimation steps, or the placeholder before the first)."""
+    if float(obs["pose_valid"][0]) < 0.5 or float(obs["pose_age"][0]) > 0.0:
+        return None
+    return np.asarray(obs["object_pos"], float), yaw_from_quat(np.asarray(obs["object_quat"]))
 
 
 class ActionHistory:
-    """The policy's memory of the actions executed so far in the episode."""
+    """The policy's memory of the episode so far: its executed actions and, with
+    ``spec.pose_window``, the fresh pose estimates it acted on."""
 
     def __init__(self, spec: HistorySpec, action_dim: int = 6) -> None:
         self.spec, self.action_dim = spec, action_dim
@@ -91,9 +113,17 @@ class ActionHistory:
         self.actions = np.zeros((self.spec.previous_actions, self.action_dim), np.float32)
         # before the first step the gripper was commanded open, as the env resets it
         self.gripper = np.ones(self.spec.gripper_commands, np.float32)
+        self.estimates: list[tuple[np.ndarray, float]] = []
 
-    def push(self, action: np.ndarray) -> None:
-        """Remember the action that was executed (whoever chose it)."""
+    def push(self, action: np.ndarray, obs: dict[str, np.ndarray] | None = None) -> None:
+        """Remember the action that was executed (whoever chose it) and the observation it was
+        chosen on (needed with ``pose_window``: its estimate joins the window if fresh)."""
+        if self.spec.pose_window:
+            if obs is None:
+                raise ValueError("a history with pose_window > 0 needs the observation in push")
+            fresh = _fresh_estimate(obs)
+            if fresh is not None:
+                self.estimates = [*self.estimates, fresh][-self.spec.pose_window :]
         a = np.asarray(action, np.float32)
         if self.spec.previous_actions:
             self.actions = np.roll(self.actions, 1, axis=0)
@@ -104,6 +134,38 @@ class ActionHistory:
 
     def features(self) -> np.ndarray:
         return np.r_[self.actions.ravel(), self.gripper].astype(np.float32)
+
+    def pose_features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The window of the last ``pose_window`` fresh estimates, ``obs``'s own included:
+        fraction of the window filled, mean position, mean minus the TCP, sin/cos of the
+        doubled circular-mean heading relative to base and wrist (as the single-estimate
+        features), the doubled headings' resultant length (1: they agree) and the positions'
+        RMS spread. Zeros, filled fraction 0, before the first fresh estimate."""
+        window = self.spec.pose_window
+        if not window:
+            return np.zeros(0, np.float32)
+        fresh = _fresh_estimate(obs)
+        estimates = [*self.estimates, *([fresh] if fresh is not None else [])][-window:]
+        if not estimates:
+            return np.zeros(N_POSE_WINDOW_FEATURES, np.float32)
+        pos = np.array([p for p, _ in estimates])
+        yaws = np.array([y for _, y in estimates])
+        mean = pos.mean(axis=0)
+        c, s = np.cos(2 * yaws).mean(), np.sin(2 * yaws).mean()
+        yaw = 0.5 * np.arctan2(s, c)
+        q = np.asarray(obs["joint_pos"], float)
+        angles = np.array([yaw, yaw - q[0], yaw - q[0] - q[4], yaw - q[0] + q[4]])
+        spread = np.sqrt(np.mean(np.sum((pos - mean) ** 2, axis=1)))
+        return np.concatenate(
+            [
+                [len(estimates) / window],
+                mean,
+                mean - np.asarray(obs["ee_pos"], float),
+                np.sin(2 * angles),
+                np.cos(2 * angles),
+                [np.hypot(c, s), spread],
+            ]
+        ).astype(np.float32)
 
 
 def observation_features(obs: dict[str, np.ndarray], onehot: np.ndarray) -> np.ndarray:
@@ -221,7 +283,11 @@ class ImitationPolicy:
 
     def features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
         """Raw (unnormalised) features of an observation with a given history."""
-        return np.r_[observation_features(obs, self._onehot(obs)), history.features()]
+        return np.r_[
+            observation_features(obs, self._onehot(obs)),
+            history.features(),
+            history.pose_features(obs),
+        ]
 
     def normalise(self, feats: np.ndarray) -> np.ndarray:
         z = (feats - self.mean) / np.maximum(self.std, CONSTANT_STD)
@@ -237,7 +303,7 @@ class ImitationPolicy:
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         action = self.action_from_features(self.features(obs, self.history))
-        self.history.push(action)
+        self.history.push(action, obs)
         return action
 
     replans = 0  # the episode runner's replan count: a learned policy does not plan

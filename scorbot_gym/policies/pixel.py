@@ -151,6 +151,8 @@ class PixelPolicy:
         self.image_key = f"{self.camera}_rgb"
         self.classes = tuple(meta["classes"])
         self.history_spec = HistorySpec(**meta["history"])
+        if self.history_spec.pose_window:
+            raise ValueError("a pixel policy reads no pose estimate: its pose_window must be 0")
         self.history = ActionHistory(self.history_spec)
         self.n_vector = n_vector_features(len(self.classes), self.history_spec)
         self.mean = np.asarray(mean, np.float32)
@@ -248,7 +250,7 @@ class PixelPolicy:
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         action = self.action_from_features(self.features(obs, self.history))
-        self.history.push(action)
+        self.history.push(action, obs)
         return action
 
     # --- env matching ----------------------------------------------------------------------

@@ -92,6 +92,7 @@ class ImitationFeatures(gym.Wrapper):
         self.observation_space = gym.spaces.Box(-FEATURE_CLIP, FEATURE_CLIP, (n,), np.float32)
 
     def _observe(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        self._last_obs = obs  # the history takes it with the action chosen on it
         return self.features.normalise(self.features.features(obs, self.history))
 
     def reset(self, **kwargs):
@@ -101,7 +102,7 @@ class ImitationFeatures(gym.Wrapper):
 
     def step(self, action):
         action = executed_action(action)
-        self.history.push(action)
+        self.history.push(action, self._last_obs)
         obs, reward, terminated, truncated, info = self.env.step(action)
         return self._observe(obs), reward, terminated, truncated, info
 
@@ -198,7 +199,7 @@ def demo_transitions(
             o = {k: ep.observations[k][t] for k in keys}
             feats.append(policy.normalise(policy.features(o, history)))
             if t < len(ep):
-                history.push(executed_action(ep.actions[t]))
+                history.push(executed_action(ep.actions[t]), o)
         feats = np.stack(feats)
         obs.append(feats[:-1])
         next_obs.append(feats[1:])

@@ -25,7 +25,9 @@ Measured (``benchmarks/results/compare_noise_augmented.json``): per-step indepen
 estimates, so under such noise the oracle labels are not a function of its input; the fit
 averages them, the learner drifts, and short DAgger fine-tunes of the shipped policy fell to
 14-16 % (the same recipe on the oracle: 90-92 %). Noise that persists, as an estimator's does,
-or a pose history in the features are what such training needs.
+or a pose history in the features are what such training needs: ``HistorySpec.pose_window``
+gives the policy the summary of its last fresh estimates
+(:meth:`~scorbot_gym.policies.imitation.ActionHistory.pose_features`).
 
 The expert is stateful (its phase and waypoint evolve with the states the learner visits); the
 learner is not given any of that state: its features are the observation plus its own
@@ -214,7 +216,7 @@ def collect_episodes(
             else:
                 action = learner.action_from_features(learner.features(obs, history))
             if history is not None:
-                history.push(action)
+                history.push(action, obs)
             if hasattr(expert, "executed"):
                 expert.executed(action)
             obs, reward, terminated, truncated, info = env.step(action)
@@ -266,7 +268,7 @@ def episode_features(
     for t in range(len(episode)):
         obs = {k: episode.observations[k][t] for k in keys}
         feats.append(policy_like.features(obs, history))
-        history.push(episode.actions[t])
+        history.push(episode.actions[t], obs)
     return np.stack(feats), episode.labels[: len(episode)]
 
 

@@ -53,6 +53,8 @@ class PixelImitationConfig:
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
             self.history = HistorySpec(**self.history)
+        if self.history.pose_window:
+            raise ValueError("a pixel policy reads no pose estimate: history.pose_window must be 0")
         if isinstance(self.net, dict):
             self.net = NetSpec(**self.net)
         for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
@@ -107,10 +109,11 @@ def episode_arrays(
     keys = list(episode.observations)
     frames, vectors = [], []
     for t in range(len(episode)):
-        frame, vector = policy.features({k: episode.observations[k][t] for k in keys}, history)
+        obs = {k: episode.observations[k][t] for k in keys}
+        frame, vector = policy.features(obs, history)
         frames.append(frame)
         vectors.append(vector)
-        history.push(episode.actions[t])
+        history.push(episode.actions[t], obs)
     return np.stack(frames), np.stack(vectors), episode.labels[: len(episode)]
 
 
