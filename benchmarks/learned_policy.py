@@ -17,7 +17,8 @@ from, round-robin over episodes, while the scripted controller labels from the o
 the policy learns to act on estimates (default: ``oracle``, the shipped policy's recipe).
 
 Writes ``benchmarks/results/learned_policy.json`` and saves the policy folder (``--out``,
-default: the shipped ``imitation_dagger_oracle``).
+default: the shipped ``imitation_dagger_estimates``, trained with
+``--poses oracle,manifold --pose-window 8 --dagger-rounds 4``).
 """
 
 from __future__ import annotations

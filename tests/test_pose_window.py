@@ -68,9 +68,9 @@ def test_a_window_needs_the_observation_and_reset_empties_it():
 
 
 def test_policies_with_and_without_a_window_save_and_load(tmp_path):
-    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+    from scorbot_gym.policies.imitation import SHIPPED_FINETUNED_POLICY
 
-    old = ImitationPolicy.load(SHIPPED_LEARNED_POLICY)  # written before pose_window existed
+    old = ImitationPolicy.load(SHIPPED_FINETUNED_POLICY)  # written before pose_window existed
     assert old.history_spec.pose_window == 0
     spec = HistorySpec(pose_window=8)
     n = n_features(len(old.classes), spec)
