@@ -497,9 +497,8 @@ def _pooled_by_symmetry(arms: list[dict]) -> dict | None:
     return out
 
 
-def run_loop(args: argparse.Namespace, previous: dict | None = None) -> dict:
-    """The loop's arms; those of ``previous`` (the section as written before, same episodes,
-    tilts and seed) that are not run again are kept as measured."""
+def run_loop(args: argparse.Namespace) -> dict:
+    """The arms of ``args.arms`` at every tilt, and the record of this run."""
     objects = tuple(args.objects) if args.objects else None
     models = {label: arm_models(label, objects, args.jobs) for label in args.arms}
     runs = []
@@ -524,6 +523,20 @@ def run_loop(args: argparse.Namespace, previous: dict | None = None) -> dict:
             f"median {a['median_rot_err_deg']} deg  ms {p.get('median_estimate_ms')}",
             flush=True,
         )
+    run = {
+        "arms": list(args.arms),
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "jobs": args.jobs,
+        "machine": _machine(),
+    }
+    return {"arms": arms, "run": run}
+
+
+def merge_loop(new: dict, previous: dict | None, args: argparse.Namespace) -> dict:
+    """The ``loop`` section: the arms just run, and those of ``previous`` (the section as
+    written now, of the same episodes, tilts and seed) that were not run again, as measured;
+    totals over all of them. Read at the end of a run, so that runs of other arms that finished
+    meanwhile are kept too."""
     previous = previous or {}
     kept = [a for a in previous.get("arms", []) if a["label"] not in args.arms]
     for a in kept:  # measured before the median over episodes was recorded per arm
@@ -535,18 +548,11 @@ def run_loop(args: argparse.Namespace, previous: dict | None = None) -> dict:
         runs[0]["arms"] = list(dict.fromkeys(a["label"] for a in kept))
     runs = [{**r, "arms": [a for a in r["arms"] if a not in args.arms]} for r in runs]
     runs = [r for r in runs if r["arms"]]  # the arms that a run measured and that are kept
-    runs.append(
-        {
-            "arms": list(args.arms),
-            "wall_s": round(time.perf_counter() - t0, 1),
-            "jobs": args.jobs,
-            "machine": _machine(),
-        }
-    )
-    arms = kept + arms
+    runs.append(new["run"])
+    arms = kept + new["arms"]
     labels = list(dict.fromkeys(a["label"] for a in arms))
     return {
-        "objects": list(objects) if objects else "catalogue",
+        "objects": list(args.objects) if args.objects else "catalogue",
         "tilts_deg": list(args.tilts),
         "episodes_per_tilt": args.episodes,
         "seed": args.seed,
@@ -603,16 +609,17 @@ def main(argv: list[str] | None = None) -> int:
     from pose.fileio import atomic_write_json
 
     key = args.section or args.part
-    report = json.loads(args.out.read_text()) if args.out.is_file() else {}
     if args.part == "models":
         section = run_models(args)
         section["machine"] = _machine()
     else:
         if len(set(args.arms)) != len(args.arms):
             ap.error("--arms names an arm twice")
+        new = run_loop(args)
+    report = json.loads(args.out.read_text()) if args.out.is_file() else {}  # as written now
+    if args.part == "loop":
         previous = report.get(key)
-        section = run_loop(args, previous if _same_loop(previous, args) else None)
-        report = json.loads(args.out.read_text()) if args.out.is_file() else {}  # re-read
+        section = merge_loop(new, previous if _same_loop(previous, args) else None, args)
     report[key] = section
     atomic_write_json(args.out, report)
     print(json.dumps({k: v for k, v in section.items() if k != "arms"}, indent=1)[:4000])
