@@ -474,27 +474,44 @@ def _pooled(records: list[dict]) -> dict:
     }
 
 
-def _pooled_by_symmetry(arms: list[dict]) -> dict | None:
+def _pooled_by_symmetry(arms: list[dict]) -> dict:
     """``by_symmetry`` over several arms: grasps add up, estimates pool; the median error is
-    given per arm (a median of medians would hide their spread). ``None`` for arms measured
-    before the split was recorded."""
+    given per arm (a median of medians would hide their spread). Arms measured before the
+    split was recorded give their grasps from ``per_object`` and no estimate figures
+    (``estimates_split`` false)."""
     from scorbot_gym.evaluation.summary import wilson_interval
 
-    if any("by_symmetry" not in a for a in arms):
-        return None
     out = {}
     for group in SYMMETRY_GROUPS:
-        rows = [a["by_symmetry"][group] for a in arms]
+        rows = [_symmetry_group(a, group) for a in arms]
         n, ok = sum(r["episodes"] for r in rows), sum(r["successes"] for r in rows)
+        split = all("estimates_valid" in r for r in rows if r["episodes"])
         out[group] = {
             "objects": sorted({o for r in rows for o in r["objects"]}),
             "episodes": n,
             "grasp_success": round(ok / n, 4) if n else None,
             "grasp_success_ci95": [round(v, 4) for v in wilson_interval(ok, n)] if n else None,
-            **_pooled(rows),
+            "estimates_split": split,
+            **(_pooled(rows) if split else {}),
             "median_rot_err_deg_of_arms": [r.get("median_rot_err_deg") for r in rows],
         }
     return out
+
+
+def _symmetry_group(arm: dict, group: str) -> dict:
+    """One arm's record of a symmetry group: measured, or (an arm measured before the split
+    was recorded) its episodes and grasps summed from ``per_object``."""
+    if "by_symmetry" in arm:
+        return arm["by_symmetry"][group]
+    from scorbot_gym.objects import get_object
+
+    members = SYMMETRY_GROUPS[group]
+    mine = {n: o for n, o in arm["per_object"].items() if get_object(n).symmetry.kind in members}
+    return {
+        "objects": sorted(mine),
+        "episodes": sum(o["episodes"] for o in mine.values()),
+        "successes": sum(o["successes"] for o in mine.values()),
+    }
 
 
 def run_loop(args: argparse.Namespace) -> dict:

@@ -53,6 +53,8 @@ def _arm(label: str, tilt: float, ok: int, valid: int, hits: float, split: bool)
         "label": label, "tilt_deg": tilt, "episodes": 2, "successes": ok,
         "estimates_valid": valid, "success_5deg_of_valid_estimates": hits,
         "perception": {"median_rot_err_deg": 1.5, "median_estimate_ms": 9.0},
+        "per_object": {"banana": {"episodes": 1, "successes": ok - 1},
+                       "cylinder": {"episodes": 1, "successes": 1}},
     }  # fmt: skip
     if split:
         arm["median_rot_err_deg"] = 1.5
@@ -89,11 +91,15 @@ def test_new_arms_merge_with_the_arms_measured_before(bench):
     totals = section["totals"]
     assert set(totals) == {"oracle_tilted", "manifold_tilted", "chance_tilted"}
     assert totals["manifold_tilted"]["grasp_success"] == 0.5
-    assert totals["manifold_tilted"]["by_symmetry"] is None  # not recorded then
+    old_split = totals["manifold_tilted"]["by_symmetry"]  # grasps from per_object
+    assert old_split["none"]["grasp_success"] == 0.0 and old_split["axial"]["grasp_success"] == 1
+    assert not old_split["none"]["estimates_split"]
+    assert "success_5deg_of_valid_estimates" not in old_split["none"]  # not recorded then
     chance = totals["chance_tilted"]
     assert chance["success_5deg_of_valid_estimates"] == 0.25
     assert chance["by_symmetry"]["none"]["objects"] == ["banana"]
     assert chance["by_symmetry"]["none"]["grasp_success"] == 1.0
+    assert chance["by_symmetry"]["none"]["estimates_split"]
     assert chance["by_symmetry"]["discrete"]["grasp_success"] is None  # no such episode
     # another size: nothing is merged
     assert not bench["_same_loop"](old, argparse.Namespace(**{**vars(args), "episodes": 3}))
