@@ -13,15 +13,27 @@ it (the same content key: same views, composition, seed and code), which spares 
 part the training.
 
 ``loop``: seeded closed-loop episodes with the target propped on the stand at each ``--tilts``
-angle, the catalogue drawn, the scripted controller; arms ``oracle`` (the ceiling) and
-``manifold`` (background subtraction + the default models, no privileged input): grasp success,
-success@5deg of the valid estimates (pooled over every estimate of every episode;
-an invalid estimate is not counted there, the valid rate is beside it), ms per estimate.
+angle, the catalogue drawn, the scripted controller; every arm is a pose source (``--arms``):
+``oracle`` (the ceiling), ``manifold`` (background subtraction + the default models, no
+privileged input), ``chance`` (the image-blind answer: the same source and segmentation with
+the ``chance`` estimator in place of the models, a constant rotation, the training views'
+medoid, placed at the silhouette as every baseline places it) and ``resting`` (the simple
+baseline: the resting-view models that the tilted ones replaced,
+:data:`~scorbot_gym.perception.training.RESTING_TRAINING`). Per arm: grasp success,
+success@5deg of the valid estimates (pooled over every estimate of every episode; an invalid
+estimate is not counted there, the valid rate is beside it), the median rotation error (over
+episodes, of each episode's median, as the rollout summary takes it), ms per estimate; and the
+same split by the target's symmetry (``by_symmetry``: ``none`` is the banana alone, ``axial``
+and ``discrete`` the others, ``symmetric`` both), since a symmetric object forgives rotation
+errors that an asymmetric one does not.
 
-Both parts update their own section of ``benchmarks/results/tilted_in_loop.json``.
+Both parts update their own section of ``benchmarks/results/tilted_in_loop.json``; ``loop``
+merges its arms into a section of the same episodes, tilts and seed (an arm run again replaces
+its record, the others stay as measured) and recomputes the totals over all of them.
 
     python benchmarks/tilted_in_loop.py models [--jobs 2] [--objects box cylinder]
     python benchmarks/tilted_in_loop.py loop [--episodes 70] [--tilts 0 10 20 30] [--jobs 2]
+        [--arms oracle manifold chance resting]
 """
 
 from __future__ import annotations
@@ -82,6 +94,23 @@ CANDIDATES = {
 DEFAULT_CANDIDATES = [c for c in CANDIDATES if "upscale" not in c]
 TILT_BINS = (0.0, 10.0, 20.0, 30.0001)
 TIMED_VIEWS_PER_OBJECT = 4
+#: the closed-loop arms: label -> what its pose source is (``models``: which model set the
+#: ``manifold`` source runs; ``None`` for the oracle)
+LOOP_ARMS = {
+    "oracle": "the true pose (privileged: the ceiling)",
+    "manifold": "the default models (IN_LOOP_TRAINING)",
+    "chance": "the chance estimator fitted on IN_LOOP_TRAINING's views (image-blind rotation)",
+    "resting": "the resting-view models (RESTING_TRAINING, the default before)",
+}
+#: the arms run unless ``--arms`` says otherwise
+DEFAULT_LOOP_ARMS = ("oracle", "manifold", "chance", "resting")
+#: symmetry groups of ``by_symmetry`` (the target's :class:`pose.symmetry.Symmetry` kind)
+SYMMETRY_GROUPS = {
+    "none": ("none",),
+    "axial": ("axial",),
+    "discrete": ("discrete",),
+    "symmetric": ("axial", "discrete"),
+}
 
 
 def training_of(candidate: str):
@@ -255,19 +284,49 @@ def _loop_arm(
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)
     results = summary.pop("results")
-    perception = [r["perception"] for r in results if r.get("perception")]
-    valid = sum(p["valid"] for p in perception)
-    hits = sum(p["valid"] * (p["success_5deg"] or 0.0) for p in perception)
     if tilt > 0:
         summary["settled_tilt_deg"] = _settled_tilts(config)
     summary.update(
         label=label,
         tilt_deg=tilt,
         wall_s=round(time.perf_counter() - t0, 1),
-        estimates_valid=valid,
-        success_5deg_of_valid_estimates=round(hits / valid, 4) if valid else None,
+        **_estimate_counts(results),
+        by_symmetry=_by_symmetry(results),
     )
     return summary
+
+
+def _estimate_counts(results: list[dict]) -> dict:
+    """Valid estimates and the share of them within 5 degrees, pooled over every estimate of
+    these episodes, and the median over episodes of each episode's median rotation error."""
+    import numpy as np
+
+    perception = [r["perception"] for r in results if r.get("perception")]
+    valid = sum(p["valid"] for p in perception)
+    hits = sum(p["valid"] * (p["success_5deg"] or 0.0) for p in perception)
+    errors = [p["median_rot_err_deg"] for p in perception if p["median_rot_err_deg"] is not None]
+    return {
+        "estimates_valid": valid,
+        "success_5deg_of_valid_estimates": round(hits / valid, 4) if valid else None,
+        "median_rot_err_deg": round(float(np.median(errors)), 3) if errors else None,
+    }
+
+
+def _by_symmetry(results: list[dict]) -> dict:
+    """Episodes, grasps and the estimate figures per symmetry group of the target."""
+    from scorbot_gym.objects import get_object
+
+    kinds = {r["object_name"]: get_object(r["object_name"]).symmetry.kind for r in results}
+    out = {}
+    for group, members in SYMMETRY_GROUPS.items():
+        mine = [r for r in results if kinds[r["object_name"]] in members]
+        out[group] = {
+            "objects": sorted({r["object_name"] for r in mine}),
+            "episodes": len(mine),
+            "successes": sum(bool(r["success"]) for r in mine),
+            **(_estimate_counts(mine) if mine else {}),
+        }
+    return out
 
 
 def _settled_tilts(config) -> dict:
@@ -293,17 +352,178 @@ def _settled_tilts(config) -> dict:
     }
 
 
-def run_loop(args: argparse.Namespace) -> dict:
-    from scorbot_gym.evaluation.summary import wilson_interval
-    from scorbot_gym.perception.training import default_models_path, default_pose_models
+def arm_models(label: str, objects, jobs: int, progress: bool = True) -> str | None:
+    """The model file the ``manifold`` source runs for arm ``label`` (trained or fitted once
+    here, not per worker); ``None`` for the oracle."""
+    from scorbot_gym.perception.training import (
+        IN_LOOP_TRAINING,
+        RESTING_TRAINING,
+        default_models_path,
+        default_pose_models,
+    )
 
+    if label not in LOOP_ARMS:
+        raise ValueError(f"unknown arm {label!r}; the arms: {', '.join(LOOP_ARMS)}")
+    if label == "oracle":
+        return None
+    if label == "chance":
+        return str(baseline_models("chance", IN_LOOP_TRAINING, objects, jobs, progress))
+    training = RESTING_TRAINING if label == "resting" else IN_LOOP_TRAINING
+    default_pose_models(objects=objects, jobs=jobs, progress=progress, training=training)
+    return str(default_models_path(objects=objects, training=training))
+
+
+def _fit_baseline(spec: str, training, name: str) -> dict:
+    """One object's ``spec`` estimator fitted on ``training``'s views (a worker's job): the
+    rendered views the default models are trained on, read from the same cache."""
+    import numpy as np
+
+    from pose.composition import fit_estimator
+    from pose.registry import make_from_spec
+    from scorbot_gym.data.views import render_views
+    from scorbot_gym.objects import get_object
+
+    obj = get_object(name)
+    samples = training.samples(len(obj.resting_quats), 0)
+    depth = bool(getattr(training.make_estimator(0).refiner, "needs_depth", False))
+    views = render_views(name, samples, "top", 320, 240, 0.0, 0, None, False, depth)
+    est = make_from_spec(spec)
+    poses = np.array([v.camera_from_object for v in views])
+    fit_estimator(est, [v.view for v in views], poses, obj.symmetry)
+    return {"object": name, "class": type(est).__name__, "arrays": est.to_arrays()}
+
+
+def baseline_models(spec: str, training, objects, jobs: int = 1, progress: bool = True):
+    """A model set of the ``spec`` estimator (a :mod:`pose.registry` baseline, e.g.
+    ``chance``) on the top camera at 320x240, fitted on the views of ``training``; cached
+    beside the default models under their content key (scene, code, training) and the spec."""
+    import re
+
+    from pose.composition import load_part
+    from pose.model_set import PoseModelSet
+    from scorbot_gym.perception.training import _objects, default_models_path
+
+    names = _objects(objects)
+    base = default_models_path(objects=names, training=training)
+    path = base.with_name(f"{base.stem}-{re.sub(r'[^A-Za-z0-9]+', '_', spec).strip('_')}.npz")
+    if path.is_file():
+        try:
+            PoseModelSet.load(path)
+            return path
+        except (ValueError, OSError) as exc:  # unreadable: discarded and rebuilt
+            print(f"discarding unreadable cached models {path}: {exc}", flush=True)
+            path.unlink(missing_ok=True)
+    if progress:
+        print(f"fitting {spec!r} on the views of {training} ({len(names)} objects)", flush=True)
+    if jobs > 1:
+        from scorbot_gym.experiments.workers import worker_pool
+
+        with worker_pool(min(jobs, len(names))) as pool:
+            futures = [pool.submit(_fit_baseline, spec, training, n) for n in names]
+            fitted = [f.result() for f in futures]
+    else:
+        fitted = [_fit_baseline(spec, training, n) for n in names]
+    models = PoseModelSet(
+        {f["object"]: load_part(f["class"], f["arrays"], "", None) for f in fitted},
+        meta={"camera": "top", "width": 320, "height": 240, "seed": 0, "estimator": spec,
+              "views_of": training.to_dict()},
+    )  # fmt: skip
+    path.parent.mkdir(parents=True, exist_ok=True)
+    models.save(path)
+    return path
+
+
+def _totals(arms: list[dict], labels) -> dict:
+    """Per arm, over its tilted runs and (apart) over its resting ones (tilt 0)."""
+    from scorbot_gym.evaluation.summary import wilson_interval
+
+    totals = {}
+    for label in labels:
+        for kind, keep in (("tilted", lambda t: t > 0), ("resting", lambda t: t == 0)):
+            mine = [a for a in arms if a["label"] == label and keep(a["tilt_deg"])]
+            if not mine:
+                continue
+            n, ok = sum(a["episodes"] for a in mine), sum(a["successes"] for a in mine)
+            totals[f"{label}_{kind}"] = {
+                "episodes": n,
+                "grasp_success": round(ok / n, 4),
+                "grasp_success_ci95": [round(v, 4) for v in wilson_interval(ok, n)],
+                **_pooled(mine),
+                "median_rot_err_deg_of_arms": [
+                    (a.get("perception") or {}).get("median_rot_err_deg") for a in mine
+                ],
+                "median_estimate_ms_of_arms": [
+                    (a.get("perception") or {}).get("median_estimate_ms") for a in mine
+                ],
+                "by_symmetry": _pooled_by_symmetry(mine),
+            }
+    return totals
+
+
+def _pooled(records: list[dict]) -> dict:
+    """Valid estimates and their share within 5 degrees, pooled over ``records`` (arms, or
+    one symmetry group of several arms)."""
+    valid = sum(r.get("estimates_valid") or 0 for r in records)
+    hits = sum(
+        (r.get("estimates_valid") or 0) * (r.get("success_5deg_of_valid_estimates") or 0)
+        for r in records
+    )
+    return {
+        "estimates_valid": valid,
+        "success_5deg_of_valid_estimates": round(hits / valid, 4) if valid else None,
+    }
+
+
+def _pooled_by_symmetry(arms: list[dict]) -> dict:
+    """``by_symmetry`` over several arms: grasps add up, estimates pool; the median error is
+    given per arm (a median of medians would hide their spread). Arms measured before the
+    split was recorded give their grasps from ``per_object`` and no estimate figures
+    (``estimates_split`` false)."""
+    from scorbot_gym.evaluation.summary import wilson_interval
+
+    out = {}
+    for group in SYMMETRY_GROUPS:
+        rows = [_symmetry_group(a, group) for a in arms]
+        n, ok = sum(r["episodes"] for r in rows), sum(r["successes"] for r in rows)
+        split = all("estimates_valid" in r for r in rows if r["episodes"])
+        out[group] = {
+            "objects": sorted({o for r in rows for o in r["objects"]}),
+            "episodes": n,
+            "grasp_success": round(ok / n, 4) if n else None,
+            "grasp_success_ci95": [round(v, 4) for v in wilson_interval(ok, n)] if n else None,
+            "estimates_split": split,
+            **(_pooled(rows) if split else {}),
+            "median_rot_err_deg_of_arms": [r.get("median_rot_err_deg") for r in rows],
+        }
+    return out
+
+
+def _symmetry_group(arm: dict, group: str) -> dict:
+    """One arm's record of a symmetry group: measured, or (an arm measured before the split
+    was recorded) its episodes and grasps summed from ``per_object``."""
+    if "by_symmetry" in arm:
+        return arm["by_symmetry"][group]
+    from scorbot_gym.objects import get_object
+
+    members = SYMMETRY_GROUPS[group]
+    mine = {n: o for n, o in arm["per_object"].items() if get_object(n).symmetry.kind in members}
+    return {
+        "objects": sorted(mine),
+        "episodes": sum(o["episodes"] for o in mine.values()),
+        "successes": sum(o["successes"] for o in mine.values()),
+    }
+
+
+def run_loop(args: argparse.Namespace) -> dict:
+    """The arms of ``args.arms`` at every tilt, and the record of this run."""
     objects = tuple(args.objects) if args.objects else None
-    default_pose_models(objects=objects, progress=True)  # trained once here, not per worker
-    model = str(default_models_path(objects=objects)) if objects else None
+    models = {label: arm_models(label, objects, args.jobs) for label in args.arms}
     runs = []
     for i, tilt in enumerate(args.tilts):
-        for label in ("oracle", "manifold"):
-            runs.append((label, label, tilt, args.episodes, args.seed + 1000 * i, objects, model))
+        for label in args.arms:
+            pose = "oracle" if label == "oracle" else "manifold"
+            model = models[label] if label != "manifold" or objects else None
+            runs.append((label, pose, tilt, args.episodes, args.seed + 1000 * i, objects, model))
     t0 = time.perf_counter()
     if args.jobs > 1:
         from scorbot_gym.experiments.workers import worker_pool
@@ -317,41 +537,65 @@ def run_loop(args: argparse.Namespace) -> dict:
         print(
             f"{a['label']:>9} tilt {a['tilt_deg']:4.0f}: grasp {a['success_rate']:6.1%} "
             f"(n={a['episodes']})  ok@5deg {a['success_5deg_of_valid_estimates']}  "
-            f"ms {p.get('median_estimate_ms')}",
+            f"median {a['median_rot_err_deg']} deg  ms {p.get('median_estimate_ms')}",
             flush=True,
         )
-    totals = {}  # over the tilted arms, and over the resting ones (tilt 0) apart
-    for label in ("oracle", "manifold"):
-        for kind, keep in (("tilted", lambda t: t > 0), ("resting", lambda t: t == 0)):
-            mine = [a for a in arms if a["label"] == label and keep(a["tilt_deg"])]
-            if not mine:
-                continue
-            n, ok = sum(a["episodes"] for a in mine), sum(a["successes"] for a in mine)
-            valid = sum(a["estimates_valid"] for a in mine)
-            hits = sum(
-                a["estimates_valid"] * (a["success_5deg_of_valid_estimates"] or 0) for a in mine
-            )
-            totals[f"{label}_{kind}"] = {
-                "episodes": n,
-                "grasp_success": round(ok / n, 4),
-                "grasp_success_ci95": [round(v, 4) for v in wilson_interval(ok, n)],
-                "estimates_valid": valid,
-                "success_5deg_of_valid_estimates": round(hits / valid, 4) if valid else None,
-                "median_estimate_ms_of_arms": [
-                    (a.get("perception") or {}).get("median_estimate_ms") for a in mine
-                ],
-            }
+    run = {
+        "arms": list(args.arms),
+        "wall_s": round(time.perf_counter() - t0, 1),
+        "jobs": args.jobs,
+        "machine": _machine(),
+    }
+    return {"arms": arms, "run": run}
+
+
+def merge_loop(new: dict, previous: dict | None, args: argparse.Namespace) -> dict:
+    """The ``loop`` section: the arms just run, and those of ``previous`` (the section as
+    written now, of the same episodes, tilts and seed) that were not run again, as measured;
+    totals over all of them. Read at the end of a run, so that runs of other arms that finished
+    meanwhile are kept too."""
+    previous = previous or {}
+    kept = [a for a in previous.get("arms", []) if a["label"] not in args.arms]
+    for a in kept:  # measured before the median over episodes was recorded per arm
+        a.setdefault("median_rot_err_deg", (a.get("perception") or {}).get("median_rot_err_deg"))
+    runs = previous.get("runs") or (
+        [{k: previous.get(k) for k in ("wall_s", "jobs", "machine")}] if kept else []
+    )
+    if runs and "arms" not in runs[0]:  # the first run, recorded before runs were
+        runs[0]["arms"] = list(dict.fromkeys(a["label"] for a in kept))
+    runs = [{**r, "arms": [a for a in r["arms"] if a not in args.arms]} for r in runs]
+    runs = [r for r in runs if r["arms"]]  # the arms that a run measured and that are kept
+    runs.append(new["run"])
+    arms = kept + new["arms"]
+    labels = list(dict.fromkeys(a["label"] for a in arms))
     return {
-        "objects": list(objects) if objects else "catalogue",
+        "objects": list(args.objects) if args.objects else "catalogue",
         "tilts_deg": list(args.tilts),
         "episodes_per_tilt": args.episodes,
         "seed": args.seed,
+        "arm_pose_sources": {label: LOOP_ARMS[label] for label in labels},
         "arms": arms,
-        "totals": totals,
+        "totals": _totals(arms, labels),
         "targets": {"success_5deg": 0.8, "grasp_success": 0.9},
-        "wall_s": round(time.perf_counter() - t0, 1),
-        "jobs": args.jobs,
+        "runs": runs,
     }
+
+
+def _machine() -> dict:
+    return {
+        "platform": platform.platform(),
+        "cpus": os.cpu_count(),
+        "load_1min": round(os.getloadavg()[0], 2),
+    }
+
+
+def _same_loop(section: dict | None, args: argparse.Namespace) -> bool:
+    """Whether a written ``loop`` section measured the same episodes (its arms can be kept)."""
+    objects = list(args.objects) if args.objects else "catalogue"
+    return bool(section) and (
+        section.get("objects"), section.get("tilts_deg"), section.get("episodes_per_tilt"),
+        section.get("seed"),
+    ) == (objects, list(args.tilts), args.episodes, args.seed)  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -367,6 +611,10 @@ def main(argv: list[str] | None = None) -> int:
     lp.add_argument("--seed", type=int, default=7000)
     lp.add_argument("--jobs", type=int, default=1)
     lp.add_argument("--objects", nargs="+", default=None, help="default: the catalogue")
+    lp.add_argument(
+        "--arms", nargs="+", choices=list(LOOP_ARMS), default=list(DEFAULT_LOOP_ARMS),
+        help="pose sources to run; the section's other arms of the same episodes are kept",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--section", default=None, help="key of the JSON to write (default: part)")
     args = ap.parse_args(argv)
@@ -377,10 +625,19 @@ def main(argv: list[str] | None = None) -> int:
 
     from pose.fileio import atomic_write_json
 
-    section = run_models(args) if args.part == "models" else run_loop(args)
-    report = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    section["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count()}
-    report[args.section or args.part] = section
+    key = args.section or args.part
+    if args.part == "models":
+        section = run_models(args)
+        section["machine"] = _machine()
+    else:
+        if len(set(args.arms)) != len(args.arms):
+            ap.error("--arms names an arm twice")
+        new = run_loop(args)
+    report = json.loads(args.out.read_text()) if args.out.is_file() else {}  # as written now
+    if args.part == "loop":
+        previous = report.get(key)
+        section = merge_loop(new, previous if _same_loop(previous, args) else None, args)
+    report[key] = section
     atomic_write_json(args.out, report)
     print(json.dumps({k: v for k, v in section.items() if k != "arms"}, indent=1)[:4000])
     print(f"wrote {args.out}")
