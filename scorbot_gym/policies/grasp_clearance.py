@@ -21,7 +21,8 @@ grasp point along it and the palm across it, so the planner has two principled c
 Neighbours are points on the table plane with the height of the object top there
 (``neighbour_points``, from :class:`~scorbot_gym.wrappers.pose_observation.
 PoseEstimateObservation`): a finger collides with any neighbour it comes down on; the palm,
-``PALM_ABOVE_TCP`` above the grasp point, only with a neighbour taller than that.
+``palm_above_tcp`` above the grasp point, only with a neighbour taller than that (the hand's
+geometry is read from the arm's own model: :attr:`~scorbot_gym.robot.ArmKinematics.hand`).
 """
 
 from __future__ import annotations
@@ -31,14 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scorbot_gym.objects import ObjectSpec
-from scorbot_gym.robot.kinematics import wrap_half_turn
-from scorbot_gym.sim.arm import (
-    FINGER_LINK_HALF_SIZE,
-    FINGER_THICKNESS,
-    GRIPPER_MAX_OPENING,
-    PALM_ABOVE_TCP,
-    PALM_HALF_SIZE,
-)
+from scorbot_gym.robot.kinematics import HandGeometry, wrap_half_turn
 
 #: clearance (m) beyond which every closing line is as good as another
 COMFORTABLE_CLEARANCE = 0.02
@@ -88,10 +82,11 @@ def closing_axes(spec: ObjectSpec, R: np.ndarray) -> list[np.ndarray]:
 
 
 def object_reach(
-    vertices: np.ndarray, edges: np.ndarray, yaw: float, grasp_xy: np.ndarray
+    vertices: np.ndarray, edges: np.ndarray, yaw: float, grasp_xy: np.ndarray, band: float
 ) -> tuple[float, float]:
     """How far the object reaches along the closing line (heading ``yaw``) through
-    ``grasp_xy`` within the band a finger sweeps across it, and how far the object extends
+    ``grasp_xy`` within the band a finger sweeps across it (``band`` either side of the line),
+    and how far the object extends
     across the line (both in m, from ``grasp_xy``; ``vertices`` are the object's world vertices
     relative to its origin, ``edges`` the mesh's vertex-index pairs). The reach within the band
     is exact for the mesh: the farthest of the vertices inside the band and of the points where
@@ -99,7 +94,6 @@ def object_reach(
     xy = vertices[:, :2] - grasp_xy
     u = np.array([np.cos(yaw), np.sin(yaw)])
     along, across = xy @ u, xy @ np.array([-u[1], u[0]])
-    band = FINGER_LINK_HALF_SIZE[2]
     reach = np.abs(along[np.abs(across) <= band])
     a, b = edges[:, 0], edges[:, 1]
     crossings = [reach]
@@ -113,7 +107,9 @@ def object_reach(
     return inside, float(np.abs(across).max())
 
 
-def hand_clearance(points: np.ndarray, grasp: np.ndarray, yaw: float, aperture: float) -> float:
+def hand_clearance(
+    points: np.ndarray, grasp: np.ndarray, yaw: float, aperture: float, hand: HandGeometry
+) -> float:
     """Smallest table-plane distance (m) from ``points`` (``(N, 3)``: x, y and the height of
     the object top there) to the hand coming down vertically at ``grasp`` with its fingers
     ``aperture`` apart along heading ``yaw``: both fingers for every point, the palm for points
@@ -124,14 +120,14 @@ def hand_clearance(points: np.ndarray, grasp: np.ndarray, yaw: float, aperture: 
     w = np.array([-u[1], u[0]])
     d = points[:, :2] - grasp[:2]
     along, across = d @ u, d @ w
-    half_t = FINGER_THICKNESS / 2
+    half_t = hand.finger_thickness / 2
     centre = aperture / 2 + half_t
     fingers = np.minimum(
-        _box_distance(along - centre, across, half_t, FINGER_LINK_HALF_SIZE[2]),
-        _box_distance(along + centre, across, half_t, FINGER_LINK_HALF_SIZE[2]),
+        _box_distance(along - centre, across, half_t, hand.finger_half_width),
+        _box_distance(along + centre, across, half_t, hand.finger_half_width),
     )
-    palm = _box_distance(along, across, PALM_HALF_SIZE[1], PALM_HALF_SIZE[2])
-    palm = np.where(points[:, 2] > grasp[2] + PALM_ABOVE_TCP, palm, np.inf)
+    palm = _box_distance(along, across, hand.palm_half_length, hand.palm_half_width)
+    palm = np.where(points[:, 2] > grasp[2] + hand.palm_above_tcp, palm, np.inf)
     return float(np.minimum(fingers, palm).min())
 
 
@@ -182,6 +178,7 @@ def grasp_candidates(
     grasp: np.ndarray,
     closing_yaw: float,
     neighbours: np.ndarray,
+    hand: HandGeometry,
     margin: float | None = APERTURE_MARGIN,
 ) -> list[GraspCandidate]:
     """The grasp ``(grasp, closing_yaw)`` planned for the object at ``position`` under ``R``
@@ -209,10 +206,11 @@ def grasp_candidates(
     verts = model.vertices @ R.T
     edges = _edges(spec)
     rel = (grasp - position)[:2]
-    reach, length = object_reach(verts, edges, closing_yaw, rel)
+    band = hand.finger_half_width
+    reach, length = object_reach(verts, edges, closing_yaw, rel, band)
     slides = [0.0]
     if len(lines) == 1:  # one closing line: slide along the object instead
-        room = min(length - FINGER_LINK_HALF_SIZE[2] - END_MARGIN, length / 2)
+        room = min(length - band - END_MARGIN, length / 2)
         steps = np.arange(SLIDE_STEP, room + 1e-9, SLIDE_STEP)
         slides += [s for step in steps for s in (step, -step)]
     out: list[GraspCandidate] = []
@@ -222,13 +220,13 @@ def grasp_candidates(
             shift = offset + slide * across
             point = grasp + shift
             if slide:  # the object's width where the fingers now close
-                reach = object_reach(verts, edges, yaw, (point - position)[:2])[0]
-            if slide and 2 * reach >= GRIPPER_MAX_OPENING:
+                reach = object_reach(verts, edges, yaw, (point - position)[:2], band)[0]
+            if slide and 2 * reach >= hand.max_opening:
                 continue  # too wide there (a banana's curve)
-            aperture = GRIPPER_MAX_OPENING
+            aperture = hand.max_opening
             if margin is not None:
                 aperture = min(aperture, 2 * (reach + margin))
-            clearance = hand_clearance(neighbours, point, yaw, aperture)
+            clearance = hand_clearance(neighbours, point, yaw, aperture, hand)
             out.append(GraspCandidate(yaw, shift, aperture, clearance, slide))
     return out
 

@@ -50,7 +50,6 @@ from scorbot_gym.policies.grasp_clearance import (
 )
 from scorbot_gym.policies.pose_filter import GraspPoseFilter
 from scorbot_gym.robot.kinematics import ArmKinematics, tool_pitch, wrap_half_turn
-from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.scene import TABLE_HEIGHT
 from scorbot_gym.sim.simulation import quat_to_mat
 
@@ -248,6 +247,7 @@ class ScriptedGraspPolicy:
             grasp,
             closing,
             observed_neighbours(obs),
+            self.kinematics.hand,
             self.aperture_margin,
         )
         if self.chosen_grasp is None or restarted:  # a new belief: choose among the grasps
@@ -323,8 +323,9 @@ class ScriptedGraspPolicy:
         self._advance_phase(tcp, goal, abs(q_goal[4] - q[4]))
         gripper = -1.0
         if self.phase in ("approach", "descend"):  # open: fully, or to the pre-grasp aperture
-            opening = GRIPPER_MAX_OPENING if self.aperture is None else self.aperture
-            gripper = 2.0 * opening / GRIPPER_MAX_OPENING - 1.0
+            full = self.kinematics.hand.max_opening
+            opening = full if self.aperture is None else self.aperture
+            gripper = 2.0 * opening / full - 1.0
         if self.action_type == "joint":
             arm = (q_goal - q) / self.max_joint_step
         else:

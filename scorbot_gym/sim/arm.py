@@ -25,16 +25,6 @@ UPPER_ARM = 0.221
 FOREARM = 0.221
 TOOL_LENGTH = 0.145
 GRIPPER_MAX_OPENING = 0.075  # between the finger pads, metres
-# Hand geometry (half sizes, metres, in the hand frame: x along the tool, y the closing direction,
-# z across it); the grasp planner's clearance check reads these, so they live here once.
-PALM_HALF_SIZE = (0.02, 0.05, 0.022)
-FINGER_LINK_HALF_SIZE = (0.032, 0.006, 0.012)
-FINGER_PAD_HALF_SIZE = (0.027, 0.0015, 0.011)
-#: from a finger's pad face to its link's outer face, along the closing direction (metres)
-FINGER_THICKNESS = 0.013
-HAND_OFFSET = 0.045  # wrist-pitch axis to the hand body (where the palm starts), along the tool
-#: height of the palm's underside above the TCP when the tool points down (metres)
-PALM_ABOVE_TCP = TOOL_LENGTH - HAND_OFFSET - 2 * PALM_HALF_SIZE[0]
 
 ARM_JOINTS = ("base", "shoulder", "elbow", "wrist_pitch", "wrist_roll")
 JOINT_RANGES_DEG = {
@@ -163,14 +153,14 @@ def build_arm() -> mjcf.RootElement:
     _revolute(wrist, "wrist_pitch", [0, -1, 0])
     _capsule(wrist, "wrist_housing", [0, -0.03, 0], [0, 0.03, 0], 0.03, 0.25, _JOINT_RGBA)
 
-    hand = wrist.add("body", name="hand", pos=[HAND_OFFSET, 0, 0], gravcomp=1)
+    hand = wrist.add("body", name="hand", pos=[0.045, 0, 0], gravcomp=1)
     _revolute(hand, "wrist_roll", [1, 0, 0])
     hand.add(
         "geom",
         name="palm",
         type="box",
-        size=list(PALM_HALF_SIZE),
-        pos=[PALM_HALF_SIZE[0], 0, 0],
+        size=[0.02, 0.05, 0.022],
+        pos=[0.02, 0, 0],
         rgba=_JOINT_RGBA,
         mass=0.3,
         **{"class": "link"},
@@ -179,7 +169,7 @@ def build_arm() -> mjcf.RootElement:
     hand.add(
         "site",
         name="tcp",
-        pos=[TOOL_LENGTH - HAND_OFFSET, 0, 0],
+        pos=[TOOL_LENGTH - 0.045, 0, 0],
         size=[0.004],
         rgba=[1, 0, 0, 0.6],
         group=4,
@@ -207,8 +197,8 @@ def build_arm() -> mjcf.RootElement:
             "geom",
             name=f"finger_{side}_link",
             type="box",
-            size=list(FINGER_LINK_HALF_SIZE),
-            pos=[0.032, sign * (FINGER_THICKNESS - FINGER_LINK_HALF_SIZE[1]), 0],
+            size=[0.032, 0.006, 0.012],
+            pos=[0.032, sign * 0.007, 0],
             rgba=_FINGER_RGBA,
             mass=0.05,
             **{"class": "finger"},
@@ -217,7 +207,7 @@ def build_arm() -> mjcf.RootElement:
             "geom",
             name=f"finger_{side}_pad",
             type="box",
-            size=list(FINGER_PAD_HALF_SIZE),
+            size=[0.027, 0.0015, 0.011],
             pos=[0.037, sign * 0.0015, 0],
             rgba=_PAD_RGBA,
             mass=0.01,
