@@ -51,7 +51,8 @@ def mask_points(
     contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     out = []
     for contour in contours:
-        uv = contour[:, 0].astype(float)
+        # the outline within a pixel: a staircase of one-pixel edges would fill the points
+        uv = cv2.approxPolyDP(contour, 1.0, True)[:, 0].astype(float)
         xy = camera.backproject_to_plane(uv, table_z)[:, :2]
         out.append(_fill_polygon(xy, pitch))
     if not out:
