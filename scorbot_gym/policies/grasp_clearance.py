@@ -35,7 +35,7 @@ from scorbot_gym.objects import ObjectSpec
 from scorbot_gym.robot.kinematics import HandGeometry, wrap_half_turn
 
 #: clearance (m) beyond which every closing line is as good as another
-COMFORTABLE_CLEARANCE = 0.02
+COMFORTABLE_CLEARANCE = 0.015
 #: free space (m) left on each side of the object between it and the open fingers
 APERTURE_MARGIN = 0.012
 #: an axial symmetry is tried every this many degrees
@@ -46,6 +46,9 @@ HYSTERESIS = 0.004
 SLIDE_STEP = 0.005
 #: an off-centre grasp leaves at least this much (m) of the object beyond the finger
 END_MARGIN = 0.01
+#: an off-centre grasp is taken only where the object's section across the closing line lies
+#: within this much (m) of the centre's, on both sides (a prism, a marker's barrel: the same grasp)
+SLIDE_WIDTH_TOLERANCE = 0.003
 
 
 @dataclass(frozen=True)
@@ -81,30 +84,31 @@ def closing_axes(spec: ObjectSpec, R: np.ndarray) -> list[np.ndarray]:
     return [R @ S for S in rots]
 
 
-def object_reach(
+def object_section(
     vertices: np.ndarray, edges: np.ndarray, yaw: float, grasp_xy: np.ndarray, band: float
-) -> tuple[float, float]:
-    """How far the object reaches along the closing line (heading ``yaw``) through
-    ``grasp_xy`` within the band a finger sweeps across it (``band`` either side of the line),
-    and how far the object extends
-    across the line (both in m, from ``grasp_xy``; ``vertices`` are the object's world vertices
-    relative to its origin, ``edges`` the mesh's vertex-index pairs). The reach within the band
-    is exact for the mesh: the farthest of the vertices inside the band and of the points where
-    edges cross its borders (a box's 8 vertices may all lie outside it)."""
+) -> tuple[float, float, float]:
+    """Where the object lies along the closing line (heading ``yaw``) through ``grasp_xy``,
+    within the band a finger sweeps across it (``band`` either side of the line): its nearest
+    and farthest extent along the line (signed, m), and how far the object extends across the
+    line (m); ``vertices`` are the object's world vertices relative to its origin, ``edges`` the
+    mesh's vertex-index pairs. Exact for the mesh: the vertices inside the band and the points
+    where edges cross its borders (a box's 8 vertices may all lie outside it). ``(-inf, inf)``
+    where the band misses the object."""
     xy = vertices[:, :2] - grasp_xy
     u = np.array([np.cos(yaw), np.sin(yaw)])
     along, across = xy @ u, xy @ np.array([-u[1], u[0]])
-    reach = np.abs(along[np.abs(across) <= band])
+    points = [along[np.abs(across) <= band]]
     a, b = edges[:, 0], edges[:, 1]
-    crossings = [reach]
     for border in (-band, band):
         da, db = across[a] - border, across[b] - border
         cut = da * db < 0
         s = da[cut] / (da[cut] - db[cut])
-        crossings.append(np.abs(along[a[cut]] + s * (along[b[cut]] - along[a[cut]])))
-    reach_all = np.concatenate(crossings)
-    inside = float(reach_all.max()) if len(reach_all) else float("inf")
-    return inside, float(np.abs(across).max())
+        points.append(along[a[cut]] + s * (along[b[cut]] - along[a[cut]]))
+    section = np.concatenate(points)
+    extent = float(np.abs(across).max())
+    if not len(section):
+        return -np.inf, np.inf, extent
+    return float(section.min()), float(section.max()), extent
 
 
 def hand_clearance(
@@ -189,8 +193,9 @@ def grasp_candidates(
     while the symmetry axis stands within ~10 degrees of vertical (otherwise a symmetry turns
     the object about a leaning axis and its closing line is not the nominal one turned about
     the vertical). An object with a single closing line (a box, a marker, a banana) may instead
-    be grasped off its centre, along the object: by up to a quarter of its length and never
-    nearer its end than :data:`END_MARGIN` beyond the finger, every :data:`SLIDE_STEP`."""
+    be grasped off its centre, along the object: by up to a quarter of its length, never
+    nearer its end than :data:`END_MARGIN` beyond the finger, every :data:`SLIDE_STEP`, and
+    only where its cross-section is the centre's (:data:`SLIDE_WIDTH_TOLERANCE`)."""
     model = spec.model
     gp = np.r_[model.grasp_point, 0.0]
     nominal_point = position + R @ gp
@@ -207,7 +212,8 @@ def grasp_candidates(
     edges = _edges(spec)
     rel = (grasp - position)[:2]
     band = hand.finger_half_width
-    reach, length = object_reach(verts, edges, closing_yaw, rel, band)
+    lo, hi, length = object_section(verts, edges, closing_yaw, rel, band)
+    nominal = np.array([lo, hi])
     slides = [0.0]
     if len(lines) == 1:  # one closing line: slide along the object instead
         room = min(length - band - END_MARGIN, length / 2)
@@ -219,10 +225,14 @@ def grasp_candidates(
         for slide in slides:
             shift = offset + slide * across
             point = grasp + shift
-            if slide:  # the object's width where the fingers now close
-                reach = object_reach(verts, edges, yaw, (point - position)[:2], band)[0]
-            if slide and 2 * reach >= hand.max_opening:
-                continue  # too wide there (a banana's curve)
+            section = nominal
+            if slide:  # the object where the fingers now close must be as it is at the centre
+                section = np.array(
+                    object_section(verts, edges, yaw, (point - position)[:2], band)[:2]
+                )
+                if np.abs(section - nominal).max() > SLIDE_WIDTH_TOLERANCE:
+                    continue  # a banana's curve, a rounded end: not the grasp planned
+            reach = float(np.abs(section).max())
             aperture = hand.max_opening
             if margin is not None:
                 aperture = min(aperture, 2 * (reach + margin))
