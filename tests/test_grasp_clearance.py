@@ -171,3 +171,15 @@ def test_a_seeded_clutter_episode_that_hit_a_neighbour_now_grasps(oracle_clutter
     assert after.success, after.failure_cause
     assert after.extra["distractors_knocked_over"] == 0
     assert policy.chosen_grasp.clearance > 0 and policy.aperture < HAND.max_opening
+
+
+def test_alone_on_the_table_the_hand_opens_fully_as_before():
+    """Without neighbours in the observation the plan and the open hand are what they were
+    (the shipped residual policy adds its correction to this controller)."""
+    env = make_env("ScorbotGrasp-v0", pose="oracle", objects=["large_marker"])
+    policy = ScriptedGraspPolicy.for_env(env)
+    obs, info = env.reset(seed=0)
+    policy.reset(obs, info)
+    assert policy.aperture is None and policy.chosen_grasp.slide == 0.0
+    assert policy.act(obs)[5] == 1.0  # the gripper command: fully open
+    env.close()

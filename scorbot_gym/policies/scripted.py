@@ -13,6 +13,17 @@ estimate (the ablation).
 The object's identity (which grasp point and direction to use) comes from the observation's
 ``object_class`` one-hot (recognised by the pose wrapper) or is given as ``object_name``.
 
+**Neighbours.** On a cluttered table the observation may carry the other objects
+(``neighbour_points``, see :class:`~scorbot_gym.wrappers.pose_observation.
+PoseEstimateObservation`). The plan is then one of the grasp's equivalents (a closing line the
+object's symmetry maps the nominal one to, or for an object with a single closing line an
+off-centre grasp along it) chosen to keep the open hand off them, and the fingers open only to
+the object's width plus ``aperture_margin`` a side (``None``: fully, as before); see
+:mod:`scorbot_gym.policies.grasp_clearance`. The choice is made at the first estimate and again
+when the belief restarts (the object moved), not while the arm comes down over the table.
+Without neighbours in the observation the plan is the nominal grasp with the hand fully open,
+exactly as before (the shipped residual policy adds its correction to this controller).
+
 **Tilted objects** (propped on a stand or leaning: up to ~45 degrees out of a resting pose).
 The plan reads the estimate's full 3-D orientation, not just its heading. The SCORBOT's wrist
 has pitch and roll only, so its tool can lean within the arm's vertical radial plane but never
@@ -240,6 +251,9 @@ class ScriptedGraspPolicy:
         if self._filter is not None:
             restarted = self._filter.update(grasp, closing)
             grasp, closing = self._filter.point.copy(), self._filter.yaw
+        # Alone on the table (no neighbours observed) the hand opens fully, as it always did: a
+        # residual policy learned around this controller saw it so.
+        margin = self.aperture_margin if "neighbour_points" in obs else None
         candidates = grasp_candidates(
             self._spec,
             observed_rotation(obs),
@@ -248,14 +262,14 @@ class ScriptedGraspPolicy:
             closing,
             observed_neighbours(obs),
             self.kinematics.hand,
-            self.aperture_margin,
+            margin,
         )
         if self.chosen_grasp is None or restarted:  # a new belief: choose among the grasps
             chosen = choose_grasp(candidates, previous=self.chosen_grasp)
         else:  # the same object where it was: keep the grasp (see same_grasp)
             chosen = same_grasp(candidates, self.chosen_grasp)
         self.chosen_grasp = chosen
-        self.aperture = chosen.aperture if self.aperture_margin is not None else None
+        self.aperture = chosen.aperture if margin is not None else None
         return grasp + chosen.offset, chosen.yaw, restarted
 
     def _maybe_replan(self, obs: dict[str, np.ndarray]) -> None:
