@@ -215,7 +215,7 @@ def grasp_candidates(
     lo, hi, length = object_section(verts, edges, closing_yaw, rel, band)
     nominal = np.array([lo, hi])
     slides = [0.0]
-    if len(lines) == 1:  # one closing line: slide along the object instead
+    if len(lines) == 1 and np.isfinite(nominal).all():  # one line: slide along the object
         room = min(length - band - END_MARGIN, length / 2)
         steps = np.arange(SLIDE_STEP, room + 1e-9, SLIDE_STEP)
         slides += [s for step in steps for s in (step, -step)]
