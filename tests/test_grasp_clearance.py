@@ -137,6 +137,13 @@ def test_the_oracle_reports_the_other_objects_in_the_observation(oracle_clutter_
     alone.close()
 
 
+def test_check_env_with_neighbours_in_the_observation(oracle_clutter_env):
+    from gymnasium.utils.env_checker import check_env
+
+    with pytest.warns(UserWarning, match="different from the unwrapped"):  # a wrapper, on purpose
+        check_env(oracle_clutter_env, skip_render_check=True)
+
+
 def test_neighbours_need_a_source_that_reports_them():
     import gymnasium as gym
 
