@@ -2,21 +2,24 @@
 
 On a cluttered table the scripted grasp failed where the target alone never does: in every one
 of the 23 failed oracle episodes of the 200-episode benchmark (2 distractors) an open finger
-came down on a neighbour during the descent, which then pushed the target away, wedged between
-the fingers or tipped over (``benchmarks/README.md``, "Cluttered tables"). The hand's footprint
-seen from above is fixed by the closing line: two fingers ``aperture / 2`` either side of the
-grasp point along it and the palm across it, so the planner has two principled choices left:
+came down on a neighbour during the descent, which then wedged against the finger at closing,
+pushed the target away, or blew the physics up (``benchmarks/clutter_approach.py``). The hand's
+footprint seen from above is fixed by the closing line: two fingers ``aperture / 2`` either side
+of the grasp point along it and the palm across it, so the planner has three choices left:
 
 - **which of the grasp's equivalent closing lines**: an object symmetric about its vertical axis
   (a can, a ball, a square cube) is grasped the same way along every line its symmetry maps the
-  nominal one to (:meth:`pose.symmetry.Symmetry.rotations`); a box with a single closing line
-  has only that one. Among them the planner takes the one whose footprint keeps the largest
-  clearance from the neighbours, up to ``comfortable_m`` (beyond it every line is as good, and
-  the nominal one is kept, so a free-standing object is grasped exactly as before);
+  nominal one to (:meth:`pose.symmetry.Symmetry.rotations`);
+- **where along the object**, for an object with a single closing line (a box, a marker, a
+  lego brick, a banana): off its centre along its length, where its section across the line
+  is the centre's (:func:`grasp_candidates`);
 - **how wide to open** (the pre-grasp aperture, as a human hand shapes its grip to the object):
-  the object's width across the closing line's slab plus ``margin_m`` on each side, not the
-  gripper's full 75 mm, so the fingers of a narrow object (a marker: 18 mm) land 16 mm closer
-  to it on each side.
+  the object's width in the fingers' band plus ``margin`` on each side, not the gripper's full
+  75 mm, so the fingers of a narrow object (a marker: 18 mm) land 16 mm closer to it a side.
+
+Among the candidates the planner takes the one whose footprint keeps the largest clearance from
+the neighbours, counted up to :data:`COMFORTABLE_CLEARANCE` (beyond it every candidate is as
+good and the nominal one is kept: with nothing near, the object is grasped as before).
 
 Neighbours are points on the table plane with the height of the object top there
 (``neighbour_points``, from :class:`~scorbot_gym.wrappers.pose_observation.
