@@ -73,6 +73,30 @@ def test_a_clutter_episode_is_grasped_from_images(clutter_env):
     assert result.success, result.failure_cause
 
 
+@pytest.mark.slow
+def test_the_other_blobs_are_the_neighbours_in_the_observation(clutter_env):
+    """The blobs other than the target's, back-projected onto the table plane, cover each
+    distractor (90 % of its mesh vertices within 1.5 cm, seen from above) and leave the
+    target's centre out (the grasp planner keeps its fingers off them, not off the target)."""
+    from scipy.spatial import cKDTree
+
+    from scorbot_gym.objects import get_object
+    from scorbot_gym.sim.simulation import quat_to_mat
+
+    for seed in range(3):
+        obs, info = clutter_env.reset(seed=seed)
+        assert clutter_env.observation_space.contains(obs)
+        seen = cKDTree(obs["neighbour_points"][obs["neighbour_valid"] > 0.5][:, :2])
+        for name, truth in info["objects"].items():
+            R = quat_to_mat(truth["quaternion"])
+            verts = get_object(name).mesh_vertices() @ R.T + truth["position"]
+            d = seen.query(verts[:, :2])[0]  # the object itself, not its footprint's hull
+            if truth["role"] == "distractor":
+                assert np.percentile(d, 90) < 0.015, (seed, name)
+            elif info["perception"]["valid"]:
+                assert seen.query(truth["position"][:2])[0] > 0.01, seed
+
+
 def test_summary_counts_a_target_never_found_as_not_recognised():
     from scorbot_gym.evaluation.episodes import _perception_record
     from scorbot_gym.evaluation.summary import _clutter_summary

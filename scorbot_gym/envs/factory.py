@@ -30,6 +30,7 @@ def make_env(
     keep_images: bool = False,
     timings_in_info: bool = False,
     pose_cameras: Sequence[str] | None = None,
+    neighbours: bool | None = None,
     **env_kwargs: Any,
 ) -> gym.Env:
     """``gym.make(env_id, **env_kwargs)`` wrapped with a pose source's estimates.
@@ -39,8 +40,11 @@ def make_env(
     withholds the object's identity from the source (it recognises it); ``pose_cameras`` are
     the cameras a named source may use (``cameras=`` of its factory, e.g. ``["top", "side"]``
     for recognition fused over both); ``timings_in_info`` puts the wrapper's wall-clock
-    ``perception_timings`` in ``info["perception"]`` too. Examples: ``pose_kwargs={"models":
-    path, "segmenter": "background", "recognizer": "appearance"}``.
+    ``perception_timings`` in ``info["perception"]`` too. ``neighbours`` adds the other
+    objects on the table to the observation (``neighbour_points``, ``neighbour_valid``; see
+    :class:`PoseEstimateObservation`); ``None``: where the env has distractors and the source
+    reports them. Examples: ``pose_kwargs={"models": path, "segmenter": "background",
+    "recognizer": "appearance"}``.
     """
     pose_kwargs = dict(pose_kwargs or {})
     if pose_cameras is not None:
@@ -66,6 +70,10 @@ def make_env(
                 f"{needs[key]}-pixel images"
             )
     env = gym.make(env_id, **{**env_kwargs, **needs})
+    if neighbours is None:
+        neighbours = bool(env.get_wrapper_attr("distractors")) and callable(
+            getattr(source, "neighbours", None)
+        )
     return PoseEstimateObservation(
         env,
         source,
@@ -76,4 +84,5 @@ def make_env(
         identity=identity,
         keep_images=keep_images,
         timings_in_info=timings_in_info,
+        neighbours=neighbours,
     )

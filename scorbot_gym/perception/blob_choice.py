@@ -65,7 +65,7 @@ class BlobChoicePoseSource(ClutterPoseSource):
         self._points: dict[str, np.ndarray] = {}
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
-        self._last, self._known, self._chosen_at = None, [], None
+        self._last, self._known, self._chosen_at, self._seen = None, [], None, None
         self._rng = rng
         self.segmenter.reset(frame, self.camera)
         self._reset_splitter()

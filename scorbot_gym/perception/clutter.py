@@ -47,6 +47,8 @@ from scorbot_gym.perception.splitters import make_splitter
 MIN_BLOB_AREA = 120
 #: how far (pixels) the target's blob may be from the last estimate's projection to be followed
 TRACK_GATE_PX = 25.0
+#: pixels the target's projected outline is grown by before the rest of its blob is a neighbour
+OUTLINE_GROW_PX = 3
 
 
 class BlobSegmenter(BackgroundSegmenter):
@@ -125,6 +127,7 @@ class ClutterPoseSource:
         self._recognizer: Any = None
         self._last: WorldPose | None = None
         self._known: list[tuple[dict, str]] = []  # (blob record, label) recognised this episode
+        self._seen: tuple | None = None  # (blobs, records, chosen, pose, camera) of the last step
 
     @property
     def required_keys(self) -> tuple[str, ...]:
@@ -141,7 +144,7 @@ class ClutterPoseSource:
         }
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
-        self._last, self._known = None, []
+        self._last, self._known, self._seen = None, [], None
         self.segmenter.reset(frame, self.camera)
         self._reset_splitter()
         if self._recognizer is None and len(self.models.object_names) > 1:
@@ -201,9 +204,51 @@ class ClutterPoseSource:
             "how": how,
             "n_components": len(components),  # blobs before splitting
         }
+        self._seen = (blobs, records, chosen, pose, cam)
         if pose.valid:
             self._last = pose
         return pose
+
+    def neighbours(self, frame: PerceptionFrame) -> np.ndarray:
+        """The other objects seen at the last :meth:`estimate`, as table-plane points ``(N, 3)``
+        (:func:`~scorbot_gym.perception.neighbours.mask_points`): every blob but the target's,
+        and what the target's blob holds beyond the target's own projected outline (objects
+        touching in the image share a blob). A blob's height is that of the tallest way up of
+        the class it was recognised as, else :data:`~scorbot_gym.perception.neighbours.
+        UNKNOWN_HEIGHT` (one camera measures no height)."""
+        from scorbot_gym.perception.neighbours import UNKNOWN_HEIGHT, mask_points
+        from scorbot_gym.sim.scene import TABLE_HEIGHT
+
+        if self._seen is None:
+            return np.zeros((0, 3))
+        blobs, records, chosen, pose, cam = self._seen
+        points = [np.zeros((0, 3))]
+        for i, blob in enumerate(blobs):
+            label = records[i]["recognised"] or self._remembered(records[i])
+            if i == chosen:
+                blob, label = self._beyond_target(blob, pose, cam), None
+                if blob is None:
+                    continue
+            height = UNKNOWN_HEIGHT if label is None else _tallest(label)
+            points.append(mask_points(blob, cam, TABLE_HEIGHT, height))
+        return np.vstack(points)
+
+    def _beyond_target(self, blob: np.ndarray, pose: WorldPose, cam: Any) -> np.ndarray | None:
+        """The part of the target's blob outside the target's projected outline (grown by a
+        few pixels), if it is large enough to be an object: a neighbour sharing the blob."""
+        import cv2
+
+        from scorbot_gym.objects import get_object
+
+        if not pose.valid:
+            return None
+        verts = get_object(pose.object_name).mesh_vertices()
+        uv = cam.project(verts[:: max(1, len(verts) // 500)] @ pose.rotation.T + pose.position)
+        outline = np.zeros(blob.shape, np.uint8)
+        cv2.fillConvexPoly(outline, cv2.convexHull(np.round(uv).astype(np.int32)), 1)
+        outline = cv2.dilate(outline, np.ones((2 * OUTLINE_GROW_PX + 1,) * 2, np.uint8))
+        rest = blob.astype(bool) & ~outline.astype(bool)
+        return rest if rest.sum() >= self.segmenter.min_area else None
 
     def _follow(
         self, blobs: list[np.ndarray], cam: Any, image: np.ndarray, target: str
@@ -285,6 +330,16 @@ class ClutterPoseSource:
         if reads == "silhouettes+view":
             return rec.recognize({self.camera: blob}, view)
         return rec.recognize(view)
+
+
+def _tallest(name: str) -> float:
+    """The object's height (m) standing on its tallest resting pose."""
+    from scorbot_gym.objects import get_object
+    from scorbot_gym.sim.simulation import quat_to_mat
+
+    spec = get_object(name)
+    z = [spec.mesh_vertices() @ quat_to_mat(q)[2] for q in spec.resting_quats]
+    return float(max(np.ptp(h) for h in z))
 
 
 def _blob_record(blob: np.ndarray, component: int = 0, split_label: str | None = None) -> dict:

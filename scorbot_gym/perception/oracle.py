@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
-from scorbot_gym.sim.simulation import quat_from_yaw, quat_mul
+from scorbot_gym.sim.simulation import quat_from_yaw, quat_mul, quat_to_mat
 
 
 class OraclePoseSource:
@@ -31,6 +31,21 @@ class OraclePoseSource:
             1.0,
             object_name=frame.object_name,
         )
+
+    def neighbours(self, frame: PerceptionFrame) -> np.ndarray:
+        """The other objects' footprints from their true poses (``frame.truth["others"]`` on a
+        cluttered table): points ``(N, 3)`` (:func:`~scorbot_gym.perception.neighbours.
+        footprint_points`); none on a table with one object."""
+        from scorbot_gym.objects import get_object
+        from scorbot_gym.perception.neighbours import footprint_points
+        from scorbot_gym.sim.scene import TABLE_HEIGHT
+
+        points = [np.zeros((0, 3))]
+        for name, truth in (frame.truth or {}).get("others", {}).items():
+            R = quat_to_mat(np.asarray(truth["quaternion"], float))
+            verts = get_object(name).mesh_vertices() @ R.T + np.asarray(truth["position"], float)
+            points.append(footprint_points(verts, TABLE_HEIGHT))
+        return np.vstack(points)
 
 
 class NoisyOraclePoseSource(OraclePoseSource):

@@ -13,6 +13,17 @@ estimate (the ablation).
 The object's identity (which grasp point and direction to use) comes from the observation's
 ``object_class`` one-hot (recognised by the pose wrapper) or is given as ``object_name``.
 
+**Neighbours.** On a cluttered table the observation may carry the other objects
+(``neighbour_points``, see :class:`~scorbot_gym.wrappers.pose_observation.
+PoseEstimateObservation`). The plan is then one of the grasp's equivalents (a closing line the
+object's symmetry maps the nominal one to, or for an object with a single closing line an
+off-centre grasp along it) chosen to keep the open hand off them, and the fingers open only to
+the object's width plus ``aperture_margin`` a side (``None``: fully, as before); see
+:mod:`scorbot_gym.policies.grasp_clearance`. The choice is made at the first estimate and again
+when the belief restarts (the object moved), not while the arm comes down over the table.
+Without neighbours in the observation the plan is the nominal grasp with the hand fully open,
+exactly as before (the shipped residual policy adds its correction to this controller).
+
 **Tilted objects** (propped on a stand or leaning: up to ~45 degrees out of a resting pose).
 The plan reads the estimate's full 3-D orientation, not just its heading. The SCORBOT's wrist
 has pitch and roll only, so its tool can lean within the arm's vertical radial plane but never
@@ -40,6 +51,14 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.objects import ObjectSpec, get_object
+from scorbot_gym.policies.grasp_clearance import (
+    APERTURE_MARGIN,
+    GraspCandidate,
+    choose_grasp,
+    grasp_candidates,
+    horizontal_closing_yaw,
+    same_grasp,
+)
 from scorbot_gym.policies.pose_filter import GraspPoseFilter
 from scorbot_gym.robot.kinematics import ArmKinematics, tool_pitch, wrap_half_turn
 from scorbot_gym.sim.scene import TABLE_HEIGHT
@@ -69,16 +88,13 @@ def observed_rotation(obs: dict[str, np.ndarray]) -> np.ndarray:
     raise KeyError("the observation has object_pos but neither object_quat nor object_yaw")
 
 
-def horizontal_closing_yaw(R: np.ndarray, closing_axis: float) -> float:
-    """Heading of the horizontal closing line nearest the object's closing axis (object-frame
-    direction ``closing_axis`` in its xy plane) under rotation ``R``: the axis projected onto
-    the table plane. Where it points nearly straight up (a tilt near 90 degrees about the
-    perpendicular axis), the other footprint axis projected instead."""
-    axis = R @ np.array([np.cos(closing_axis), np.sin(closing_axis), 0.0])
-    if np.hypot(axis[0], axis[1]) < 0.3:
-        axis = R @ np.array([-np.sin(closing_axis), np.cos(closing_axis), 0.0])
-        return float(np.arctan2(axis[1], axis[0]) + np.pi / 2)
-    return float(np.arctan2(axis[1], axis[0]))
+def observed_neighbours(obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The other objects' points ``(N, 3)`` (x, y, top height) from ``neighbour_points`` and
+    its ``neighbour_valid`` mask; none (``(0, 3)``) where the observation has no such entry."""
+    if "neighbour_points" not in obs:
+        return np.zeros((0, 3))
+    valid = np.asarray(obs["neighbour_valid"]) > 0.5
+    return np.asarray(obs["neighbour_points"], dtype=float)[valid]
 
 
 def observed_pose(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float]:
@@ -119,6 +135,7 @@ class ScriptedGraspPolicy:
         table_height: float = TABLE_HEIGHT,
         kinematics: ArmKinematics | None = None,
         pose_filter: GraspPoseFilter | str | None = "gated",
+        aperture_margin: float | None = APERTURE_MARGIN,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -145,6 +162,17 @@ class ScriptedGraspPolicy:
             )
         self.pose_filter = pose_filter
         self._filter = GraspPoseFilter() if pose_filter == "gated" else pose_filter
+        if aperture_margin is not None and not (
+            np.isfinite(aperture_margin) and aperture_margin >= 0
+        ):
+            raise ValueError(
+                f"aperture_margin must be a distance >= 0 in metres or None (open fully), "
+                f"got {aperture_margin!r}"
+            )
+        self.aperture_margin = aperture_margin
+        self.aperture: float | None = None  # the pre-grasp opening (m); None: fully open
+        #: the grasp chosen among the equivalents (its clearance from the neighbours, slide...)
+        self.chosen_grasp: GraspCandidate | None = None
         self.phase = "wait"
         self.grasp: np.ndarray | None = None
         self.closing_yaw = 0.0
@@ -176,6 +204,7 @@ class ScriptedGraspPolicy:
     # --- episode ---------------------------------------------------------------------------
     def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any] | None = None) -> None:
         self.phase, self.grasp, self.replans = "wait", None, 0
+        self.aperture, self.chosen_grasp = None, None
         self._phase_time = 0.0
         self._waypoint: np.ndarray | None = None  # starts where the TCP is at the first act()
         self._spec: ObjectSpec | None = None
@@ -215,12 +244,33 @@ class ScriptedGraspPolicy:
         return np.array([gx, gy, z]), horizontal_closing_yaw(R, model.grasp_yaw)
 
     def _filtered_plan(self, obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float, bool]:
-        """The grasp from this estimate after the filter; True if the belief restarted."""
+        """The grasp from this estimate after the filter, turned to the equivalent closing line
+        clearest of the neighbours; True if the belief restarted."""
         grasp, closing = self._plan(obs)
-        if self._filter is None:
-            return grasp, closing, True
-        restarted = self._filter.update(grasp, closing)
-        return self._filter.point.copy(), self._filter.yaw, restarted
+        restarted = True
+        if self._filter is not None:
+            restarted = self._filter.update(grasp, closing)
+            grasp, closing = self._filter.point.copy(), self._filter.yaw
+        # Alone on the table (no neighbours observed) the hand opens fully, as it always did: a
+        # residual policy learned around this controller saw it so.
+        margin = self.aperture_margin if "neighbour_points" in obs else None
+        candidates = grasp_candidates(
+            self._spec,
+            observed_rotation(obs),
+            np.asarray(obs["object_pos"], dtype=float),
+            grasp,
+            closing,
+            observed_neighbours(obs),
+            self.kinematics.hand,
+            margin,
+        )
+        if self.chosen_grasp is None or restarted:  # a new belief: choose among the grasps
+            chosen = choose_grasp(candidates, previous=self.chosen_grasp)
+        else:  # the same object where it was: keep the grasp (see same_grasp)
+            chosen = same_grasp(candidates, self.chosen_grasp)
+        self.chosen_grasp = chosen
+        self.aperture = chosen.aperture if margin is not None else None
+        return grasp + chosen.offset, chosen.yaw, restarted
 
     def _maybe_replan(self, obs: dict[str, np.ndarray]) -> None:
         """Plan at the first valid pose; re-plan at every fresh estimate until the fingers
@@ -285,7 +335,11 @@ class ScriptedGraspPolicy:
         # the closing line's roll nearest the current one; descend only once the wrist is turned
         q_goal[4] = kin.roll_for_closing_yaw(q_goal, self.closing_yaw, near=q[4])
         self._advance_phase(tcp, goal, abs(q_goal[4] - q[4]))
-        gripper = 1.0 if self.phase in ("approach", "descend") else -1.0
+        gripper = -1.0
+        if self.phase in ("approach", "descend"):  # open: fully, or to the pre-grasp aperture
+            full = self.kinematics.hand.max_opening
+            opening = full if self.aperture is None else self.aperture
+            gripper = 2.0 * opening / full - 1.0
         if self.action_type == "joint":
             arm = (q_goal - q) / self.max_joint_step
         else:

@@ -4,9 +4,18 @@ from scorbot_gym.robot.kinematics import (
     JOINT_HIGH,
     JOINT_LOW,
     ArmKinematics,
+    HandGeometry,
     tool_pitch,
     wrap_half_turn,
 )
 from scorbot_gym.robot.servos import Robot
 
-__all__ = ["JOINT_HIGH", "JOINT_LOW", "ArmKinematics", "Robot", "tool_pitch", "wrap_half_turn"]
+__all__ = [
+    "JOINT_HIGH",
+    "JOINT_LOW",
+    "ArmKinematics",
+    "HandGeometry",
+    "Robot",
+    "tool_pitch",
+    "wrap_half_turn",
+]

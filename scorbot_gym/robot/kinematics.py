@@ -9,14 +9,16 @@ uses, and it is cheap to build (a few milliseconds).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import mujoco
 import numpy as np
 
 from scorbot_gym import _gl
-from scorbot_gym.sim.arm import ARM_JOINTS, JOINT_RANGES_DEG, build_arm
+from scorbot_gym.sim.arm import ARM_JOINTS, GRIPPER_MAX_OPENING, JOINT_RANGES_DEG, build_arm
 
 mjcf = _gl.import_mjcf()  # dm_control with its own renderer off (see _gl)
 
@@ -60,6 +62,23 @@ def tool_pitch(q: np.ndarray) -> float:
     return float(q[1] + q[2] + q[3])
 
 
+@dataclass(frozen=True)
+class HandGeometry:
+    """The gripper seen from above with the tool pointing down, in metres: what a grasp
+    planner needs to keep the hand off other objects. Along the closing line the palm reaches
+    ``palm_half_length`` either side of the TCP and each finger ``finger_thickness`` beyond its
+    pad face (the pads are ``opening`` apart); across the line the palm reaches
+    ``palm_half_width`` and a finger ``finger_half_width``; the palm's underside is
+    ``palm_above_tcp`` above the TCP; the pads open ``max_opening`` apart at most."""
+
+    palm_half_length: float
+    palm_half_width: float
+    palm_above_tcp: float
+    finger_thickness: float
+    finger_half_width: float
+    max_opening: float
+
+
 class ArmKinematics:
     """Forward and inverse kinematics of the arm mounted at ``base_pos`` (world frame).
 
@@ -86,6 +105,24 @@ class ArmKinematics:
         # Slices where the indices run in order (a fancy index costs IK ~4 us per iteration).
         self._qpos_at = _as_slice(self._qpos)
         self._dof4 = _as_slice(self._dof[:4])  # the joints IK moves (the wrist roll is kept)
+
+    @functools.cached_property
+    def hand(self) -> HandGeometry:
+        """The hand's geometry, read from this model's palm and finger geoms (hand frame: x
+        along the tool, y the closing direction, z across it; the fingers at their closed
+        position, pad faces on the centre plane)."""
+        m = self.model
+        palm = m.geom(ARM_PREFIX + "palm")
+        link = m.geom(ARM_PREFIX + "finger_left_link")
+        tcp_x = m.site_pos[self._tcp][0]
+        return HandGeometry(
+            palm_half_length=float(palm.size[1]),
+            palm_half_width=float(palm.size[2]),
+            palm_above_tcp=float(tcp_x - (palm.pos[0] + palm.size[0])),
+            finger_thickness=float(abs(link.pos[1]) + link.size[1]),
+            finger_half_width=float(link.size[2]),
+            max_opening=GRIPPER_MAX_OPENING,
+        )
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """TCP position and rotation matrix for joint angles ``q``."""

@@ -9,7 +9,13 @@ At reset and then every ``estimate_every`` steps the wrapper hands the step's ob
 - ``pose_valid`` (1): whether the latest estimate succeeded;
 - ``pose_confidence`` (1): the source's confidence in the held estimate, in [0, 1];
 - ``pose_age`` (1): steps since the held estimate was made (``MAX_AGE`` before the first);
-- ``object_class`` (n, optional): one-hot of the class the source used.
+- ``object_class`` (n, optional): one-hot of the class the source used;
+- ``neighbour_points`` (``MAX_NEIGHBOUR_POINTS`` x 3) and ``neighbour_valid`` (its rows in use),
+  optional (``neighbours=True``): the other objects on a cluttered table as points on the table
+  plane with the height of their tops, from the same source and step as the held estimate
+  (:mod:`scorbot_gym.perception.neighbours`: the oracle's from the ground truth, the image
+  sources' from the blobs other than the target's), so a controller can keep its fingers off
+  them.
 
 ``info["perception"]`` carries, at every step, what the estimate was worth against the ground
 truth (rotation error, position error, ADD-S, success@5°), the recognised and the true class,
@@ -26,6 +32,7 @@ adds them to ``info["perception"]`` as well.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -38,6 +45,7 @@ from pose.metrics import add_s, rotation_error_deg
 from scorbot_gym.envs.arguments import name_list
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+from scorbot_gym.perception.neighbours import MAX_NEIGHBOUR_POINTS, pack_points
 from scorbot_gym.perception.registry import make_pose_source
 from scorbot_gym.sim.simulation import quat_to_mat
 
@@ -70,6 +78,9 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     timings_in_info
         Also put the step's wall-clock timings (``total_ms``, ``timings_ms``) in
         ``info["perception"]``; they are always in :attr:`perception_timings`.
+    neighbours
+        Add ``neighbour_points`` and ``neighbour_valid``: the source must answer
+        ``neighbours(frame)`` (the oracle family and the clutter sources do).
     """
 
     def __init__(
@@ -84,6 +95,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         identity: str = "given",
         keep_images: bool = False,
         timings_in_info: bool = False,
+        neighbours: bool = False,
         **source_kwargs: Any,
     ) -> None:
         # The spec records how to rebuild the wrapper: the registered name and the plain
@@ -105,6 +117,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             identity=identity,
             keep_images=keep_images,
             timings_in_info=timings_in_info,
+            neighbours=neighbours,
             **source_kwargs_recorded,
             **{k: v for k, v in source_kwargs.items() if _is_plain(v)},
         )
@@ -122,10 +135,18 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if not isinstance(timings_in_info, bool):
             raise ValueError(f"timings_in_info must be True or False, got {timings_in_info!r}")
         self.timings_in_info = timings_in_info
+        if not isinstance(neighbours, bool):
+            raise ValueError(f"neighbours must be True or False, got {neighbours!r}")
         #: the last step's wall-clock timings: ``{"total_ms", "timings_ms"}``, or ``None``
         self.perception_timings: dict[str, Any] | None = None
         self.source = make_pose_source(source, **source_kwargs)
         self.source_name = getattr(self.source, "name", None) or type(self.source).__name__
+        if neighbours and not callable(getattr(self.source, "neighbours", None)):
+            raise ValueError(
+                f"neighbours=True needs a pose source that reports the other objects "
+                f"(neighbours(frame)); {self.source_name!r} does not"
+            )
+        self.neighbours = neighbours
         self.estimate_every = int(estimate_every)
         self.rotation, self.include_class, self.identity = rotation, include_class, identity
         self.class_names = (
@@ -160,9 +181,13 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         new["pose_age"] = spaces.Box(0.0, float(MAX_AGE), (1,), np.float64)
         if include_class:
             new["object_class"] = spaces.Box(0.0, 1.0, (len(self.class_names),), np.float64)
+        if neighbours:
+            new["neighbour_points"] = spaces.Box(-3.0, 3.0, (MAX_NEIGHBOUR_POINTS, 3), np.float64)
+            new["neighbour_valid"] = spaces.Box(0.0, 1.0, (MAX_NEIGHBOUR_POINTS,), np.float64)
         self.observation_space = spaces.Dict(new)
         self._rng = np.random.default_rng()
         self._held: WorldPose | None = None
+        self._held_neighbours = pack_points(np.zeros((0, 3)))
         self._age, self._last_valid, self._t = MAX_AGE, False, 0
         self._cameras: dict = {}
         self._backgrounds: dict = {}
@@ -173,6 +198,7 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         if seed is not None:  # its own stream: the env's draws stay what they are unwrapped
             self._rng = np.random.default_rng([int(seed), 0x5EED])
         self._held, self._age, self._last_valid, self._t = None, MAX_AGE, False, 0
+        self._held_neighbours = pack_points(np.zeros((0, 3)))
         self._cameras = {}
         self._backgrounds = dict(info.get("camera_background", {}))
         self._update_cameras(info)
@@ -208,11 +234,17 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             self._cameras[name] = CameraModel(**params)
 
     def _frame(self, obs: dict, info: dict) -> PerceptionFrame:
+        truth = None
+        if self.source.privileged:  # the target's true pose, and on a cluttered table the others'
+            truth = dict(info["object_pose"])
+            others = {n: o for n, o in info.get("objects", {}).items() if o["role"] != "target"}
+            if others:
+                truth["others"] = others
         return PerceptionFrame(
             observation=obs,
             cameras=self._cameras,
             object_name=info["object_name"] if self.identity == "given" else None,
-            truth=info["object_pose"] if self.source.privileged else None,
+            truth=truth,
             step=self._t,
             backgrounds=self._backgrounds,
         )
@@ -225,6 +257,10 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._last_valid = ok
         if ok:
             self._held, self._age = est, 0
+            if self.neighbours:  # seen in the same step as the held estimate
+                t0 = time.perf_counter()
+                self._held_neighbours = pack_points(self.source.neighbours(frame))
+                est.timings_ms = {**est.timings_ms, "neighbours": 1e3 * (time.perf_counter() - t0)}
         else:
             self._age = min(self._age + 1, MAX_AGE)
         return self._record(info, est)
@@ -301,6 +337,10 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             if held is not None and held.object_name in self.class_names:
                 onehot[self.class_names.index(held.object_name)] = 1.0
             out["object_class"] = onehot
+        if self.neighbours:
+            points, valid = self._held_neighbours
+            out["neighbour_points"] = np.clip(points, -3.0, 3.0)
+            out["neighbour_valid"] = valid.copy()
         return out
 
 
@@ -334,8 +374,9 @@ def _is_plain(value: Any) -> bool:
     return isinstance(value, (list, tuple)) and all(_is_plain(v) for v in value)
 
 
-# Stages a pose source reports at top level; their sum is the estimator's time for one step.
-_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback", "motion")
+# Stages a pose source reports at top level, and the wrapper's "neighbours" (the other objects,
+# where asked for); their sum is the perception time of one step.
+_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback", "motion", "neighbours")
 
 _POINTS: dict[str, tuple[np.ndarray, Any]] = {}
 
