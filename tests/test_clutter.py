@@ -65,6 +65,26 @@ def test_objects_on_the_table_without_interpenetration(clutter_env):
         assert info["distractors_knocked_over"] == 0 and not info["wrong_object"]
 
 
+def test_a_crowded_ring_widens_instead_of_failing_the_reset():
+    """Seed 5102 puts the large lego brick where no layout of 4 distractors fits the default
+    ring (every draw failed; the reset raised): the ring widens and the objects still neither
+    interpenetrate nor leave the table."""
+    env = gym.make("ScorbotGrasp-v0", distractors=4, observe_object_pose=True)
+    try:
+        _, info = env.reset(seed=5102)
+        sim = env.unwrapped.sim
+        assert info["object_name"] == "lego_duplo" and len(info["objects"]) == 5
+        assert set(sim.on_table()) == set(info["objects"])
+        bodies = {sim.objects[n].body for n in info["objects"]}
+        m, d = sim.model, sim.data
+        for con in d.contact[: d.ncon]:
+            b1, b2 = m.geom_bodyid[con.geom[0]], m.geom_bodyid[con.geom[1]]
+            if b1 in bodies and b2 in bodies and b1 != b2:
+                assert con.dist >= -PENETRATION_TOL
+    finally:
+        env.close()
+
+
 def test_neighbours_occlude_the_target_in_some_episodes(clutter_env):
     """Distractors are drawn close: from the side camera some hide part of the target."""
     sim = clutter_env.unwrapped.sim

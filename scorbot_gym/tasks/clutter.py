@@ -32,6 +32,8 @@ PENETRATION_TOL = 0.002  # m; deeper contacts between two objects after settling
 MAX_TILT_DEG = 45.0
 _RES = 0.001  # m per pixel of the footprint raster
 _LAYOUT_TRIES = 20
+_TRIES_PER_RING = 5  # failed layouts before the ring of distractors widens
+_RING_GROWTH = 0.25  # its outer radius grows by this share of GAP_RANGE's each time
 _CANDIDATE_TRIES = 100
 
 
@@ -102,8 +104,12 @@ class ClutterTask:
         else:
             target_hull = self._hull(target, pos, quat, inside=False)
         target_state = sim.data.qpos[sim.objects[target].qpos].copy()
-        for _ in range(_LAYOUT_TRIES):
-            poses = self._draw_layout(rng, target_hull, distractors, sim.pose_of(target)[0])
+        for attempt in range(_LAYOUT_TRIES):
+            # a ring too crowded for every distractor (a large target, or one near the edge of
+            # the workspace) widens every few failed layouts instead of failing the reset
+            spread = 1.0 + _RING_GROWTH * (attempt // _TRIES_PER_RING)
+            gaps = (GAP_RANGE[0], GAP_RANGE[1] * spread)
+            poses = self._draw_layout(rng, target_hull, distractors, sim.pose_of(target)[0], gaps)
             if poses is None:
                 continue
             sim.data.qpos[sim.objects[target].qpos] = target_state
@@ -140,8 +146,10 @@ class ClutterTask:
         target_hull: np.ndarray,
         distractors: Sequence[str],
         target_pos: np.ndarray,
+        gaps: tuple[float, float] = GAP_RANGE,
     ) -> dict[str, tuple[np.ndarray, np.ndarray, int]] | None:
-        """Poses ``{name: (pos, quat, resting index)}`` with non-overlapping footprints."""
+        """Poses ``{name: (pos, quat, resting index)}`` with non-overlapping footprints, each
+        centre ``gaps`` (m) from the target's."""
         occupied = np.zeros(self._shape, np.uint8)
         self._fill(occupied, target_hull, grow=True)
         poses: dict[str, tuple[np.ndarray, np.ndarray, int]] = {}
@@ -150,7 +158,7 @@ class ClutterTask:
             for _ in range(_CANDIDATE_TRIES):
                 rest = int(rng.integers(rests))
                 yaw = float(rng.uniform(-np.pi, np.pi))
-                r, a = rng.uniform(*GAP_RANGE), rng.uniform(-np.pi, np.pi)
+                r, a = rng.uniform(*gaps), rng.uniform(-np.pi, np.pi)
                 xy = target_pos[:2] + r * np.array([np.cos(a), np.sin(a)])
                 p, q = self.sim.resting_pose(xy, yaw, rest, name=name)
                 hull = self._hull(name, p, q)
