@@ -41,24 +41,6 @@ MIN_VISIBLE = 100  # px of an object inside a component for it to count as held 
 GOOD_IOU = 0.7
 
 
-def touch(sim, mover: str, still: str) -> bool:
-    """Slide ``mover`` toward ``still`` until they touch, then back it off 2 mm; False where
-    it never reaches it (the scene is then skipped)."""
-    p, q = sim.pose_of(mover)
-    u = sim.pose_of(still)[0][:2] - p[:2]
-    u /= np.linalg.norm(u)
-    mover_geoms, still_geoms = set(sim.objects[mover].geoms), set(sim.objects[still].geoms)
-    for s in np.linspace(0.0, 0.2, 201):
-        sim.set_pose_of(mover, np.r_[p[:2] + s * u, p[2]], q)
-        sim.forward()
-        pairs = {(int(c.geom[0]), int(c.geom[1])) for c in sim.data.contact[: sim.data.ncon]}
-        if any({a, b} & mover_geoms and {a, b} & still_geoms for a, b in pairs):
-            sim.set_pose_of(mover, np.r_[p[:2] + (s - 0.002) * u, p[2]], q)
-            sim.forward()
-            return True
-    return False
-
-
 def true_masks(sim, camera: str, names: list[str]) -> dict[str, np.ndarray]:
     """Each object's visible pixels (the simulator's segmentation: for scoring only)."""
     import mujoco
@@ -113,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     from scorbot_gym.perception.base import PerceptionFrame
     from scorbot_gym.perception.splitters import make_splitter
     from scorbot_gym.perception.training import default_pose_models
+    from scorbot_gym.tasks.clutter import slide_into_contact
 
     cv2.setNumThreads(1)
     models = default_pose_models("top", 320, 240)
@@ -137,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
         source.reset(frame, np.random.default_rng(seed))
         sim = inner.unwrapped.sim
         neighbour = next(n for n in info["objects"] if n != target)
-        if not touch(sim, neighbour, target):
+        if not slide_into_contact(sim, neighbour, target):
             skipped += 1
             continue
         obs, *_, info = inner.step(np.zeros(6, np.float32))

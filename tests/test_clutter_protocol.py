@@ -12,6 +12,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.perception import make_pose_source, pose_source_names
 from scorbot_gym.perception.base import PerceptionFrame
 from scorbot_gym.perception.training import train_models
+from scorbot_gym.tasks.clutter import slide_into_contact
 
 OBJECTS = ["box", "tomato_soup_can", "banana"]
 
@@ -76,20 +77,7 @@ def test_blob_choice_sources_run_from_a_rollout_config():
 
 # --- a target touching a neighbour in the image ---------------------------------------------------
 def _touch(sim, mover: str, still: str) -> None:
-    """Slide ``mover`` toward ``still`` until they touch, then back it off 2 mm (no overlap)."""
-    p, q = sim.pose_of(mover)
-    u = sim.pose_of(still)[0][:2] - p[:2]
-    u /= np.linalg.norm(u)
-    mover_geoms, still_geoms = set(sim.objects[mover].geoms), set(sim.objects[still].geoms)
-    for s in np.linspace(0.0, 0.2, 201):
-        sim.set_pose_of(mover, np.r_[p[:2] + s * u, p[2]], q)
-        sim.forward()
-        pairs = {(int(c.geom[0]), int(c.geom[1])) for c in sim.data.contact[: sim.data.ncon]}
-        if any({a, b} & mover_geoms and {a, b} & still_geoms for a, b in pairs):
-            sim.set_pose_of(mover, np.r_[p[:2] + (s - 0.002) * u, p[2]], q)
-            sim.forward()
-            return
-    raise AssertionError(f"{mover} never reached {still}")
+    assert slide_into_contact(sim, mover, still), f"{mover} never reached {still}"
 
 
 @pytest.mark.slow

@@ -273,3 +273,25 @@ class ClutterTask:
             "wrong_object": self.wrong_object,
             "distractors_knocked_over": sum(o["knocked_over"] for o in objects.values()),
         }
+
+
+def slide_into_contact(
+    sim: Simulation, mover: str, still: str, reach: float = 0.2, gap: float = 0.002
+) -> bool:
+    """Slide ``mover`` on the table straight toward ``still`` until their geoms touch, then
+    back it off ``gap`` metres: two objects that touch in the cameras' images without
+    interpenetrating (the scene the blob splitter and the clutter protocol are tested on).
+    False, with ``mover`` left at the end of its path, where it never reaches ``still``."""
+    p, q = sim.pose_of(mover)
+    u = sim.pose_of(still)[0][:2] - p[:2]
+    u /= np.linalg.norm(u)
+    mover_geoms, still_geoms = set(sim.objects[mover].geoms), set(sim.objects[still].geoms)
+    for s in np.linspace(0.0, reach, int(round(reach / 0.001)) + 1):
+        sim.set_pose_of(mover, np.r_[p[:2] + s * u, p[2]], q)
+        sim.forward()
+        pairs = {(int(c.geom[0]), int(c.geom[1])) for c in sim.data.contact[: sim.data.ncon]}
+        if any({a, b} & mover_geoms and {a, b} & still_geoms for a, b in pairs):
+            sim.set_pose_of(mover, np.r_[p[:2] + (s - gap) * u, p[2]], q)
+            sim.forward()
+            return True
+    return False
