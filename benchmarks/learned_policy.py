@@ -11,6 +11,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--poses oracle,noisy@0:20,noisy@0.02:0,manifold]   # what the learner observes
         [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
         [--pose-window 8]   # the policy remembers its last 8 fresh estimates
+        [--pose-dispersion]   # ... and sees how much they disagree (HistorySpec)
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -84,6 +85,12 @@ def main(argv: list[str] | None = None) -> None:
         help="fresh estimates the policy remembers (HistorySpec.pose_window; 0: none)",
     )
     p.add_argument(
+        "--pose-dispersion",
+        action="store_true",
+        help="the window's summary includes the estimates' disagreement "
+        "(HistorySpec.pose_dispersion; needs --pose-window)",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -115,7 +122,7 @@ def main(argv: list[str] | None = None) -> None:
             poses=tuple(v for v in args.poses.split(",") if v),
             beta=args.beta,
             init_policy=args.init_policy,
-            history=HistorySpec(pose_window=args.pose_window),
+            history=HistorySpec(pose_window=args.pose_window, pose_dispersion=args.pose_dispersion),
         )
         demos = None
         if args.dataset:

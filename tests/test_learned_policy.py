@@ -97,7 +97,12 @@ def test_tiny_imitation_run_writes_a_loadable_policy_that_acts_in_the_action_spa
     policy.save(tmp_path / "p")
     meta = json.loads((tmp_path / "p" / "policy.json").read_text())
     assert meta["uses_scripted_controller"] is False
-    assert meta["history"] == {"previous_actions": 2, "gripper_commands": 20, "pose_window": 0}
+    assert meta["history"] == {
+        "previous_actions": 2,
+        "gripper_commands": 20,
+        "pose_window": 0,
+        "pose_dispersion": False,
+    }
     assert len(meta["normalization"]["mean"]) == policy.net.n_inputs
     loaded = load_policy(tmp_path / "p")
     assert isinstance(loaded, ImitationPolicy) and not uses_scripted_controller(loaded)

@@ -3,11 +3,15 @@ enters the window, what its summary says, and that policies with and without it 
 
 from __future__ import annotations
 
+from dataclasses import asdict
+
 import numpy as np
 import pytest
 
 from scorbot_gym.policies.imitation import (
+    N_POSE_DISPERSION_FEATURES,
     N_POSE_WINDOW_FEATURES,
+    SHIPPED_LEARNED_POLICY,
     ActionHistory,
     HistorySpec,
     ImitationPolicy,
@@ -29,7 +33,7 @@ def _obs(x: float = 0.3, yaw: float = 0.0, valid: float = 1.0, age: float = 0.0)
 
 
 def test_only_fresh_estimates_enter_the_window_and_it_keeps_the_last_n():
-    history = ActionHistory(HistorySpec(pose_window=3))
+    history = ActionHistory(HistorySpec(pose_window=3, pose_dispersion=True))
     assert np.all(history.pose_features(_obs(valid=0.0, age=1000.0)) == 0.0)  # none yet
     history.push(OPEN, _obs(x=0.1))
     history.push(OPEN, _obs(x=9.0, valid=0.0, age=3.0))  # lost: held, not new
@@ -47,7 +51,7 @@ def test_only_fresh_estimates_enter_the_window_and_it_keeps_the_last_n():
 def test_headings_average_on_the_doubled_circle():
     """A parallel gripper closes along the same line after a half turn: estimates at +89 and
     -89 degrees agree (mean 90), they do not cancel to 0."""
-    history = ActionHistory(HistorySpec(pose_window=4))
+    history = ActionHistory(HistorySpec(pose_window=4, pose_dispersion=True))
     history.push(OPEN, _obs(yaw=np.radians(89)))
     f = history.pose_features(_obs(yaw=np.radians(-89)))
     sin2, cos2 = f[7], f[11]  # the first of the four angles: the heading itself
@@ -79,9 +83,36 @@ def test_policies_with_and_without_a_window_save_and_load(tmp_path):
     from scorbot_gym.policies.imitation import MLP
 
     net = MLP([rng.normal(size=(n, 4)), rng.normal(size=(4, 6))], [np.zeros(4), np.zeros(6)])
-    meta = {**old.meta, "history": {**old.meta["history"], "pose_window": 8}}
+    meta = {**old.meta, "history": {**old.meta["history"], **asdict(spec)}}
     ImitationPolicy(net, np.zeros(n), np.ones(n), meta).save(tmp_path / "p")
     loaded = ImitationPolicy.load(tmp_path / "p")
     assert loaded.history_spec == spec
     with pytest.raises(ValueError, match="incompatible policy"):  # window without its features
         ImitationPolicy(old.net, old.mean, old.std, meta)
+
+
+def test_dispersion_is_optional_and_old_records_keep_it():
+    """Without ``pose_dispersion`` the summary stops before the agreement and spread values
+    (the rest identical); a ``policy.json`` written before the option existed had them."""
+    obs = [_obs(x=0.1, yaw=0.2), _obs(x=0.2, yaw=-0.1), _obs(x=0.4, yaw=0.1)]
+    plain, full = (
+        ActionHistory(HistorySpec(pose_window=3, pose_dispersion=d)) for d in (False, True)
+    )
+    for history in (plain, full):
+        for o in obs[:-1]:
+            history.push(OPEN, o)
+    f_plain, f_full = plain.pose_features(obs[-1]), full.pose_features(obs[-1])
+    assert len(f_plain) == N_POSE_WINDOW_FEATURES
+    assert len(f_full) == N_POSE_WINDOW_FEATURES + N_POSE_DISPERSION_FEATURES
+    np.testing.assert_array_equal(f_plain, f_full[:N_POSE_WINDOW_FEATURES])
+    assert HistorySpec.from_record({"pose_window": 8}).pose_dispersion
+    assert not HistorySpec.from_record({"pose_window": 0}).pose_dispersion
+    assert not HistorySpec.from_record({"pose_window": 8, "pose_dispersion": False}).pose_dispersion
+    with pytest.raises(ValueError, match="pose_dispersion needs a pose_window"):
+        HistorySpec(pose_dispersion=True)
+    with pytest.raises(ValueError, match="pose_dispersion must be a bool"):
+        HistorySpec(pose_window=2, pose_dispersion=1)
+    with pytest.raises(ValueError, match="unexpected keyword"):
+        HistorySpec.from_record({"pose_window": 2, "window": 3})
+    shipped = ImitationPolicy.load(SHIPPED_LEARNED_POLICY)  # loads with its recorded features
+    assert shipped.net.n_inputs == n_features(len(shipped.classes), shipped.history_spec)

@@ -10,12 +10,18 @@ ception, the estimated object pose, ``pose_valid``/``pose_confidence``/``pose_ag
   closing (an internal timer); behaviour cloning without this history cannot tell "closing"
   from "closed, now lift" (the earlier probe's failures held the object and never lifted);
 - optionally (``pose_window`` > 0) the last ``pose_window`` *fresh* estimates of the object
-  (``pose_valid`` set and ``pose_age`` 0), summarised as their mean position, the circular mean
-  of their doubled heading, and their spread. One estimate is all a policy sees otherwise:
-  under per-step estimation noise the expert's action is then not a function of the input,
-  and a fit averages it away. The scripted controller filters its estimates
+  (``pose_valid`` set and ``pose_age`` 0), summarised as their mean position and the circular
+  mean of their doubled heading. One estimate is all a policy sees otherwise: under per-step
+  estimation noise the expert's action is then not a function of the input, and a fit
+  averages it away. The scripted controller filters its estimates
   (:class:`~scorbot_gym.policies.pose_filter.GraspPoseFilter`); this is the learned policy's
-  equivalent, computed from its own observations only.
+  equivalent, computed from its own observations only. With ``pose_dispersion`` the summary
+  also says how much the estimates disagree (the doubled headings' resultant length, the
+  positions' spread). That is off by default: the disagreement a policy sees in training is
+  that of its training pose sources, and it reads any other level as a new situation, not as
+  a noisier estimate of the same one (a policy trained on oracle and manifold estimates, which
+  agree from step to step, met heading noise with its agreement input at ten standard
+  deviations and lost most grasps; pinning that input to its training mean recovered them).
 
 A few features are computed from the observation, as a feature extractor would: the object
 relative to the TCP, and the object's heading relative to the base and wrist (sin/cos of twice
@@ -79,19 +85,47 @@ class HistorySpec:
     previous_actions: int = 2
     gripper_commands: int = 20
     pose_window: int = 0
+    #: the window's summary also gives the estimates' disagreement (module docstring)
+    pose_dispersion: bool = False
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            if name == "pose_dispersion":
+                if not isinstance(value, bool):
+                    raise ValueError(f"history pose_dispersion must be a bool, got {value!r}")
+            elif isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"history {name} must be an int >= 0, got {value!r}")
+        if self.pose_dispersion and not self.pose_window:
+            raise ValueError("history pose_dispersion needs a pose_window > 0")
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> HistorySpec:
+        """The spec a ``policy.json`` (or training config) records. Records written before
+        ``pose_dispersion`` existed had it whenever they had a window."""
+        record = dict(record)
+        if "pose_dispersion" not in record:
+            record["pose_dispersion"] = bool(record.get("pose_window"))
+        try:
+            return cls(**record)
+        except TypeError as exc:  # an unknown key
+            raise ValueError(f"history {record!r}: {exc}") from None
 
 
 #: values summarising the window of fresh estimates (:meth:`ActionHistory.pose_features`)
-N_POSE_WINDOW_FEATURES = 17
+N_POSE_WINDOW_FEATURES = 15
+#: the window's disagreement values, with ``pose_dispersion``
+N_POSE_DISPERSION_FEATURES = 2
+
+
+def n_window_features(history: HistorySpec) -> int:
+    """How many values :meth:`ActionHistory.pose_features` gives under ``history``."""
+    if not history.pose_window:
+        return 0
+    return N_POSE_WINDOW_FEATURES + N_POSE_DISPERSION_FEATURES * history.pose_dispersion
 
 
 def n_features(n_classes: int, history: HistorySpec) -> int:
-    window = N_POSE_WINDOW_FEATURES if history.pose_window else 0
+    window = n_window_features(history)
     return 47 + n_classes + 6 * history.previous_actions + history.gripper_commands + window
 
 
@@ -141,15 +175,16 @@ class ActionHistory:
         """The window of the last ``pose_window`` fresh estimates, ``obs``'s own included:
         fraction of the window filled, mean position, mean minus the TCP, sin/cos of the
         doubled circular-mean heading relative to base and wrist (as the single-estimate
-        features), the doubled headings' resultant length (1: they agree) and the positions'
-        RMS spread. Zeros, filled fraction 0, before the first fresh estimate."""
+        features); with ``pose_dispersion`` also the doubled headings' resultant length (1:
+        they agree) and the positions' RMS spread. Zeros, filled fraction 0, before the first
+        fresh estimate."""
         window = self.spec.pose_window
         if not window:
             return np.zeros(0, np.float32)
         fresh = _fresh_estimate(obs)
         estimates = [*self.estimates, *([fresh] if fresh is not None else [])][-window:]
         if not estimates:
-            return np.zeros(N_POSE_WINDOW_FEATURES, np.float32)
+            return np.zeros(n_window_features(self.spec), np.float32)
         pos = np.array([p for p, _ in estimates])
         yaws = np.array([y for _, y in estimates])
         mean = pos.mean(axis=0)
@@ -157,17 +192,17 @@ class ActionHistory:
         yaw = 0.5 * np.arctan2(s, c)
         q = np.asarray(obs["joint_pos"], float)
         angles = np.array([yaw, yaw - q[0], yaw - q[0] - q[4], yaw - q[0] + q[4]])
-        spread = np.sqrt(np.mean(np.sum((pos - mean) ** 2, axis=1)))
-        return np.concatenate(
-            [
-                [len(estimates) / window],
-                mean,
-                mean - np.asarray(obs["ee_pos"], float),
-                np.sin(2 * angles),
-                np.cos(2 * angles),
-                [np.hypot(c, s), spread],
-            ]
-        ).astype(np.float32)
+        parts = [
+            [len(estimates) / window],
+            mean,
+            mean - np.asarray(obs["ee_pos"], float),
+            np.sin(2 * angles),
+            np.cos(2 * angles),
+        ]
+        if self.spec.pose_dispersion:
+            spread = np.sqrt(np.mean(np.sum((pos - mean) ** 2, axis=1)))
+            parts.append([np.hypot(c, s), spread])
+        return np.concatenate(parts).astype(np.float32)
 
 
 def observation_features(obs: dict[str, np.ndarray], onehot: np.ndarray) -> np.ndarray:
@@ -259,7 +294,7 @@ class ImitationPolicy:
         self.net, self.meta = net, meta
         self.mean = np.asarray(mean, np.float32)
         self.std = np.asarray(std, np.float32)
-        self.history_spec = HistorySpec(**meta["history"])
+        self.history_spec = HistorySpec.from_record(meta["history"])
         self.classes = tuple(meta["classes"])
         self.history = ActionHistory(self.history_spec)
         self._env_classes: tuple[str, ...] | None = None
@@ -361,7 +396,7 @@ class ImitationPolicy:
         try:
             norm = meta["normalization"]
             mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
-            HistorySpec(**meta["history"])
+            HistorySpec.from_record(meta["history"])
             meta["classes"], meta["action_type"], meta["observation_shapes"]
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{meta_path} is incomplete or malformed ({exc!r})") from None

@@ -150,7 +150,7 @@ class PixelPolicy:
         self.camera = str(meta["camera"])
         self.image_key = f"{self.camera}_rgb"
         self.classes = tuple(meta["classes"])
-        self.history_spec = HistorySpec(**meta["history"])
+        self.history_spec = HistorySpec.from_record(meta["history"])
         if self.history_spec.pose_window:
             raise ValueError("a pixel policy reads no pose estimate: its pose_window must be 0")
         self.history = ActionHistory(self.history_spec)
@@ -320,7 +320,7 @@ class PixelPolicy:
                 embedding=int(net["embedding"]),
                 hidden=int(net["hidden"]),
             )
-            HistorySpec(**meta["history"])
+            HistorySpec.from_record(meta["history"])
             meta["classes"], meta["action_type"], meta["camera"]
             width, height = meta["render_size"]
         except (KeyError, TypeError, ValueError) as exc:

@@ -301,7 +301,7 @@ class ImitationConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
-            self.history = HistorySpec(**self.history)
+            self.history = HistorySpec.from_record(self.history)
         if isinstance(self.poses, str) or not self.poses:
             raise ValueError(f"poses must be a non-empty list of pose names, got {self.poses!r}")
         self.poses = tuple(self.poses)

@@ -52,7 +52,7 @@ class PixelImitationConfig:
 
     def __post_init__(self) -> None:
         if isinstance(self.history, dict):
-            self.history = HistorySpec(**self.history)
+            self.history = HistorySpec.from_record(self.history)
         if self.history.pose_window:
             raise ValueError("a pixel policy reads no pose estimate: history.pose_window must be 0")
         if isinstance(self.net, dict):
