@@ -148,3 +148,28 @@ def test_a_compare_run_with_the_chance_condition_writes_the_documented_keys(
     assert cmp.plot_comparison(report, tmp_path / "c.png") == ["arms"]
     assert os.path.getsize(tmp_path / "c.png") > 0
     assert np.isfinite(rec["success_rate"])
+
+
+def _record(policy: str, pose: str, successes: int, n: int) -> dict:
+    return {
+        "policy": policy, "label": policy, "pose": pose, "episodes": n, "successes": successes,
+        "success_rate": successes / n, "ci95": list(cmp.wilson_interval(successes, n)),
+        "noise_pos_m": None, "noise_yaw_deg": None,
+        "per_object": {"box": {"episodes": n, "successes": successes}},
+        "training": {"trained_from": "scripted"}, "vs_reference": None,
+    }  # fmt: skip
+
+
+def test_the_figure_and_headline_put_the_chance_level_beside_the_estimator(tmp_path):
+    results = [_record(p, pose, k, 40) for pose, k in (("manifold", 38), ("chance", 2))
+               for p in ("scripted", "learned")]  # fmt: skip
+    report = {"episodes": 40, "seeds": [0, 39], "reference": "scripted", "results": results}
+    report["noise_curves"] = cmp.noise_curves(results)
+    assert report["noise_curves"] == {}  # neither estimator condition is a noise level
+    head = cmp.headline(report).splitlines()
+    assert head[0].startswith("manifold, 40 paired episodes") and len(head) == 4
+    assert head[-1] == (
+        "chance level (image-blind pose): scripted 5.0 % (1.4–16.5), learned 5.0 % (1.4–16.5)"
+    )
+    assert len(cmp.headline(report, pose="chance").splitlines()) == 3  # not beside itself
+    assert cmp.plot_comparison(report, tmp_path / "f.png") == ["arms", "objects"]

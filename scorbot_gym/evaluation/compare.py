@@ -636,7 +636,8 @@ def _diff_text(d: dict[str, Any]) -> str:
 def headline(report: dict[str, Any], pose: str | None = None) -> str:
     """The headline numbers under the first (or the given) pose condition, one line per
     policy: success with its interval and, for the others, the paired difference to the
-    reference with McNemar's p."""
+    reference with McNemar's p; then, where the report has the ``chance`` condition, the
+    chance level beside them (each policy's success with the image-blind pose)."""
     pose = pose or report["results"][0]["pose"]
     seeds = report["seeds"]
     lines = [f"{pose}, {report['episodes']} paired episodes (seeds {seeds[0]}–{seeds[-1]})"]
@@ -647,6 +648,10 @@ def headline(report: dict[str, Any], pose: str | None = None) -> str:
         if r.get("vs_reference"):
             text += f"; {_diff_text(r['vs_reference'])} vs {r['vs_reference']['b']}"
         lines.append(text)
+    chance = [r for r in report["results"] if r["pose"] == "chance"]
+    if chance and pose != "chance":
+        levels = ", ".join(f"{r['label']} {_pct_ci(r['success_rate'], r['ci95'])}" for r in chance)
+        lines.append(f"chance level (image-blind pose): {levels}")
     return "\n".join(lines)
 
 
