@@ -173,3 +173,16 @@ def test_the_figure_and_headline_put_the_chance_level_beside_the_estimator(tmp_p
     )
     assert len(cmp.headline(report, pose="chance").splitlines()) == 3  # not beside itself
     assert cmp.plot_comparison(report, tmp_path / "f.png") == ["arms", "objects"]
+
+
+def test_the_readme_tables_do_not_call_the_chance_level_the_estimator():
+    import runpy
+    from pathlib import Path
+
+    tables = runpy.run_path(
+        str(Path(__file__).resolve().parents[1] / "benchmarks" / "tables.py"), run_name="tables"
+    )
+    manifold, chance = (c.record() for c in cmp.pose_conditions(["manifold", "chance"]))
+    assert "pose-manifold estimator" in tables["_condition_words"](manifold)
+    words = tables["_condition_words"](chance)
+    assert "chance level" in words and "pose-manifold estimator" not in words
