@@ -9,12 +9,14 @@ issue's two: heading σ 20° alone (``0:20``) and position σ 2 cm alone (``0.02
 the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.json``.
 ``--poses oracle,manifold`` adds the pose-manifold estimator with no privileged input
 (background-subtraction masks, recognised identity: the main arm of ``closed_loop.py``; the
-default top-camera models, or ``--pose-model``); ``--noise ""`` runs no noise level.
+default top-camera models, or ``--pose-model``); ``chance`` adds its image-blind chance level
+(the same source, masks and recognition with the estimator swapped for a constant rotation
+fitted on the default models' views); ``--noise ""`` runs no noise level.
 Writes ``benchmarks/results/compare.json`` (the report documented in
 :mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``.
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned] [--episodes 200] \
-        [--poses oracle,manifold] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
+        [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--noise", default="0:20,0.02:0", help="noise levels: S or S:Y")
     parser.add_argument(
-        "--poses", default="oracle", help="oracle and/or manifold (besides --noise)"
+        "--poses", default="oracle", help="oracle, manifold and/or chance (besides --noise)"
     )
     parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))

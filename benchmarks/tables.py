@@ -198,6 +198,11 @@ def _condition_words(cond: dict) -> str:
     """``with the true pose`` / ``with heading noise σ 20°`` / ... for a compare condition."""
     if cond["source"] == "oracle":
         return "with the true pose"
+    if cond.get("estimator") == "chance":  # the manifold source, but not its estimator
+        return (
+            "at the chance level (the same masks and recognised identity, an image-blind "
+            "constant rotation for the pose)"
+        )
     if cond["source"] == "manifold" and cond.get("identity") == "recognize":
         return (
             "with the pose-manifold estimator and no privileged input (background masks, "

@@ -355,6 +355,7 @@ def _settled_tilts(config) -> dict:
 def arm_models(label: str, objects, jobs: int, progress: bool = True) -> str | None:
     """The model file the ``manifold`` source runs for arm ``label`` (trained or fitted once
     here, not per worker); ``None`` for the oracle."""
+    from scorbot_gym.perception.baseline_models import baseline_models
     from scorbot_gym.perception.training import (
         IN_LOOP_TRAINING,
         RESTING_TRAINING,
@@ -371,66 +372,6 @@ def arm_models(label: str, objects, jobs: int, progress: bool = True) -> str | N
     training = RESTING_TRAINING if label == "resting" else IN_LOOP_TRAINING
     default_pose_models(objects=objects, jobs=jobs, progress=progress, training=training)
     return str(default_models_path(objects=objects, training=training))
-
-
-def _fit_baseline(spec: str, training, name: str) -> dict:
-    """One object's ``spec`` estimator fitted on ``training``'s views (a worker's job): the
-    rendered views the default models are trained on, read from the same cache."""
-    import numpy as np
-
-    from pose.composition import fit_estimator
-    from pose.registry import make_from_spec
-    from scorbot_gym.data.views import render_views
-    from scorbot_gym.objects import get_object
-
-    obj = get_object(name)
-    samples = training.samples(len(obj.resting_quats), 0)
-    depth = bool(getattr(training.make_estimator(0).refiner, "needs_depth", False))
-    views = render_views(name, samples, "top", 320, 240, 0.0, 0, None, False, depth)
-    est = make_from_spec(spec)
-    poses = np.array([v.camera_from_object for v in views])
-    fit_estimator(est, [v.view for v in views], poses, obj.symmetry)
-    return {"object": name, "class": type(est).__name__, "arrays": est.to_arrays()}
-
-
-def baseline_models(spec: str, training, objects, jobs: int = 1, progress: bool = True):
-    """A model set of the ``spec`` estimator (a :mod:`pose.registry` baseline, e.g.
-    ``chance``) on the top camera at 320x240, fitted on the views of ``training``; cached
-    beside the default models under their content key (scene, code, training) and the spec."""
-    import re
-
-    from pose.composition import load_part
-    from pose.model_set import PoseModelSet
-    from scorbot_gym.perception.training import _objects, default_models_path
-
-    names = _objects(objects)
-    base = default_models_path(objects=names, training=training)
-    path = base.with_name(f"{base.stem}-{re.sub(r'[^A-Za-z0-9]+', '_', spec).strip('_')}.npz")
-    if path.is_file():
-        try:
-            PoseModelSet.load(path)
-            return path
-        except (ValueError, OSError) as exc:  # unreadable: discarded and rebuilt
-            print(f"discarding unreadable cached models {path}: {exc}", flush=True)
-            path.unlink(missing_ok=True)
-    if progress:
-        print(f"fitting {spec!r} on the views of {training} ({len(names)} objects)", flush=True)
-    if jobs > 1:
-        from scorbot_gym.experiments.workers import worker_pool
-
-        with worker_pool(min(jobs, len(names))) as pool:
-            futures = [pool.submit(_fit_baseline, spec, training, n) for n in names]
-            fitted = [f.result() for f in futures]
-    else:
-        fitted = [_fit_baseline(spec, training, n) for n in names]
-    models = PoseModelSet(
-        {f["object"]: load_part(f["class"], f["arrays"], "", None) for f in fitted},
-        meta={"camera": "top", "width": 320, "height": 240, "seed": 0, "estimator": spec,
-              "views_of": training.to_dict()},
-    )  # fmt: skip
-    path.parent.mkdir(parents=True, exist_ok=True)
-    models.save(path)
-    return path
 
 
 def _totals(arms: list[dict], labels) -> dict:

@@ -23,7 +23,14 @@ pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without
 models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses) with
 **no privileged input**, as the main arm of ``benchmarks/closed_loop.py``: masks from background
 subtraction (:data:`MANIFOLD_SEGMENTER`) and the object's identity recognised
-(:data:`MANIFOLD_RECOGNIZER`, fused over :data:`MANIFOLD_CAMERAS`), never given.
+(:data:`MANIFOLD_RECOGNIZER`, fused over :data:`MANIFOLD_CAMERAS`), never given; ``chance``
+(the image-blind chance level beside it, the project's rule for every estimator figure):
+exactly ``manifold`` with the default models - same cameras, masks and recognition (the default
+models recognise; the pose estimates their appearance check makes are dropped) - but the
+estimator swapped for :class:`pose.baselines.ChanceEstimator` (one constant rotation, the
+training views' medoid, placed at the silhouette), fitted on the views the default models are
+trained on (:func:`scorbot_gym.perception.baseline_models.baseline_models`, cached beside
+them). It is always beside the *default* models: ``pose_model`` changes ``manifold`` only.
 
 **The report** (what :func:`compare` returns and ``--json`` writes):
 
@@ -32,9 +39,11 @@ subtraction (:data:`MANIFOLD_SEGMENTER`) and the object's identity recognised
   against: ``scripted`` when it is an arm, else the first), ``difference_method``,
   ``noise_heading_deg_per_m``, ``min_per_object_episodes`` (the figure's threshold for
   per-object bars), ``wall_s`` (of the whole comparison);
-- ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg, identity, segmenter}]`` in
-  run order (``identity``: ``given`` to the pose source, or ``recognize``d by it; ``segmenter``:
-  where the estimator's masks come from, ``null`` for the oracle sources);
+- ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg, identity, segmenter,
+  estimator}]`` in run order (``identity``: ``given`` to the pose source, or ``recognize``d by
+  it; ``segmenter``: where the estimator's masks come from, ``null`` for the oracle sources;
+  ``estimator``: what answers the pose from the image, ``manifold`` (the trained models) or
+  ``chance`` (the image-blind constant rotation), ``null`` for the oracle sources);
 - ``arms``: ``{policy: {label, training}}`` where ``training`` is :func:`training_record`:
   ``trained_from`` (``scripted``: the hand-written controller itself; ``residual``: a learned
   correction on top of it; ``demonstrations``: imitation of scripted demonstrations, perhaps
@@ -55,7 +64,8 @@ subtraction (:data:`MANIFOLD_SEGMENTER`) and the object's identity recognised
 - ``differences``: per pose condition and non-reference policy ``{pose, a, b, diff, ci95,
   only_a, only_b, mcnemar_p}`` (``a - b``, ``b`` the reference);
 - ``noise_curves``: ``{policy: [{pose, noise_pos_m, noise_yaw_deg, episodes, success_rate,
-  ci95}]}`` over the oracle (noise 0) and every ``noisy`` condition, by increasing noise.
+  ci95}]}`` over the oracle (noise 0) and every ``noisy`` condition, by increasing noise (the
+  estimator conditions, ``manifold`` and ``chance``, are no noise level: not on the curves).
 """
 
 from __future__ import annotations
@@ -87,6 +97,10 @@ REFERENCE = "scripted"
 MANIFOLD_SEGMENTER = "background"  # masks by background subtraction, not the renderer's
 MANIFOLD_RECOGNIZER = "flr+appearance"  # identity recognised, not given
 MANIFOLD_CAMERAS = ("top", "side")  # pose from the first; recognition fused over both
+#: the pose-condition names (besides one ``noisy@S[:Y]`` per noise level)
+POSE_CONDITIONS = ("oracle", "noisy", "manifold", "chance")
+#: the pose estimators of the estimator conditions (``manifold``: the trained models)
+ESTIMATOR_CONDITIONS = ("manifold", "chance")
 
 
 # ---- pose conditions ----------------------------------------------------------------------
@@ -100,6 +114,7 @@ class PoseCondition:
     noise_m: float | None  # position noise (0 for the oracle; None when not a noise level)
     noise_yaw_deg: float | None = None  # heading noise (0 for the oracle)
     identity: str = "given"  # or "recognize": the pose source is not told the object
+    estimator: str | None = None  # what answers the pose from the image (None: an oracle)
 
     def record(self) -> dict[str, Any]:
         """The condition as the report's ``conditions`` lists it."""
@@ -110,6 +125,7 @@ class PoseCondition:
             "noise_yaw_deg": self.noise_yaw_deg,
             "identity": self.identity,
             "segmenter": self.kwargs.get("segmenter"),
+            "estimator": self.estimator,
         }
 
 
@@ -151,26 +167,28 @@ def pose_conditions(
     noise: Sequence[float | str | tuple[float, float]] = (),
     pose_model: str | Path | None = None,
 ) -> list[PoseCondition]:
-    """``oracle`` / ``noisy`` / ``manifold`` names, plus one ``noisy@S[:Y]`` per noise level.
+    """:data:`POSE_CONDITIONS` names, plus one ``noisy@S[:Y]`` per noise level.
 
-    ``manifold`` without ``pose_model`` gets its models (the defaults) from :func:`compare`."""
+    ``manifold`` without ``pose_model``, and ``chance`` always, get their models (the defaults,
+    and the chance set fitted on their views) from :func:`with_models`, which :func:`compare`
+    calls once for every arm."""
     out: list[PoseCondition] = []
     for p in poses:
         if p == "oracle":
             out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
-        elif p == "manifold":
+        elif p in ESTIMATOR_CONDITIONS:  # the same source; chance swaps the estimator only
             kw: dict[str, Any] = {
                 "segmenter": MANIFOLD_SEGMENTER,
                 "recognizer": MANIFOLD_RECOGNIZER,
                 "cameras": list(MANIFOLD_CAMERAS),
             }
-            if pose_model is not None:
+            if p == "manifold" and pose_model is not None:
                 kw["models"] = str(pose_model)
-            out.append(PoseCondition("manifold", "manifold", kw, None, identity="recognize"))
+            out.append(PoseCondition(p, "manifold", kw, None, identity="recognize", estimator=p))
         elif p == "noisy":
             noise = list(noise) or [0.01]
         else:
-            raise ValueError(f"unknown pose condition {p!r}; valid: oracle, noisy, manifold")
+            raise ValueError(f"unknown pose condition {p!r}; valid: {', '.join(POSE_CONDITIONS)}")
     for level in noise:
         pos, yaw = noise_level(level)
         kw = {"pos_sigma_m": pos, "yaw_sigma_deg": yaw}
@@ -456,6 +474,63 @@ def noise_curves(results: list[dict]) -> dict[str, list[dict[str, Any]]]:
     return curves
 
 
+def with_models(
+    conds: Sequence[PoseCondition], progress: bool = True, jobs: int = 1
+) -> list[PoseCondition]:
+    """The conditions with the models their pose source runs, trained or fitted (or read from
+    the cache) here, once, not in every worker: a ``manifold`` condition without a model file
+    gets the default models (:func:`~scorbot_gym.perception.training.default_pose_models`);
+    ``chance`` gets the ``chance`` set fitted on the same objects and views
+    (:func:`~scorbot_gym.perception.baseline_models.baseline_models`, ``jobs`` objects at a
+    time) and the default models' recognition without the pose estimates it makes
+    (:class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`): only the estimator
+    differs."""
+    if not any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
+        return list(conds)
+    from scorbot_gym.perception.training import IN_LOOP_TRAINING, default_pose_models
+
+    models = default_pose_models(progress=progress, training=IN_LOOP_TRAINING)
+    out = []
+    for c in conds:
+        if c.source != "manifold" or "models" in c.kwargs:
+            out.append(c)
+        elif c.estimator == "chance":
+            out.append(replace(c, kwargs={**c.kwargs, **_chance_kwargs(c, models, progress, jobs)}))
+        else:
+            out.append(replace(c, kwargs={**c.kwargs, "models": models}))
+    return out
+
+
+def _chance_kwargs(cond: PoseCondition, models: Any, progress: bool, jobs: int) -> dict:
+    """The ``chance`` condition's models (fitted on ``models``'s objects and training views)
+    and recogniser (``models``'s, built here once, identity only; with a single object there
+    is nothing to recognise and the source asks no recogniser)."""
+    from pose.model_set import PoseModelSet
+    from scorbot_gym.perception.baseline_models import baseline_models
+    from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+    from scorbot_gym.perception.training import TrainingSet
+
+    meta = models.meta
+    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
+    path = baseline_models(
+        "chance",
+        TrainingSet(**meta["training"]),
+        models.object_names,
+        jobs,
+        progress,
+        camera=camera,
+        width=width,
+        height=height,
+        seed=int(meta["seed"]),
+    )
+    kw: dict[str, Any] = {"models": PoseModelSet.load(path)}
+    if len(models.object_names) > 1:
+        cameras = [camera, *(c for c in cond.kwargs["cameras"] if c != camera)]
+        recognizer = make_recognizer(cond.kwargs["recognizer"], models, cameras, width, height)
+        kw["recognizer"] = IdentityOnlyRecognizer(recognizer)
+    return kw
+
+
 def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
     """Run :func:`_run_arm` over ``tasks``, under ``jobs > 1`` in spawned processes, each task
     cut into chunks of its seeds (:func:`~scorbot_gym.evaluation.chunks.run_chunked`; one
@@ -496,16 +571,7 @@ def compare(
         raise ValueError(f"a policy is given twice: {', '.join(policies)}")
     conds = pose_conditions(poses, noise, pose_model)
     arms = {p: resolve_arm(p) for p in policies}  # bad names fail here, before any episode
-    if any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
-        from scorbot_gym.perception.training import default_pose_models
-
-        models = default_pose_models(progress=progress)  # once, for every arm
-        conds = [
-            replace(c, kwargs={**c.kwargs, "models": models})
-            if c.source == "manifold" and "models" not in c.kwargs
-            else c
-            for c in conds
-        ]
+    conds = with_models(conds, progress=progress, jobs=jobs)  # once, for every arm
     reference = REFERENCE if REFERENCE in policies else policies[0]
     start = time.perf_counter()
     tasks = [
@@ -570,7 +636,8 @@ def _diff_text(d: dict[str, Any]) -> str:
 def headline(report: dict[str, Any], pose: str | None = None) -> str:
     """The headline numbers under the first (or the given) pose condition, one line per
     policy: success with its interval and, for the others, the paired difference to the
-    reference with McNemar's p."""
+    reference with McNemar's p; then, where the report has the ``chance`` condition, the
+    chance level beside them (each policy's success with the image-blind pose)."""
     pose = pose or report["results"][0]["pose"]
     seeds = report["seeds"]
     lines = [f"{pose}, {report['episodes']} paired episodes (seeds {seeds[0]}–{seeds[-1]})"]
@@ -581,6 +648,10 @@ def headline(report: dict[str, Any], pose: str | None = None) -> str:
         if r.get("vs_reference"):
             text += f"; {_diff_text(r['vs_reference'])} vs {r['vs_reference']['b']}"
         lines.append(text)
+    chance = [r for r in report["results"] if r["pose"] == "chance"]
+    if chance and pose != "chance":
+        levels = ", ".join(f"{r['label']} {_pct_ci(r['success_rate'], r['ci95'])}" for r in chance)
+        lines.append(f"chance level (image-blind pose): {levels}")
     return "\n".join(lines)
 
 

@@ -11,13 +11,19 @@ object's pose model how many inliers it explains (:class:`pose.recognition.Appea
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
 from pose.model_set import PoseModelSet
-from pose.recognition import AppearanceRecognizer, ShortlistRecognizer, SilhouetteRecognizer
+from pose.recognition import (
+    AppearanceRecognizer,
+    Recognition,
+    ShortlistRecognizer,
+    SilhouetteRecognizer,
+)
 from pose.shape.descriptors import block_weights
 from pose.shape.flr import FLRClassifier
 from scorbot_gym.names import RECOGNIZERS
@@ -81,3 +87,27 @@ def make_recognizer(
         flr = train_silhouette_recognizer(models.object_names, cameras, width, height, seed=seed)
         return ShortlistRecognizer(flr, AppearanceRecognizer(models.estimators), SHORTLIST_LENGTH)
     raise ValueError(f"unknown recognizer {recognizer!r}; valid: {', '.join(RECOGNIZERS)}")
+
+
+class IdentityOnlyRecognizer:
+    """A recogniser's answer without the pose estimates it made on the way.
+
+    An appearance recogniser returns the winning class's pose estimate, which the pose source
+    then uses instead of estimating again. Where the estimator is swapped for a baseline (the
+    image-blind ``chance`` arm of :mod:`scorbot_gym.evaluation.compare`) but recognition must
+    stay the same, that estimate would smuggle the trained models' pose into the baseline's
+    answer: this wrapper keeps the label, costs and margin and drops the estimates.
+    """
+
+    def __init__(self, recognizer: Any) -> None:
+        if not callable(getattr(recognizer, "recognize", None)):
+            raise TypeError(f"{recognizer!r} has no recognize() method")
+        self.recognizer = recognizer
+
+    @property
+    def reads(self) -> str:
+        return getattr(self.recognizer, "reads", "view")
+
+    def recognize(self, *args: Any, **kwargs: Any) -> Recognition:
+        result = self.recognizer.recognize(*args, **kwargs)
+        return dataclasses.replace(result, estimates={})
