@@ -100,8 +100,15 @@ def test_a_crowded_figure_draws_two_curves_thick_the_rest_thin_and_marks_baselin
     fig = success_figure(rows, chance, "clutter")
     try:
         ax = fig.axes[0]
-        width = {line.get_label().removesuffix(" [best of its side]"): line.get_linewidth()
-                 for line in ax.get_lines()}  # fmt: skip
+        label_of = {line.get_label(): line for line in ax.get_lines()}
+        assert legend_label(SELECT) + " [best built on the manifold]" in label_of
+        assert "sift-pnp(upscale=2) [best baseline]" in label_of
+        tags = (" [best built on the manifold]", " [best baseline]")
+        width = {}
+        for text, line in label_of.items():
+            for tag in tags:
+                text = text.removesuffix(tag)
+            width[text] = line.get_linewidth()
         thick = {label for label in labels if width[legend_label(label)] >= 2}
         assert thick == {SELECT, "sift-pnp(upscale=2)"}
         assert all(width[legend_label(label)] < 1 for label in labels - thick)
@@ -180,8 +187,9 @@ def test_a_reduced_clutter_sweep_counts_scenes_and_each_estimators_cost(tmp_path
     run = run_sweep(spec, LocalRunner(1), str(tmp_path))
     assert sum(len(t["views"]["rot_err_deg"]) for t in run["trials"]) == 2 * 4  # 4 scenes each
     stats = run["stats"]
-    assert stats["views_jobs"] == 1 and stats["views_s"] > 0
+    assert stats["views_jobs"] == 1 and stats["views_s"] > 0 and stats["views_cpu_s"] > 0
     assert set(stats["by_estimator"]) == {"chance", "pca-nn"}
-    assert all(c["jobs"] == 1 and c["job_s"] > 0 for c in stats["by_estimator"].values())
+    for cost in stats["by_estimator"].values():
+        assert cost["jobs"] == 1 and cost["job_s"] > 0 and cost["job_cpu_s"] > 0
     again = run_sweep(spec, LocalRunner(1), str(tmp_path))["stats"]
     assert again["views_jobs"] == 0 and again["trials_cached"] == 2 * len(CLUTTER_BINS)

@@ -82,7 +82,9 @@ def success_figure(results: Sequence[dict], chance: dict, title: str = ""):
     labels = list(dict.fromkeys(r["estimator"] for r in results))
     many = len(labels) > 4  # legend beside the axes, colours from a 20-colour cycle
     crowded = len(labels) > MANY_CURVES
-    lead = [h for h in highlighted(results) if h is not None] if crowded else labels
+    best_ours, best_theirs = highlighted(results) if crowded else (None, None)
+    tag = {best_ours: " [best built on the manifold]", best_theirs: " [best baseline]"}
+    lead = [h for h in (best_ours, best_theirs) if h is not None] if crowded else labels
     fig, ax = plt.subplots(figsize=(12 if crowded else 10.5 if many else 7, 4.8), dpi=120)
     colours = plt.get_cmap("tab20" if many else "tab10").colors
     if many:  # tab20 pairs a dark and a light shade of each hue: all ten hues first
@@ -100,7 +102,7 @@ def success_figure(results: Sequence[dict], chance: dict, title: str = ""):
         hi = [100 * r["success_5deg_ci95"][1] for r in rows]
         colour = colours[k % len(colours)]
         strong = label in lead
-        text = legend_label(label) + (" [best of its side]" if crowded and strong else "")
+        text = legend_label(label) + tag.get(label, "")
         (line,) = ax.plot(
             x, y, marker="o", ms=3.5 if strong else 2, lw=2.2 if crowded and strong else
             1.5 if strong else 0.9, alpha=1.0 if strong else 0.6, label=text, color=colour,
@@ -134,11 +136,16 @@ def success_figure(results: Sequence[dict], chance: dict, title: str = ""):
                 label="a baseline (or the image-blind answer) beats every manifold estimator",
             )  # fmt: skip
     counts = {r["occlusion"]: r["n"] for r in results}
-    if len(set(counts.values())) > 1:  # binned levels: say how many views each one holds
-        for occ, n in sorted(counts.items()):
-            ax.annotate(f"n={n}", (100 * occ, 0), xytext=(0, -24), textcoords="offset points",
-                        ha="center", fontsize=6, color="0.35", annotation_clip=False)  # fmt: skip
-    ax.set_xlabel("occlusion (% of the object's mask hidden)", labelpad=12 if counts else 4)
+    binned = len(set(counts.values())) > 1
+    if binned:  # binned levels: say how many views each one holds (an empty one too)
+        levels = sorted(counts)
+        ax.set_xticks([100 * o for o in levels])
+        ax.set_xlim(100 * levels[0] - 3, 100 * levels[-1] + 3)
+        for occ in levels:
+            ax.annotate(f"n={counts[occ]}", (100 * occ, 0), xycoords=ax.get_xaxis_transform(),
+                        xytext=(0, -22), textcoords="offset points", ha="center", va="top",
+                        fontsize=6, color="0.35", annotation_clip=False)  # fmt: skip
+    ax.set_xlabel("occlusion (% of the object's mask hidden)", labelpad=14 if binned else 4)
     ax.set_ylabel("success @ 5° (%)")
     ax.set_ylim(-2, 102)
     ax.grid(alpha=0.3)

@@ -132,8 +132,9 @@ def run_sweep(
     Each object's views are rendered first, one job per object on the runner
     (:func:`~scorbot_gym.experiments.trial.views_jobs`): otherwise every worker that reaches an
     object before its views are cached renders them again. ``stats`` holds the whole run's
-    ``wall_s`` (that phase's ``views_wall_s`` included) and, per estimator, the summed
-    ``job_s`` and ``fit_s`` of its jobs (``by_estimator``: what a larger run would cost).
+    ``wall_s`` (that phase's ``views_wall_s`` included) and, per estimator, the summed wall
+    ``job_s``, CPU ``job_cpu_s`` and ``fit_s`` of its jobs (``by_estimator``: what a larger run
+    would cost; on a shared machine the CPU seconds are the figure to plan with).
 
     Aggregate with :func:`scorbot_gym.experiments.aggregate.aggregate`.
     """
@@ -145,17 +146,18 @@ def run_sweep(
     views_wall = time.perf_counter() - t0
     results = runner.map(jobs, work)
     stats: dict = {"jobs": len(jobs), "wall_s": round(time.perf_counter() - t0, 2),
-                   "views_jobs": len(views), "views_wall_s": round(views_wall, 2),
-                   "views_s": round(sum(r["stats"]["views_s"] for r in prepared), 2)}  # fmt: skip
+                   "views_jobs": len(views), "views_wall_s": round(views_wall, 2)}  # fmt: skip
+    for key in ("views_s", "views_cpu_s"):
+        stats[key] = round(sum(r["stats"][key] for r in prepared), 2)
     by_estimator: dict[str, dict] = {}
     for job, r in zip(jobs, results, strict=True):
         for k, v in r["stats"].items():
             stats[k] = stats.get(k, 0) + v
-        cost = by_estimator.setdefault(job.estimator, {"jobs": 0, "job_s": 0.0, "fit_s": 0.0})
+        cost = by_estimator.setdefault(job.estimator, {"jobs": 0})
         cost["jobs"] += 1
-        cost["job_s"] += r["stats"].get("job_s", 0.0)
-        cost["fit_s"] += r["stats"].get("fit_s", 0.0)
-    for key in ("fit_s", "job_s"):
+        for key in ("job_s", "job_cpu_s", "fit_s"):
+            cost[key] = cost.get(key, 0.0) + r["stats"].get(key, 0.0)
+    for key in ("fit_s", "job_s", "job_cpu_s"):
         stats[key] = round(stats.get(key, 0.0), 2)
     stats["by_estimator"] = {
         est: {k: round(v, 2) for k, v in cost.items()} for est, cost in by_estimator.items()
