@@ -183,7 +183,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--test-views", type=int, default=None)
+    ap.add_argument("--test-views", type=int, default=None,
+                    help="first N held-out poses per object (clutter: N scenes, whose views "
+                         "fall into the bins; default: the protocol's all)")  # fmt: skip
     ap.add_argument("--train-stride", type=int, default=1)
     ap.add_argument("--perturb", default=None, help="e.g. lighting=0.3,noise_sigma=4")
     ap.add_argument(

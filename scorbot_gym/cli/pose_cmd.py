@@ -258,7 +258,8 @@ def _add_ablate_arguments(a: argparse.ArgumentParser) -> None:
     a.add_argument("--width", type=int, default=320)
     a.add_argument("--height", type=int, default=240)
     a.add_argument("--seed", type=int, default=0, help="training seed (tests use seed + 1)")
-    a.add_argument("--test-views", type=int, default=None, help="first N held-out views only")
+    a.add_argument("--test-views", type=int, default=None,
+                   help="first N held-out poses only (clutter: N scenes, binned)")  # fmt: skip
     a.add_argument("--train-stride", type=int, default=1, help="every Nth training view only")
     a.add_argument(
         "--perturb", default=None, metavar="K=V,...",

@@ -218,22 +218,30 @@ def held_out_views(
     cache_dir: str | os.PathLike | None = None,
     progress: bool = False,
     perturbation: Perturbation | None = None,
+    n_poses: int | None = None,
 ) -> list[LabelledView]:
     """The protocol's held-out test views of one object at one occlusion level.
 
     The poses do not depend on the occlusion level (the same poses at every level, so a curve
     over occlusion compares like with like); the occluders are drawn from ``seed``.
+    ``n_poses`` keeps the first ``n_poses`` test poses only (a reduced run; ``None``: all).
+    On a clutter protocol those are the scenes rendered (scene ``i`` is the same whatever
+    ``n_poses``), and a bin holds those of them whose measured occlusion falls into it; on the
+    others each pose is one view per level.
     """
+    if n_poses is not None and n_poses < 1:
+        raise ValueError(f"n_poses must be >= 1 or None, got {n_poses}")
     p = get_protocol(protocol) if isinstance(protocol, str) else protocol
     samples = p.test_samples(_n_resting(object_name), seed)
     if p.clutter_distractors is not None:
-        return _clutter_bin(p, object_name, samples, occlusion, width, height, seed, cache_dir,
-                            progress, depth, perturbation)  # fmt: skip
+        return _clutter_bin(p, object_name, samples[:n_poses], occlusion, width, height, seed,
+                            cache_dir, progress, depth, perturbation)  # fmt: skip
     occ_seed = seed + 1000 * round(100 * occlusion)
+    # every pose rendered, then the first n_poses kept: a reduced run reads the full run's cache
     return render_views(
         object_name, samples, p.test_camera, width, height, occlusion, occ_seed, cache_dir,
         progress, depth, perturbation,
-    )  # fmt: skip
+    )[:n_poses]  # fmt: skip
 
 
 def _clutter_bin(

@@ -16,17 +16,24 @@ from typing import Protocol
 
 from scorbot_gym.data import cache_folder
 from scorbot_gym.experiments.spec import SweepSpec
-from scorbot_gym.experiments.trial import ModelJob, run_model_job
+from scorbot_gym.experiments.trial import (
+    ModelJob,
+    ViewsJob,
+    render_job_views,
+    run_model_job,
+    views_jobs,
+)
 from scorbot_gym.experiments.workers import worker_pool
 
-Work = Callable[[ModelJob], dict]
+Job = ModelJob | ViewsJob  # any picklable value a top-level ``work`` function takes
+Work = Callable[[Job], dict]
 
 
 class Runner(Protocol):
-    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]: ...
+    def map(self, jobs: Sequence[Job], work: Work = run_model_job) -> list[dict]: ...
 
 
-def _apply(work: Work, job: ModelJob) -> dict:
+def _apply(work: Work, job: Job) -> dict:
     return work(job)
 
 
@@ -39,7 +46,7 @@ class LocalRunner:
             raise ValueError(f"jobs must be >= 1, got {jobs}")
         self.jobs, self.progress = jobs, progress
 
-    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]:
+    def map(self, jobs: Sequence[Job], work: Work = run_model_job) -> list[dict]:
         """``work(job)`` for every job (a picklable top-level function or partial)."""
         out: list[dict] = []
         if self.jobs == 1 or len(jobs) <= 1:
@@ -69,7 +76,7 @@ class RayRunner:
             raise ImportError("the Ray runner needs Ray: pip install 'scorbot-gym[ray]'") from exc
         self.address, self.num_cpus = address, num_cpus
 
-    def map(self, jobs: Sequence[ModelJob], work: Work = run_model_job) -> list[dict]:
+    def map(self, jobs: Sequence[Job], work: Work = run_model_job) -> list[dict]:
         import os
 
         import ray
@@ -122,17 +129,39 @@ def run_sweep(
     """Run (or resume) ``spec``; returns the per-trial records and the run's statistics.
     ``work`` runs one job (default: fit or load its model, run its trials, cached).
 
+    Each object's views are rendered first, one job per object on the runner
+    (:func:`~scorbot_gym.experiments.trial.views_jobs`): otherwise every worker that reaches an
+    object before its views are cached renders them again. ``stats`` holds the whole run's
+    ``wall_s`` (that phase's ``views_wall_s`` included) and, per estimator, the summed wall
+    ``job_s``, CPU ``job_cpu_s`` and ``fit_s`` of its jobs (``by_estimator``: what a larger run
+    would cost; on a shared machine the CPU seconds are the figure to plan with).
+
     Aggregate with :func:`scorbot_gym.experiments.aggregate.aggregate`.
     """
     runner = runner or LocalRunner()
     jobs = make_jobs(spec, cache_dir)
     t0 = time.perf_counter()
+    views = views_jobs(jobs)
+    prepared = runner.map(views, render_job_views) if views else []
+    views_wall = time.perf_counter() - t0
     results = runner.map(jobs, work)
-    stats: dict = {"jobs": len(jobs), "wall_s": round(time.perf_counter() - t0, 2)}
-    for r in results:
+    stats: dict = {"jobs": len(jobs), "wall_s": round(time.perf_counter() - t0, 2),
+                   "views_jobs": len(views), "views_wall_s": round(views_wall, 2)}  # fmt: skip
+    for key in ("views_s", "views_cpu_s"):
+        stats[key] = round(sum(r["stats"][key] for r in prepared), 2)
+    by_estimator: dict[str, dict] = {}
+    for job, r in zip(jobs, results, strict=True):
         for k, v in r["stats"].items():
             stats[k] = stats.get(k, 0) + v
-    stats["fit_s"] = round(stats.get("fit_s", 0.0), 2)
+        cost = by_estimator.setdefault(job.estimator, {"jobs": 0})
+        cost["jobs"] += 1
+        for key in ("job_s", "job_cpu_s", "fit_s"):
+            cost[key] = cost.get(key, 0.0) + r["stats"].get(key, 0.0)
+    for key in ("fit_s", "job_s", "job_cpu_s"):
+        stats[key] = round(stats.get(key, 0.0), 2)
+    stats["by_estimator"] = {
+        est: {k: round(v, 2) for k, v in cost.items()} for est, cost in by_estimator.items()
+    }
     stats["runner"] = type(runner).__name__
     trials = [t for r in results for t in r["trials"]]
     return {"spec": spec.to_dict(), "trials": trials, "stats": stats}

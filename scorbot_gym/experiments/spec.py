@@ -83,8 +83,9 @@ def parse_occlusions(text: str) -> tuple[float, ...]:
 @dataclass(frozen=True)
 class SweepSpec:
     """One sweep. ``test_views`` / ``train_stride`` shrink a protocol for quick runs (the first
-    ``test_views`` held-out poses, every ``train_stride``-th training view); both are written
-    into the results so a reduced figure is never mistaken for the full protocol."""
+    ``test_views`` held-out poses — on ``clutter`` the first scenes, whose views the bins then
+    share —, every ``train_stride``-th training view); both are written into the results so a
+    reduced figure is never mistaken for the full protocol."""
 
     protocol: str
     estimators: tuple[str, ...]

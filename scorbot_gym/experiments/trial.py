@@ -90,6 +90,8 @@ def trial_key(job: ModelJob, occlusion: float) -> str:
         from scorbot_gym.data.clutter_views import code_fingerprint as clutter_code
 
         payload["clutter_code"] = clutter_code()
+        if job.test_views is not None:  # it counts scenes now; it once cut each bin's views
+            payload["test_views_are"] = "scenes"
     return _key(payload)
 
 
@@ -111,18 +113,72 @@ def read_trial(path: Path) -> dict | None:
         return None
 
 
+def model_path(job: ModelJob) -> Path:
+    """Where the job's fitted model is cached (estimators that can save and load)."""
+    return Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
+
+
+def job_train_views(job: ModelJob) -> list:
+    """The job's training views: the protocol's, every ``train_stride``-th, with depth
+    (estimators that lift keypoints to 3-D, PnP, train on it; test views are RGB)."""
+    from scorbot_gym.data.protocols import train_views
+
+    by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True,
+                         width=job.width, height=job.height, cache_dir=job.cache_dir)  # fmt: skip
+    return [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
+
+
+@dataclass(frozen=True)
+class ViewsJob:
+    """Render (or find cached) one object's views before the model jobs that need them:
+    ``job`` names the object and the sweep's settings; ``train`` says whether some model of it
+    is still to be fitted, ``occlusions`` the levels some trial of it still lacks."""
+
+    job: ModelJob
+    train: bool
+    occlusions: tuple[float, ...]
+
+
+def render_job_views(views: ViewsJob) -> dict:
+    """Bring a :class:`ViewsJob`'s views into the view cache (the same calls the model jobs
+    make, so they find them there); returns ``{"stats": {"views_s", "views_cpu_s"}}`` (wall
+    and this process's CPU seconds)."""
+    t0, c0 = time.perf_counter(), time.process_time()
+    if views.train:
+        job_train_views(views.job)
+    for occ in views.occlusions:
+        trial_views(views.job, occ)
+    return {"stats": {"views_s": time.perf_counter() - t0,
+                      "views_cpu_s": time.process_time() - c0}}  # fmt: skip
+
+
+def views_jobs(jobs: list[ModelJob]) -> list[ViewsJob]:
+    """One :class:`ViewsJob` per object that some of ``jobs`` still has work for: run before
+    them, so that each object's views are rendered once, not by every worker that reaches the
+    object before they are cached. Nothing for a sweep whose trials are all cached."""
+    out: dict[str, ViewsJob] = {}
+    for job in jobs:
+        todo = tuple(o for o in job.occlusions if not trial_path(job, o).is_file())
+        if not todo:
+            continue
+        prev = out.get(job.object_name)
+        train = not model_path(job).is_file() or (prev is not None and prev.train)
+        levels = tuple(sorted(set(todo) | set(prev.occlusions if prev else ())))
+        out[job.object_name] = ViewsJob(prev.job if prev else job, train, levels)
+    return list(out.values())
+
+
 def fitted_model(job: ModelJob, stats: dict | None = None):
     """The job's fitted estimator, from the model cache when the estimator can save and load,
     else fitted on the protocol's training views (rendered or read only then) and cached.
     The object's symmetry goes to estimators whose ``fit`` takes it (a validation selection).
     ``ValueError`` where the estimator refuses the views; ``stats`` counts fits and cache hits."""
     from pose.composition import fit_estimator
-    from scorbot_gym.data.protocols import train_views
     from scorbot_gym.experiments.spec import EstimatorSpec
     from scorbot_gym.objects import get_object
 
     stats = {"fits": 0, "fit_s": 0.0, "model_cache_hits": 0} if stats is None else stats
-    path = Path(job.cache_dir) / "experiments" / "models" / f"{model_key(job)}.npz"
+    path = model_path(job)
     est = EstimatorSpec.parse(job.estimator).make()
     can_save = callable(getattr(est, "save", None)) and callable(getattr(type(est), "load", None))
     if can_save and path.is_file():
@@ -132,10 +188,7 @@ def fitted_model(job: ModelJob, stats: dict | None = None):
             return loaded
         except (OSError, ValueError, KeyError, TypeError):
             path.unlink(missing_ok=True)  # unreadable: refitted and rewritten below
-    # with depth: estimators that lift keypoints to 3-D (PnP) train on it; tests are RGB
-    by_cam = train_views(job.protocol, job.object_name, seed=job.seed, depth=True,
-                         width=job.width, height=job.height, cache_dir=job.cache_dir)  # fmt: skip
-    train = [lv for cam in by_cam.values() for lv in cam[:: job.train_stride]]
+    train = job_train_views(job)
     views = [lv.view for lv in train]
     poses = np.stack([lv.camera_from_object for lv in train])
     t0 = time.perf_counter()
@@ -236,16 +289,16 @@ def _jsonable(v):
 
 
 def trial_views(job: ModelJob, occlusion: float) -> list:
-    """The job's held-out views at one occlusion level (seeded apart from training: seed + 1)."""
+    """The job's held-out views at one occlusion level (seeded apart from training: seed + 1),
+    of its first ``test_views`` test poses (on a clutter protocol: scenes)."""
     from scorbot_gym.data.perturbations import Perturbation
     from scorbot_gym.data.protocols import held_out_views
 
-    views = held_out_views(
+    return held_out_views(
         job.protocol, job.object_name, occlusion, seed=job.seed + 1, width=job.width,
         height=job.height, cache_dir=job.cache_dir,
-        perturbation=Perturbation(**dict(job.perturbation)),
+        perturbation=Perturbation(**dict(job.perturbation)), n_poses=job.test_views,
     )  # fmt: skip
-    return views[: job.test_views]
 
 
 def trial_record(job: ModelJob, occlusion: float, est, views, estimator: str | None = None) -> dict:
@@ -279,6 +332,7 @@ def run_model_job(job: ModelJob) -> dict:
     import cv2
 
     cv2.setNumThreads(1)  # one worker per core: no nested thread pools
+    t0, c0 = time.perf_counter(), time.process_time()
     stats = {"fits": 0, "fit_s": 0.0, "fit_errors": 0, "model_cache_hits": 0, "trials_cached": 0,
              "trials_run": 0}  # fmt: skip
     trials, todo = [], []
@@ -297,6 +351,8 @@ def run_model_job(job: ModelJob) -> dict:
             stats["trials_run"] += 1
             trials.append(rec)
     trials.sort(key=lambda r: r["occlusion"])
+    # wall and CPU seconds: on a shared machine only the CPU time says what the job costs
+    stats["job_s"], stats["job_cpu_s"] = time.perf_counter() - t0, time.process_time() - c0
     return {"trials": trials, "stats": stats, "job": asdict(job)}
 
 
