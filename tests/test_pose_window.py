@@ -71,24 +71,35 @@ def test_a_window_needs_the_observation_and_reset_empties_it():
         HistorySpec(pose_window=-1)
 
 
-def test_policies_with_and_without_a_window_save_and_load(tmp_path):
-    from scorbot_gym.policies.imitation import SHIPPED_FINETUNED_POLICY
-
-    old = ImitationPolicy.load(SHIPPED_FINETUNED_POLICY)  # written before pose_window existed
-    assert old.history_spec.pose_window == 0
-    spec = HistorySpec(pose_window=8)
-    n = n_features(len(old.classes), spec)
-    assert n == n_features(len(old.classes), HistorySpec()) + N_POSE_WINDOW_FEATURES
-    rng = np.random.default_rng(0)
+def _random_policy(meta: dict, n: int, seed: int = 0) -> ImitationPolicy:
     from scorbot_gym.policies.imitation import MLP
 
+    rng = np.random.default_rng(seed)
     net = MLP([rng.normal(size=(n, 4)), rng.normal(size=(4, 6))], [np.zeros(4), np.zeros(6)])
-    meta = {**old.meta, "history": {**old.meta["history"], **asdict(spec)}}
-    ImitationPolicy(net, np.zeros(n), np.ones(n), meta).save(tmp_path / "p")
+    return ImitationPolicy(net, np.zeros(n), np.ones(n), meta)
+
+
+def test_policies_with_and_without_a_window_save_and_load(tmp_path):
+    shipped = ImitationPolicy.load(SHIPPED_LEARNED_POLICY)
+    n_classes = len(shipped.classes)
+    # a policy.json as written before pose_window existed: no window, no dispersion key
+    before = {**shipped.meta, "history": {"previous_actions": 2, "gripper_commands": 20}}
+    _random_policy(before, n_features(n_classes, HistorySpec())).save(tmp_path / "old")
+    old = ImitationPolicy.load(tmp_path / "old")
+    assert old.history_spec == HistorySpec()
+    spec = HistorySpec(pose_window=8)
+    n = n_features(n_classes, spec)
+    assert n == n_features(n_classes, HistorySpec()) + N_POSE_WINDOW_FEATURES
+    meta = {**shipped.meta, "history": asdict(spec)}
+    _random_policy(meta, n).save(tmp_path / "p")
     loaded = ImitationPolicy.load(tmp_path / "p")
     assert loaded.history_spec == spec
     with pytest.raises(ValueError, match="incompatible policy"):  # window without its features
         ImitationPolicy(old.net, old.mean, old.std, meta)
+    # written when the window always had its dispersion values: loads with them
+    windowed = {**shipped.meta, "history": {**before["history"], "pose_window": 8}}
+    _random_policy(windowed, n + N_POSE_DISPERSION_FEATURES).save(tmp_path / "w")
+    assert ImitationPolicy.load(tmp_path / "w").history_spec.pose_dispersion
 
 
 def test_dispersion_is_optional_and_old_records_keep_it():

@@ -50,9 +50,8 @@ from scorbot_gym.policies.scripted import yaw_from_quat
 
 ALGO = "imitation"
 SHIPPED_LEARNED_POLICY = Path(__file__).parent / "data" / "imitation_dagger_estimates"
-#: the imitation policy trained on the oracle pose alone (this module's first shipped
-#: ``learned``, without a pose window) after RLPD-style SAC fine-tuning (scorbot_gym.rl.finetune;
-#: benchmarks/finetune.py); its ``policy.json`` records both stages
+#: the shipped ``learned`` policy after RLPD-style SAC fine-tuning with the oracle pose
+#: (scorbot_gym.rl.finetune; benchmarks/finetune.py); its ``policy.json`` records both stages
 SHIPPED_FINETUNED_POLICY = Path(__file__).parent / "data" / "imitation_rlpd_oracle"
 #: pose_age is scaled as log1p(age) / log1p(AGE_SCALE): 0 fresh, 1 never estimated
 AGE_SCALE = 1000.0
