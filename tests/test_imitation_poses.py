@@ -124,8 +124,9 @@ def test_manifold_condition_gives_the_estimator_no_privileged_input():
     oracle, noisy = cmp.pose_conditions(["oracle"], ["0:20"])
     assert (oracle.identity, noisy.identity) == ("given", "given")
     assert set(oracle.record()) == {
-        "label", "source", "noise_pos_m", "noise_yaw_deg", "identity", "segmenter"
+        "label", "source", "noise_pos_m", "noise_yaw_deg", "identity", "segmenter", "estimator"
     }  # fmt: skip
+    assert oracle.record()["estimator"] is None and cond.record()["estimator"] == "manifold"
     assert all(re.search(rf"\b{k}\b", cmp.__doc__) for k in oracle.record())
 
 
