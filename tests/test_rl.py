@@ -113,6 +113,30 @@ def test_same_seed_same_first_updates():
     assert not np.array_equal(a, c)
 
 
+def test_residual_actor_waits_for_a_trained_critic():
+    """The residual entry's burn-in: for critic_warmup updates only the critic learns, so the
+    correction stays zero (the scripted controller); then the actor moves."""
+    from scorbot_gym.rl.finetune import RLPDSAC
+
+    hp = {"learning_starts": 32, "batch_size": 32, "buffer_size": 2000, "net_arch": [32, 32]}
+    cfg = tiny_config(hyperparams={**hp, "critic_warmup": 40}, normalize=False)
+    venv = make_vec_env(cfg)
+    model = build_model(cfg, venv, None)
+    assert isinstance(model, RLPDSAC) and model.critic_warmup == 40
+    assert model.actor_learning_rate == 3e-6  # the shipped residual entry's
+
+    def flat(module):
+        return np.concatenate([p.detach().numpy().ravel() for p in module.parameters()])
+
+    actor0, critic0 = flat(model.actor), flat(model.critic)
+    model.learn(32 + 40)  # 40 updates, all in the warm-up
+    np.testing.assert_array_equal(flat(model.actor), actor0)
+    assert not np.array_equal(flat(model.critic), critic0)
+    model.learn(10, reset_num_timesteps=False)
+    assert not np.array_equal(flat(model.actor), actor0)
+    venv.close()
+
+
 def test_zero_residual_reproduces_the_scripted_controller():
     plain = make_env("ScorbotGraspCartesian-v0", objects=["box"])
     wrapped = ResidualActionWrapper(make_env("ScorbotGraspCartesian-v0", objects=["box"]))

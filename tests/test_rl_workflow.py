@@ -194,7 +194,7 @@ def test_same_seed_same_parameters_after_the_first_updates(tmp_path):
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
-        (["foo=1"], "unknown hyperparameter 'foo' for sac; valid: batch_size"),
+        (["foo=1"], "unknown hyperparameter 'foo' for sac; valid: actor_learning_rate, batch_size"),
         (["gamma=1.5"], "gamma must be a number in (0.0, 1.0]"),
         (["net_arch=[0]"], "net_arch must be a non-empty list"),
         (["ent_coef=auto_x"], "ent_coef must be"),

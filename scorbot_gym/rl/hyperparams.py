@@ -122,15 +122,20 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     "vf_coef": (("ppo",), _float(0.0), "value loss weight"),
     "max_grad_norm": (("ppo",), _float(0.0, low_open=True), "gradient clipping norm"),
     "target_entropy": (OFF_POLICY, _target_entropy, "entropy the auto ent_coef aims at"),
-    # fine-tuning (--init-policy) only, see scorbot_gym.rl.finetune
-    "demo_ratio": (("sac",), _float(0.0, 1.0), "share of each batch drawn from demonstrations"),
+    # SAC with a starting policy worth keeping (fine-tuning, residual), see
+    # scorbot_gym.rl.finetune.RLPDSAC
     "critic_warmup": (("sac",), _int(0), "first updates with actor and ent_coef frozen"),
-    "bc_coef": (("sac",), _float(0.0), "BC term on demo samples, times mean |Q|"),
     "actor_learning_rate": (("sac",), _float(0.0, low_open=True), "the actor's Adam step size"),
+    # fine-tuning (--init-policy) only: the demonstrations
+    "demo_ratio": (("sac",), _float(0.0, 1.0), "share of each batch drawn from demonstrations"),
+    "bc_coef": (("sac",), _float(0.0), "BC term on demo samples, times mean |Q|"),
 }
 
-#: keys that only the fine-tuning setting reads
-FINETUNE_KEYS = ("demo_ratio", "critic_warmup", "bc_coef", "actor_learning_rate")
+#: keys that only the fine-tuning setting reads (they weigh its demonstrations)
+FINETUNE_KEYS = ("demo_ratio", "bc_coef")
+#: keys that make an off-policy SAC run use :class:`scorbot_gym.rl.finetune.RLPDSAC`'s update
+#: (a critic warm-up before the actor moves, and an actor step size of its own)
+WARMUP_KEYS = ("critic_warmup", "actor_learning_rate")
 
 
 #: checks that differ by algorithm: PPO's entropy coefficient is a fixed number
@@ -240,6 +245,7 @@ __all__ = [
     "FINETUNE",
     "FINETUNE_KEYS",
     "KEYS",
+    "WARMUP_KEYS",
     "POSES",
     "SETTINGS",
     "check",

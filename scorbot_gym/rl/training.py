@@ -376,8 +376,7 @@ def _zero_init_actor(model, log_std_init: float) -> None:
 def build_model(config: TrainConfig, venv, tb_dir: Path | None):
     """The SB3 model of ``config`` (hyperparameters resolved, see :meth:`TrainConfig.schedule`
     for how they map onto SB3's per-vector-step arguments)."""
-    from sb3_contrib import TQC
-    from stable_baselines3 import PPO, SAC
+    from stable_baselines3 import PPO
 
     hp = hparams.resolve(config.algo, config.residual, config.hyperparams, config.finetune)
     sched = hparams.sb3_schedule(config.algo, hp, config.n_envs)
@@ -408,9 +407,9 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
     elif config.finetune:
         return _build_finetune_model(config, hp, sched, common)
     else:
-        cls = SAC if config.algo == "sac" else TQC
+        cls = _model_class(config, hp)
         keys = ("tau", "buffer_size", "batch_size", "learning_starts", "target_update_interval")
-        keys += ("target_entropy", "top_quantiles_to_drop_per_net")
+        keys += ("target_entropy", "top_quantiles_to_drop_per_net", *hparams.WARMUP_KEYS)
         extra = {k: hp[k] for k in keys if k in hp}
         model = cls(
             train_freq=sched["train_freq"],
@@ -861,8 +860,14 @@ def resume(
     return run.state
 
 
-def _model_class(config: TrainConfig):
-    if config.finetune:
+def _model_class(config: TrainConfig, hp: dict[str, Any] | None = None):
+    """The SB3 class of a run. RLPDSAC (SAC whose actor waits ``critic_warmup`` updates for a
+    trained critic, then moves with its own step size) where the starting policy is worth
+    keeping: a fine-tune's imitation policy, or a run whose entry sets the warm-up keys (the
+    residual's zero correction, i.e. the scripted controller)."""
+    if hp is None:
+        hp = hparams.resolve(config.algo, config.residual, config.hyperparams, config.finetune)
+    if config.finetune or (config.algo == "sac" and any(k in hp for k in hparams.WARMUP_KEYS)):
         from scorbot_gym.rl.finetune import RLPDSAC
 
         return RLPDSAC
