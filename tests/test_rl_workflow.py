@@ -349,3 +349,19 @@ def test_a_policy_without_its_normalisation_is_refused(one_run, tmp_path):
     (policy / "normalize.npz").write_bytes(b"garbage")
     with pytest.raises(ValueError, match="normalize.npz is damaged"):
         SB3Policy.load(policy)
+
+
+def test_train_sets_the_noisy_pose_sources_noise(capsys):
+    """``--pose noisy --pos-sigma-m --yaw-sigma-deg`` reach the run's config; elsewhere they are
+    a one-line error (they would be silently ignored)."""
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.train import config_from_args
+
+    argv = ["train", "--pose", "noisy", "--pos-sigma-m", "0.02", "--yaw-sigma-deg", "20"]
+    config = config_from_args(build_parser().parse_args(argv))
+    assert (config.noise_pos_m, config.noise_yaw_deg) == (0.02, 20.0)
+    config = config_from_args(build_parser().parse_args(["train", "--pose", "noisy"]))
+    assert (config.noise_pos_m, config.noise_yaw_deg) == (0.01, 5.0)  # TrainConfig's defaults
+    assert main(["train", "--yaw-sigma-deg", "20", "--show-hyperparams"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "apply only to --pose noisy" in err, err

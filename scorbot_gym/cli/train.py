@@ -7,7 +7,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int, seed_list
+from scorbot_gym.cli._args import (
+    add_name_list,
+    non_negative_float,
+    non_negative_int,
+    positive_int,
+    seed_list,
+)
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.rl import hyperparams as hparams
 
@@ -16,6 +22,8 @@ _NEW_RUN_OPTIONS = (
     "algo",
     "pose",
     "pose_model",
+    "pos_sigma_m",
+    "yaw_sigma_deg",
     "action_type",
     "objects",
     "seed",
@@ -91,6 +99,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="model file, with --pose manifold (default: the top camera's default models, "
         "trained on first use and cached)",
+    )
+    p.add_argument(
+        "--pos-sigma-m",
+        type=non_negative_float,
+        default=None,
+        help="--pose noisy: x-y position noise of every estimate, m (default 0.01)",
+    )
+    p.add_argument(
+        "--yaw-sigma-deg",
+        type=non_negative_float,
+        default=None,
+        help="--pose noisy: heading noise of every estimate, deg (default 5)",
     )
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
     add_name_list(p, "--objects", CATALOGUE, "training objects (default: all)")
@@ -192,7 +212,11 @@ def config_from_args(args: argparse.Namespace):
     """The run's :class:`~scorbot_gym.rl.training.TrainConfig`, checked (hyperparameters too)."""
     from scorbot_gym.rl.training import TrainConfig
 
+    if args.pose != "noisy" and (args.pos_sigma_m is not None or args.yaw_sigma_deg is not None):
+        raise ValueError("--pos-sigma-m and --yaw-sigma-deg apply only to --pose noisy")
+    noise = {"noise_pos_m": args.pos_sigma_m, "noise_yaw_deg": args.yaw_sigma_deg}
     return TrainConfig(
+        **{k: v for k, v in noise.items() if v is not None},
         algo=args.algo,
         pose=args.pose,
         pose_model=str(args.pose_model) if args.pose_model else None,
