@@ -26,7 +26,8 @@ a PNG.
 
 ``--splitter`` swaps the stage that splits blobs several objects share (``none``, the default:
 left whole; ``keypoints``; ``distance``) in every arm that reads blobs; run once per splitter
-with ``--out`` to compare them on the same seeds.
+with ``--out`` to compare them on the same seeds. ``--regrasps N`` lets the scripted
+controller approach again after its fingers close on nothing (default 0), likewise.
 
 ``--distractors 0`` runs the same targets in the same poses alone on the table (the target is
 placed before its neighbours, with the same draws): what the neighbours cost each arm.
@@ -58,27 +59,39 @@ TARGETS = (
 )
 
 
-def _config(arm: str, distractors: int, seed: int, episodes: int, splitter: str):
+def _config(arm: str, distractors: int, seed: int, episodes: int, splitter: str, regrasps: int = 0):
     from scorbot_gym.evaluation.rollout import CLUTTER_POSE_SOURCES, RolloutConfig
 
     split = splitter if arm in CLUTTER_POSE_SOURCES else "none"  # the oracle reads no blobs
     return RolloutConfig(
-        pose=arm, episodes=episodes, seed=seed, distractors=distractors, splitter=split
+        pose=arm,
+        episodes=episodes,
+        seed=seed,
+        distractors=distractors,
+        splitter=split,
+        regrasps=regrasps,
     )
 
 
-def run_chunk(arm: str, distractors: int, seed: int, episodes: int, splitter: str = "none") -> list:
+def run_chunk(
+    arm: str, distractors: int, seed: int, episodes: int, splitter: str = "none", regrasps: int = 0
+) -> list:
     """One chunk of an arm's episodes (a top-level function: it runs in a worker process)."""
     import cv2
 
     from scorbot_gym.evaluation.rollout import run_rollout
 
     cv2.setNumThreads(1)
-    return run_rollout(_config(arm, distractors, seed, episodes, splitter))[1]
+    return run_rollout(_config(arm, distractors, seed, episodes, splitter, regrasps))[1]
 
 
 def arm_summary(
-    arm: str, distractors: int, seed: int, results: list, splitter: str = "none"
+    arm: str,
+    distractors: int,
+    seed: int,
+    results: list,
+    splitter: str = "none",
+    regrasps: int = 0,
 ) -> dict:
     from scorbot_gym.evaluation.summary import summarize, wilson_interval
 
@@ -88,7 +101,7 @@ def arm_summary(
     wrong = summary["failure_causes"].get("wrong_object", 0)
     summary["wrong_object_rate"] = wrong / n
     summary["wrong_object_rate_ci95"] = list(wilson_interval(wrong, n))
-    summary["config"] = _config(arm, distractors, seed, n, splitter).to_dict()
+    summary["config"] = _config(arm, distractors, seed, n, splitter, regrasps).to_dict()
     summary["failed_episodes"] = failed_episodes(rows)
     return summary
 
@@ -179,9 +192,18 @@ def main(argv: list[str] | None = None) -> int:
         default="none",
         help="how the blob-reading arms split blobs several objects share (default: none)",
     )
+    ap.add_argument(
+        "--regrasps",
+        type=int,
+        default=0,
+        help="the scripted controller approaches again after closing on nothing, at most this "
+        "many times an episode (default 0)",
+    )
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.jobs < 1 or any(k < 0 for k in args.distractors):
         ap.error("--episodes and --jobs must be >= 1, --distractors >= 0")
+    if args.regrasps < 0:
+        ap.error(f"--regrasps must be >= 0, got {args.regrasps}")
     episodes = 4 if args.quick else args.episodes
 
     from pose.fileio import atomic_write_json
@@ -189,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
 
     default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
     tasks = [
-        (arm, k, s, min(CHUNK, args.seed + episodes - s), args.splitter)
+        (arm, k, s, min(CHUNK, args.seed + episodes - s), args.splitter, args.regrasps)
         for k in args.distractors
         for arm in args.arms
         for s in range(args.seed, args.seed + episodes, CHUNK)
@@ -209,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
         for arm in args.arms:
             results = [r for t, c in zip(tasks, chunks, strict=True) if t[:2] == (arm, k)
                        for r in c]  # fmt: skip
-            s = arm_summary(arm, k, args.seed, results, args.splitter)
+            s = arm_summary(arm, k, args.seed, results, args.splitter, args.regrasps)
             runs.setdefault(str(k), {})[arm] = s
             p = s["perception"] or {}
             lo, hi = s["success_rate_ci95"]
@@ -217,7 +239,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"{k} distractors {arm:>17}: success {s['success_rate']:6.1%} "
                 f"({lo:.1%}-{hi:.1%}) n={s['episodes']}  wrong {s['wrong_object_rate']:.1%}  "
                 f"target recog {p.get('target_recognition_accuracy')}  "
-                f"ms/estimate {p.get('median_estimate_ms')}  causes {s['failure_causes']}",
+                f"ms/estimate {p.get('median_estimate_ms')}  causes {s['failure_causes']}"
+                f"  re-grasps (won) {s.get('regrasps')}",
                 flush=True,
             )
     report = {
@@ -226,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "arms": list(args.arms),
         "splitter": args.splitter,
+        "regrasps": args.regrasps,
         "runs": runs,
         "wall_s": wall,
         "jobs": args.jobs,

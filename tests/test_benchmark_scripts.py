@@ -84,6 +84,7 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
         ("pose_ablation.py", ["--protocols", "clutter", "--occlusion", "0,25"], "bin edges"),
         ("clutter_closed_loop.py", ["--episodes", "0"], "--episodes"),
+        ("clutter_closed_loop.py", ["--regrasps", "-1"], "--regrasps must be >= 0"),
         ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
         (
             "pose_ablation.py",

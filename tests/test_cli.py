@@ -90,6 +90,27 @@ def test_rollout_perturbation_reaches_the_env_and_the_summary():
     assert summary["config"]["perturbation"] == "surfaces=1.0,noise_sigma=4"
 
 
+def test_rollout_regrasps_reach_the_scripted_controller_and_the_summary():
+    """``--regrasps N`` configures the scripted controller's retries; the summary counts the
+    episodes that retried; with a learned policy it is a one-line error."""
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.rollout import config_from_args
+    from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+
+    argv = ["rollout", "--regrasps", "1", "--objects", "box", "--episodes", "1", "--seed", "3"]
+    config = config_from_args(build_parser().parse_args(argv))
+    env = config.make_env()
+    assert config.make_policy(env).regrasps == 1
+    env.close()
+    summary, _ = run_rollout(config)
+    assert summary["config"]["regrasps"] == 1
+    assert summary["regrasps"] == {"episodes": 0, "successes": 0}  # a clean grasp: no retry
+    with pytest.raises(ValueError, match="scripted policy only"):
+        RolloutConfig(policy="learned", regrasps=1)
+    with pytest.raises(SystemExit):
+        main(["rollout", "--regrasps", "-1"])
+
+
 def test_rollout_help_lists_objects_and_cameras(capsys):
     with pytest.raises(SystemExit):
         main(["rollout", "--help"])

@@ -69,3 +69,50 @@ def test_summary_counts_and_interval(envs):
     assert np.isclose(wilson_interval(5, 10)[0], 0.2366, atol=1e-3)
     for n in range(1, 300):  # bounds hold the rate exactly (error bars never negative)
         assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
+
+
+class _WrongUntilClosed:
+    """An estimate 10 cm off along the table until the fingers first close (on nothing), then
+    the truth: the pose source a re-grasp is for (a bad first estimate, a better one once the
+    hand is out of the way)."""
+
+    def __init__(self, env, offset=(0.0, 0.10, 0.0)):
+        self.env, self.offset, self.closed = env, np.asarray(offset), False
+
+    def _fix(self, obs):
+        self.closed |= float(obs["gripper_opening"][0]) < 0.004
+        if not self.closed:
+            obs = {**obs, "object_pos": obs["object_pos"] + self.offset}
+        return obs
+
+    def reset(self, **kw):
+        self.closed = False
+        obs, info = self.env.reset(**kw)
+        return self._fix(obs), info
+
+    def step(self, action):
+        obs, *rest = self.env.step(action)
+        return (self._fix(obs), *rest)
+
+
+@pytest.mark.parametrize("regrasps", [0, 1])
+def test_the_scripted_controller_regrasps_after_closing_on_nothing(envs, regrasps):
+    env = envs["cartesian"]
+    wrong = _WrongUntilClosed(env)
+    policy = ScriptedGraspPolicy.for_env(env, regrasps=regrasps)
+    obs, info = wrong.reset(seed=3, options={"object_name": "box"})
+    policy.reset(obs, info)
+    for _ in range(env.spec.max_episode_steps):
+        obs, _, terminated, truncated, info = wrong.step(policy.act(obs))
+        if terminated or truncated:
+            break
+    assert wrong.closed, "the first grasp closed on nothing"
+    assert policy.regrasp_count == regrasps
+    assert info["is_success"] == bool(regrasps), info.get("failure_cause")
+    if not regrasps:
+        assert info["failure_cause"] == "missed"
+
+
+def test_regrasps_must_be_a_count():
+    with pytest.raises(ValueError, match="regrasps must be an integer >= 0"):
+        ScriptedGraspPolicy(regrasps=-1)

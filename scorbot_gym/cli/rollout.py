@@ -126,6 +126,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "to the model that explains them, seed a watershed) or distance (distance transform)",
     )
     p.add_argument(
+        "--regrasps",
+        type=non_negative_int,
+        default=0,
+        help="scripted policy: approach again after the fingers close on nothing, at most this "
+        "many times an episode (default 0)",
+    )
+    p.add_argument(
         "--recognize",
         action="store_true",
         help="recognise the object from its silhouette instead of being told its identity",
@@ -253,6 +260,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         distractors=args.distractors,
         target=args.target,
         tilt_deg=args.tilt_deg,
+        regrasps=args.regrasps,
     )
 
 

@@ -142,6 +142,8 @@ def run_episode(
         if terminated or truncated:
             break
     extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    if getattr(policy, "regrasps", 0):  # the scripted controller's retries after a miss
+        extra["regrasps"] = int(policy.regrasp_count)
     if "distractors_knocked_over" in info:  # a table with distractors
         extra["distractors_knocked_over"] = int(info["distractors_knocked_over"])
     return EpisodeResult(

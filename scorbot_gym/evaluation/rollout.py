@@ -49,7 +49,9 @@ class RolloutConfig:
     ``objects``) share the table with the target, which is ``target`` in every episode or
     drawn; ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
     the stage of the clutter sources that splits blobs several objects share
-    (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole).
+    (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole). ``regrasps`` is
+    the scripted controller's retries after its fingers close on nothing
+    (:class:`~scorbot_gym.policies.ScriptedGraspPolicy`; ``scripted`` policy only).
     """
 
     policy: str = "scripted"
@@ -75,6 +77,7 @@ class RolloutConfig:
     target: str | None = None
     tilt_deg: float = 0.0
     splitter: str = "none"
+    regrasps: int = 0
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -100,6 +103,13 @@ class RolloutConfig:
             self.target = get_object(self.target).name  # KeyError lists the valid names
             if self.objects and self.target not in self.objects:
                 raise ValueError(f"target {self.target!r} is not one of objects {self.objects}")
+        if isinstance(self.regrasps, bool) or not isinstance(self.regrasps, int):
+            raise ValueError(f"regrasps must be an integer >= 0, got {self.regrasps!r}")
+        if self.regrasps < 0 or (self.regrasps and self.policy != "scripted"):
+            raise ValueError(
+                f"regrasps must be >= 0 and applies to the scripted policy only, got "
+                f"{self.regrasps} with policy {self.policy!r}"
+            )
         if self.estimate_every < 0:
             raise ValueError(
                 f"estimate_every must be >= 0 (0: once per episode), got {self.estimate_every}"
@@ -222,7 +232,7 @@ class RolloutConfig:
         if self.policy == "random":
             return RandomPolicy(env.action_space, self.seed)
         if self.policy == "scripted":
-            return ScriptedGraspPolicy.for_env(env)
+            return ScriptedGraspPolicy.for_env(env, regrasps=self.regrasps)
         return self._learned().bind(env)
 
     def to_dict(self) -> dict[str, Any]:

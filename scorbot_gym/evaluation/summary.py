@@ -115,6 +115,12 @@ def summarize(results: list[EpisodeResult]) -> dict:
         summary["distractors_knocked_over"] = sum(
             r.extra.get("distractors_knocked_over", 0) for r in results
         )
+    if any("regrasps" in r.extra for r in results):  # episodes that retried, and won by it
+        tried = [r for r in results if r.extra.get("regrasps", 0) > 0]
+        summary["regrasps"] = {
+            "episodes": len(tried),
+            "successes": sum(r.success for r in tried),
+        }
     return summary
 
 
@@ -129,6 +135,9 @@ def format_summary(summary: dict) -> str:
     rows += [(f"failures: {c}", str(k)) for c, k in summary["failure_causes"].items()]
     if "distractors_knocked_over" in summary:
         rows.append(("distractors knocked over", str(summary["distractors_knocked_over"])))
+    if "regrasps" in summary:
+        g = summary["regrasps"]
+        rows.append(("re-grasps (won)", f"{g['episodes']} ({g['successes']})"))
     p = summary.get("perception")
     if p is not None:
 
