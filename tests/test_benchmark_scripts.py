@@ -225,7 +225,7 @@ def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
 def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(tmp_path):
     """A batch split by ``--arms`` over several commands joins into the report one run writes:
     the committed report cut in two parts and merged gives back its arms and curves."""
-    whole = json.loads((RESULTS / "closed_loop.json").read_text())
+    whole = json.loads((RESULTS / "closed_loop_resting_models.json").read_text())  # all arms
     labels = list(whole["arms"])
     first = {**whole, "arms": {k: whole["arms"][k] for k in labels[1::2]}}
     second = {**whole, "arms": {k: whole["arms"][k] for k in labels[::2]}}
@@ -249,9 +249,10 @@ def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(
 
 def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm():
     """The in-loop perturbation table reads every row against its unperturbed one: that row
-    must be the main closed-loop run's ``manifold`` arm, episode for episode."""
+    must be the ``manifold`` arm of the closed-loop run with the same (resting-view) models,
+    episode for episode."""
     report = json.loads((RESULTS / "closed_loop_perturbations.json").read_text())
-    main_run = json.loads((RESULTS / "closed_loop.json").read_text())
+    main_run = json.loads((RESULTS / "closed_loop_resting_models.json").read_text())
     assert report["perturbations"][0] == "none" and report["seed"] == main_run["seed"]
     keys = ("episodes", "successes", "failure_causes", "per_object")
     unperturbed, manifold = report["arms"]["none"], main_run["arms"]["manifold"]

@@ -155,6 +155,47 @@ def test_zero_residual_reproduces_the_scripted_controller():
         ResidualActionWrapper(plain, scale=0.0)
 
 
+def test_the_residual_corrects_the_arm_and_leaves_the_gripper_to_the_controller():
+    """By default the residual's action has the arm's 5 components; the gripper command is the
+    base's whatever the residual does. ``gripper=True`` (and a config from before the setting,
+    which corrected it) gives the 6-component residual."""
+    from scorbot_gym.rl.training import TrainConfig
+
+    env = make_env("ScorbotGraspCartesian-v0", objects=["box"])
+    wrapped = ResidualActionWrapper(env)
+    assert wrapped.action_space.shape == (5,)
+    wobs, _ = wrapped.reset(seed=7)
+    base = wobs["base_action"]
+    _, _, _, _, info = wrapped.step(np.ones(5, np.float32))
+    applied = info["applied_action"]
+    np.testing.assert_allclose(applied[:5], np.clip(base[:5] + 0.3, -1, 1), atol=1e-6)
+    assert applied[5] == base[5]
+    assert ResidualActionWrapper(env, gripper=True).action_space.shape == (6,)
+    old = tiny_config().to_json()
+    del old["residual_gripper"]
+    assert TrainConfig.from_json(old).residual_gripper is True
+    with pytest.raises(ValueError, match="residual_gripper applies only"):
+        tiny_config(residual=False, residual_gripper=True).validate()
+
+
+def test_an_arm_only_residual_policy_keeps_the_base_gripper(trained_run):
+    """The exported policy of an arm-only residual run pads its 5 outputs with the base's
+    gripper command (the run fixture trains with the default)."""
+    out, _ = trained_run
+    policy = SB3Policy.load(out / "policy")
+    assert policy.meta["residual"]["gripper"] is False
+    env = make_env("ScorbotGraspCartesian-v0", objects=["box"])
+    policy.bind(env)
+    obs, info = env.reset(seed=2)
+    policy.reset(obs, info)
+    base = ScriptedGraspPolicy(**policy.meta["residual"]["base"])
+    base.reset(obs, info)
+    for _ in range(30):
+        action = policy.act(obs)
+        assert action.shape == (6,) and action[5] == base.act(obs)[5]
+        obs, *_ = env.step(action)
+
+
 def test_shipped_policy_loads_and_acts_inside_the_action_space():
     policy = SB3Policy.load(SHIPPED_POLICY)
     kw = policy.env_kwargs()

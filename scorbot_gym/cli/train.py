@@ -24,6 +24,7 @@ _NEW_RUN_OPTIONS = (
     "pose_model",
     "pos_sigma_m",
     "yaw_sigma_deg",
+    "residual_gripper",
     "action_type",
     "objects",
     "seed",
@@ -141,6 +142,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--residual-scale", type=_positive_float, default=0.3)
     p.add_argument(
+        "--residual-gripper",
+        action="store_true",
+        help="the residual corrects the gripper command too (default: the arm only)",
+    )
+    p.add_argument(
         "--bc-demos",
         type=non_negative_int,
         default=0,
@@ -227,6 +233,7 @@ def config_from_args(args: argparse.Namespace):
         n_envs=args.n_envs,
         residual=args.residual,
         residual_scale=args.residual_scale,
+        residual_gripper=args.residual_gripper,
         bc_demos=args.bc_demos,
         bc_steps=args.bc_steps,
         init_policy=args.init_policy,

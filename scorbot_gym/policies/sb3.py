@@ -251,8 +251,9 @@ class SB3Policy:
             x = self.normalizer(x)
         action, _ = self.model.predict(x, deterministic=True)
         action = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
-        if base is not None:
-            action = base + self.residual_scale * action
+        if base is not None:  # a residual of the arm's components leaves the gripper to the base
+            n = action.shape[-1]
+            action = np.r_[base[:n] + self.residual_scale * action, base[n:]]
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
     @property

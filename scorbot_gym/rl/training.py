@@ -80,6 +80,7 @@ class TrainConfig:
     n_envs: int = 1
     residual: bool = False
     residual_scale: float = 0.3
+    residual_gripper: bool = False  # the residual corrects the gripper too (ResidualActionWrapper)
     bc_demos: int = 0
     bc_steps: int = 2000
     init_policy: str | None = None  # fine-tune this imitation policy ("learned" or a folder)
@@ -130,6 +131,8 @@ class TrainConfig:
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
+        if self.residual_gripper and not self.residual:
+            raise ValueError("residual_gripper applies only to a residual run (residual=True)")
         if self.init_policy is not None:
             self._check_finetune()
         hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
@@ -229,6 +232,8 @@ class TrainConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown training settings {unknown}; valid: {sorted(known)}")
+        if data.get("residual") and "residual_gripper" not in data:
+            data = {**data, "residual_gripper": True}  # a run from before the setting existed
         return cls(**data).validate()
 
 
@@ -268,7 +273,9 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     initial imitation policy's features when fine-tuning it."""
     env = make_policy_env(config)
     if config.residual:
-        env = ResidualActionWrapper(env, scale=config.residual_scale)
+        env = ResidualActionWrapper(
+            env, scale=config.residual_scale, gripper=config.residual_gripper
+        )
     if config.finetune:
         from scorbot_gym.rl.finetune import ImitationFeatures, load_init_policy
 
@@ -329,6 +336,7 @@ def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, 
         attr = env.get_wrapper_attr
         residual = {
             "scale": config.residual_scale,
+            "gripper": config.residual_gripper,
             "base": {
                 "action_type": attr("action_type"),
                 "dt": float(attr("dt")),
