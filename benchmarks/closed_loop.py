@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
     report["machine"] = _machine(args.jobs)
     atomic_write_json(args.out, report)
-    if only is None:
+    if report["robustness"]["yaw"]:  # the figure's right panels are the noise curves
         _plot(report, args.out.with_suffix(".png"))
         print(f"written {args.out} and {args.out.with_suffix('.png')}")
     else:

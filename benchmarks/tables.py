@@ -84,8 +84,12 @@ def headline_closed_loop() -> str:
     )
 
 
-def closed_loop_arms() -> str:
-    d = read("closed_loop.json")
+#: the closed-loop run with the resting-view pose models (the default before the tilted ones)
+RESTING_CLOSED_LOOP = "closed_loop_resting_models.json"
+
+
+def closed_loop_arms(name: str = "closed_loop.json") -> str:
+    d = read(name)
     rows = []
     for label, a in d["arms"].items():
         valid = a.get("perception", {}).get("valid_rate")
@@ -467,6 +471,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "headline-ablation": headline_ablation,
     "closed-loop": closed_loop_arms,
     "closed-loop-robustness": closed_loop_robustness,
+    "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP),
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
     "compare-noise-once": compare_table("compare_noise_once.json"),
