@@ -207,5 +207,6 @@ def test_markdown_table_has_one_row_per_arm(cli_report):
     assert len(lines) == 2 + len(cli_report["results"])
     assert "Δ vs scripted" in lines[0] and "McNemar p" in lines[0]
     assert "controller + learned correction" in text
-    assert "806 s wall" in text  # the shipped residual's policy.json records its training time
+    wall = json.loads((SHIPPED_POLICY / "policy.json").read_text())["training"]["wall_time_s"]
+    assert f"{wall:,.0f} s wall" in text  # the shipped residual's policy.json records its time
     assert "1,234 env steps, 56 s wall, seed 7" in text
