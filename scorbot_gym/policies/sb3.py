@@ -120,6 +120,15 @@ class ObservationNormalizer:
             return cls(mean, var, float(z["clip"]), float(z["eps"]))
 
 
+def residual_action(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
+    """A residual policy's action: the base action plus the scaled residual, in [-1, 1]. A
+    residual shorter than the base (the arm's components only) leaves the rest to the base."""
+    out = np.array(base, np.float64)
+    residual = np.asarray(residual, np.float64)
+    out[..., : residual.shape[-1]] += scale * residual
+    return np.clip(out, -1.0, 1.0).astype(np.float32)
+
+
 class SB3Policy:
     """Deterministic actions of an SB3 model, on raw observations from ``make_env``.
 
@@ -251,9 +260,8 @@ class SB3Policy:
             x = self.normalizer(x)
         action, _ = self.model.predict(x, deterministic=True)
         action = np.clip(np.asarray(action, np.float64), -1.0, 1.0)
-        if base is not None:  # a residual of the arm's components leaves the gripper to the base
-            n = action.shape[-1]
-            action = np.r_[base[:n] + self.residual_scale * action, base[n:]]
+        if base is not None:
+            return residual_action(base, action, self.residual_scale)
         return np.clip(action, -1.0, 1.0).astype(np.float32)
 
     @property

@@ -72,11 +72,9 @@ from scorbot_gym.policies.pose_filter import GraspPoseFilter
 from scorbot_gym.robot.kinematics import ArmKinematics, tool_pitch, wrap_half_turn
 from scorbot_gym.sim.scene import TABLE_HEIGHT
 from scorbot_gym.sim.simulation import quat_to_mat
+from scorbot_gym.tasks.grasp import CLOSED_EMPTY_OPENING
 
 TOOL_DOWN = -np.pi / 2
-#: fingers closer than this hold nothing (the task's own "closed empty" test; the thinnest
-#: catalogue object is several times wider)
-EMPTY_OPENING = 0.004
 PHASES = ("wait", "approach", "descend", "close", "lift", "hold")
 ACTION_TYPES = ("joint", "cartesian")
 
@@ -340,7 +338,7 @@ class ScriptedGraspPolicy:
         if self.phase not in ("lift", "hold") or self.regrasp_count >= self.regrasps:
             return
         opening = obs.get("gripper_opening")
-        if opening is None or float(opening[0]) >= EMPTY_OPENING:
+        if opening is None or float(opening[0]) >= CLOSED_EMPTY_OPENING:
             return
         self.regrasp_count += 1
         self.phase, self._phase_time = "approach", 0.0

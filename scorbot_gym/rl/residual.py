@@ -21,19 +21,10 @@ import numpy as np
 from gymnasium import spaces
 
 from scorbot_gym.policies.base import Policy
+from scorbot_gym.policies.sb3 import residual_action  # the one definition, shared with SB3Policy
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 
 BASE_KEY = "base_action"
-
-
-def residual_action(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
-    """The action sent to the env: the base action plus the scaled residual, in [-1, 1]. A
-    residual shorter than the base (the arm's components only) leaves the rest to the base."""
-    base = np.asarray(base, np.float64)
-    residual = np.asarray(residual, np.float64)
-    out = base.copy()
-    out[..., : residual.shape[-1]] += scale * residual
-    return np.clip(out, -1.0, 1.0).astype(np.float32)
 
 
 class ResidualActionWrapper(gym.Wrapper):

@@ -24,6 +24,9 @@ SUCCESS_MARGIN = 1.5
 SUCCESS_BONUS = SUCCESS_MARGIN * SHAPING_MAX / (1.0 - REWARD_GAMMA)
 #: The reward terms, as ``info["reward_<term>"]`` (Gymnasium MuJoCo v5 style).
 REWARD_TERMS = ("reach", "grasp", "lift", "success")
+#: fingers closer than this (m) hold nothing: "closed empty" (the thinnest catalogue object is
+#: several times wider); the scripted controller's re-grasp reads the same test
+CLOSED_EMPTY_OPENING = 0.004
 
 
 def grasp_reward(
@@ -123,7 +126,7 @@ class GraspTask:
         st.arm_collision |= link_obj or link_table
         st.self_collision |= self.self_collision()
         opening = self.robot.gripper_opening
-        st.closed_empty |= opening < 0.004 and not grasped
+        st.closed_empty |= opening < CLOSED_EMPTY_OPENING and not grasped
         st.success |= st.held_time >= self.hold_time - 1e-9
         fell = pos[2] < self.sim.table_height - 0.05
         gap = self.robot.tcp_pos - self.grasp_point_world()
