@@ -6,8 +6,9 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 - ``oracle``: ground-truth pose, re-read every step (the ceiling);
 - ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
   rollout defaults for masks and identity (background subtraction; FLR shortlist + appearance
-  recognition): no privileged input. Variants swap one component: FLR alone or appearance alone
-  as the recogniser, the ``side`` camera's own pose models where the top view is hidden;
+  recognition; the table-top prior): no privileged input. Variants swap one component: no
+  table-top prior (estimates as the models answer them), FLR alone or appearance alone as the
+  recogniser, the ``side`` camera's own pose models where the top view is hidden;
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
   ``silhouette motion`` arms add ``motion="silhouette"`` to the side-fallback source;
@@ -235,6 +236,9 @@ def _arm_configs(args) -> dict:
     return {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
+        "manifold, no table prior": RolloutConfig(
+            **manifold, support="none", episodes=n, seed=seed
+        ),
         "manifold, FLR recognition": RolloutConfig(
             **manifold, recognizer="flr", episodes=n, seed=seed
         ),
@@ -454,7 +458,7 @@ def _loop_timing(config, episodes: int) -> dict:
         parts = {
             k: v
             for k, v in timings["timings_ms"].items()
-            if k in ("segment", "recognise", "estimate")
+            if k in ("segment", "recognise", "estimate", "support")
         }
         parts["total"] = timings["total_ms"]
         for k, v in parts.items():

@@ -26,7 +26,8 @@ a PNG.
 
 ``--splitter`` swaps the stage that splits blobs several objects share (``none``, the default:
 left whole; ``keypoints``; ``distance``) in every arm that reads blobs; run once per splitter
-with ``--out`` to compare them on the same seeds. ``--regrasps N`` lets the scripted
+with ``--out`` to compare them on the same seeds; ``--support none`` likewise drops the
+table-top prior (:mod:`scorbot_gym.perception.support`). ``--regrasps N`` lets the scripted
 controller approach again after its fingers close on nothing (default 0), likewise.
 
 ``--distractors 0`` runs the same targets in the same poses alone on the table (the target is
@@ -59,22 +60,37 @@ TARGETS = (
 )
 
 
-def _config(arm: str, distractors: int, seed: int, episodes: int, splitter: str, regrasps: int = 0):
+def _config(
+    arm: str,
+    distractors: int,
+    seed: int,
+    episodes: int,
+    splitter: str,
+    regrasps: int = 0,
+    support: str = "table",
+):
     from scorbot_gym.evaluation.rollout import CLUTTER_POSE_SOURCES, RolloutConfig
 
-    split = splitter if arm in CLUTTER_POSE_SOURCES else "none"  # the oracle reads no blobs
+    blobs = arm in CLUTTER_POSE_SOURCES  # the oracle reads no blobs and estimates nothing
     return RolloutConfig(
         pose=arm,
         episodes=episodes,
         seed=seed,
         distractors=distractors,
-        splitter=split,
+        splitter=splitter if blobs else "none",
         regrasps=regrasps,
+        support=support if blobs else "table",
     )
 
 
 def run_chunk(
-    arm: str, distractors: int, seed: int, episodes: int, splitter: str = "none", regrasps: int = 0
+    arm: str,
+    distractors: int,
+    seed: int,
+    episodes: int,
+    splitter: str = "none",
+    regrasps: int = 0,
+    support: str = "table",
 ) -> list:
     """One chunk of an arm's episodes (a top-level function: it runs in a worker process)."""
     import cv2
@@ -82,7 +98,7 @@ def run_chunk(
     from scorbot_gym.evaluation.rollout import run_rollout
 
     cv2.setNumThreads(1)
-    return run_rollout(_config(arm, distractors, seed, episodes, splitter, regrasps))[1]
+    return run_rollout(_config(arm, distractors, seed, episodes, splitter, regrasps, support))[1]
 
 
 def arm_summary(
@@ -92,6 +108,7 @@ def arm_summary(
     results: list,
     splitter: str = "none",
     regrasps: int = 0,
+    support: str = "table",
 ) -> dict:
     from scorbot_gym.evaluation.summary import summarize, wilson_interval
 
@@ -101,7 +118,7 @@ def arm_summary(
     wrong = summary["failure_causes"].get("wrong_object", 0)
     summary["wrong_object_rate"] = wrong / n
     summary["wrong_object_rate_ci95"] = list(wilson_interval(wrong, n))
-    summary["config"] = _config(arm, distractors, seed, n, splitter, regrasps).to_dict()
+    summary["config"] = _config(arm, distractors, seed, n, splitter, regrasps, support).to_dict()
     summary["failed_episodes"] = failed_episodes(rows)
     return summary
 
@@ -176,7 +193,7 @@ def plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from scorbot_gym.names import SPLITTERS  # imports nothing heavy
+    from scorbot_gym.names import SPLITTERS, SUPPORTS  # imports nothing heavy
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=200)
@@ -191,6 +208,13 @@ def main(argv: list[str] | None = None) -> int:
         choices=SPLITTERS,
         default="none",
         help="how the blob-reading arms split blobs several objects share (default: none)",
+    )
+    ap.add_argument(
+        "--support",
+        choices=SUPPORTS,
+        default="table",
+        help="the blob-reading arms' table-top prior (default: table; none: estimates as the "
+        "models answer them)",
     )
     ap.add_argument(
         "--regrasps",
@@ -210,8 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     from scorbot_gym.perception.training import default_pose_models
 
     default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
+    options = (args.splitter, args.regrasps, args.support)
     tasks = [
-        (arm, k, s, min(CHUNK, args.seed + episodes - s), args.splitter, args.regrasps)
+        (arm, k, s, min(CHUNK, args.seed + episodes - s), *options)
         for k in args.distractors
         for arm in args.arms
         for s in range(args.seed, args.seed + episodes, CHUNK)
@@ -231,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
         for arm in args.arms:
             results = [r for t, c in zip(tasks, chunks, strict=True) if t[:2] == (arm, k)
                        for r in c]  # fmt: skip
-            s = arm_summary(arm, k, args.seed, results, args.splitter, args.regrasps)
+            s = arm_summary(arm, k, args.seed, results, args.splitter, args.regrasps, args.support)
             runs.setdefault(str(k), {})[arm] = s
             p = s["perception"] or {}
             lo, hi = s["success_rate_ci95"]
@@ -249,6 +274,7 @@ def main(argv: list[str] | None = None) -> int:
         "seed": args.seed,
         "arms": list(args.arms),
         "splitter": args.splitter,
+        "support": args.support,
         "regrasps": args.regrasps,
         "runs": runs,
         "wall_s": wall,

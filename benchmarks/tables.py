@@ -77,7 +77,8 @@ def headline_closed_loop() -> str:
     return (
         f"**{pct(a['success_rate'])}** of {a['episodes']} seeded grasps "
         f"(95 % CI {ci(a['success_rate_ci95'])[1:-1]}) with the pose estimated from the camera "
-        f"images alone (background subtraction, recognition on `top` + `side`, pose manifold; "
+        f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
+        f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
         f"{pct(o['success_rate'])} (`benchmarks/results/closed_loop.json`, arms `manifold` and "
         f"`oracle`).\n"

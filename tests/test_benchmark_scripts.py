@@ -85,6 +85,8 @@ def test_every_benchmark_script_imports_and_parses_help():
         ("pose_ablation.py", ["--protocols", "clutter", "--occlusion", "0,25"], "bin edges"),
         ("clutter_closed_loop.py", ["--episodes", "0"], "--episodes"),
         ("clutter_closed_loop.py", ["--regrasps", "-1"], "--regrasps must be >= 0"),
+        ("clutter_closed_loop.py", ["--support", "floor"], "invalid choice: 'floor'"),
+        ("table_support.py", ["--tilts", "0", "60"], "--tilts in [0, 45] degrees"),
         ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
         (
             "pose_ablation.py",
@@ -105,6 +107,7 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
         "pose_ablation.py": ["--out-dir", str(tmp_path)],
         "closed_loop.py": ["--out", str(tmp_path / "c.json")],
         "clutter_closed_loop.py": ["--out", str(tmp_path / "c.json")],
+        "table_support.py": ["--out", str(tmp_path / "t.json")],
     }[script]
     line = _usage_error(_run(str(BENCHMARKS / script), *args, *out))
     assert "error:" in line, line

@@ -91,6 +91,7 @@ from scorbot_gym.perception import pose_source_names, segmenter_names
 from scorbot_gym.perception.motion import motion_names
 from scorbot_gym.perception.recognizers import RECOGNIZERS
 from scorbot_gym.perception.splitters import SPLITTERS
+from scorbot_gym.perception.support import support_names
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
 from scorbot_gym.sim.simulation import MOVING_CAMERAS
 from scorbot_gym.tasks.disturbance import DISTURBANCES
@@ -100,6 +101,7 @@ print(json.dumps({
     "FIXED_CAMERAS": [c.name for c in DEFAULT_CAMERAS], "MOVING_CAMERAS": MOVING_CAMERAS,
     "SEGMENTERS": segmenter_names(), "RECOGNIZERS": RECOGNIZERS, "MOTIONS": motion_names(),
     "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(), "SPLITTERS": SPLITTERS,
+    "SUPPORTS": support_names(),
 }))
 """
 

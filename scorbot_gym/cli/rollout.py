@@ -29,6 +29,7 @@ from scorbot_gym.names import (
     RECOGNIZERS,
     SEGMENTERS,
     SPLITTERS,
+    SUPPORTS,
 )
 from scorbot_gym.objects import CATALOGUE
 
@@ -124,6 +125,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="with --distractors: how blobs that several objects share are split before "
         "recognition: none (default: left whole), keypoints (each object's keypoints, assigned "
         "to the model that explains them, seed a watershed) or distance (distance transform)",
+    )
+    p.add_argument(
+        "--support",
+        choices=SUPPORTS,
+        default="table",
+        help="table-top prior of the image-based pose sources: table (default: an estimate "
+        "within 5 degrees of a resting pose is put on the table, along the line of sight) or "
+        "none (estimates as the models answer them)",
     )
     p.add_argument(
         "--regrasps",
@@ -248,6 +257,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         recognizer=args.recognizer,
         recognize=args.recognize,
         splitter=args.splitter,
+        support=args.support,
         estimate_every=args.estimate_every,
         disturbance=None if args.disturb == "none" else args.disturb,
         noise=noise,

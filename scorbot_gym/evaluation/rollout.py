@@ -16,7 +16,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
-from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS
+from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
 #: the pose sources that split a cluttered table into blobs and estimate the named target on
@@ -52,6 +52,8 @@ class RolloutConfig:
     (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole). ``regrasps`` is
     the scripted controller's retries after its fingers close on nothing
     (:class:`~scorbot_gym.policies.ScriptedGraspPolicy`; ``scripted`` policy only).
+    ``support`` is the image-based sources' table-top prior (``"table"``: estimates near a
+    resting pose are put on the table, :mod:`scorbot_gym.perception.support`; ``"none"``).
     """
 
     policy: str = "scripted"
@@ -78,6 +80,7 @@ class RolloutConfig:
     tilt_deg: float = 0.0
     splitter: str = "none"
     regrasps: int = 0
+    support: str = "table"
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -130,6 +133,12 @@ class RolloutConfig:
                 f"splitter only applies to the clutter pose sources {CLUTTER_POSE_SOURCES}, "
                 f"not {self.pose!r}"
             )
+        if self.support not in SUPPORTS:
+            raise ValueError(f"support must be one of {SUPPORTS}, got {self.support!r}")
+        if self.support != "table" and self.pose not in ("manifold", *CLUTTER_POSE_SOURCES):
+            raise ValueError(
+                f"support only applies to the image-based pose sources, not {self.pose!r}"
+            )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
         self.pose_cameras = tuple(self.pose_cameras)
@@ -161,9 +170,14 @@ class RolloutConfig:
                 "models": self._models(progress),
                 "recognizer": self.recognizer,
                 "splitter": self.splitter,
+                "support": self.support,
             }
         if self.pose in CLUTTER_POSE_SOURCES:  # the same blobs, chosen without recognition
-            return {"models": self._models(progress), "splitter": self.splitter}
+            return {
+                "models": self._models(progress),
+                "splitter": self.splitter,
+                "support": self.support,
+            }
         if self.pose != "manifold":
             return {}
         from scorbot_gym.perception.training import default_pose_models
@@ -179,6 +193,7 @@ class RolloutConfig:
             "recognizer": self.recognizer,
             "cameras": list(self.pose_cameras),
             "motion": self.motion,
+            "support": self.support,
         }
         if self.fallback_cameras:
             kwargs["fallback_models"] = [

@@ -42,6 +42,7 @@ from scorbot_gym.perception.model_set import _load, _world_pose
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import BackgroundSegmenter
 from scorbot_gym.perception.splitters import make_splitter
+from scorbot_gym.perception.support import TableSupport, make_support
 
 #: pixels (at 320 x 240) a blob needs to count as an object
 MIN_BLOB_AREA = 120
@@ -96,7 +97,9 @@ class ClutterPoseSource:
     view). ``splitter`` names the stage that splits blobs several objects share
     (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole) or is one. The
     target's identity is the task command, so the wrapper must pass it (``identity="given"``,
-    the env's ``target_class`` / ``info["object_name"]``).
+    the env's ``target_class`` / ``info["object_name"]``). ``support`` refines the target's
+    estimate as for ``manifold`` (:mod:`scorbot_gym.perception.support`; ``"table"`` by
+    default, ``"none"``).
     """
 
     privileged = False
@@ -109,8 +112,10 @@ class ClutterPoseSource:
         cameras: Sequence[str] | None = None,
         track_gate_px: float = TRACK_GATE_PX,
         splitter: str | Any = "none",
+        support: TableSupport | str | None = "table",
     ) -> None:
         self.models = _load(models)
+        self.support = make_support(support)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
         self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
@@ -198,7 +203,10 @@ class ClutterPoseSource:
             )
         else:
             pose = _world_pose(est, cam, target, timings, self.camera)
+            if self.support is not None:
+                pose = self.support.refine(pose, cam)
         pose.details = {
+            **pose.details,
             "blobs": records,
             "chosen": chosen,
             "how": how,

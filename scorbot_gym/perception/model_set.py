@@ -30,6 +30,7 @@ from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
+from scorbot_gym.perception.support import TableSupport, make_support
 from scorbot_gym.sim.simulation import mat_to_quat
 
 _MOVED = "moved"  # the start of the reason of an answer from the motion detector
@@ -71,6 +72,10 @@ class ModelSetPoseSource:
         parameters) answers the object's new position and heading if a clear silhouette in one
         of the cameras shows that it moved since the last valid estimate (``reason`` says so);
         ``None`` (default) answers invalid.
+    support
+        ``"table"`` (default: a :class:`~scorbot_gym.perception.support.TableSupport`, estimates
+        within a few degrees of a resting pose are put on the table), ``"none"`` (estimates as
+        the models answer them) or a support object with ``refine(pose, camera)``.
     """
 
     def __init__(
@@ -83,8 +88,10 @@ class ModelSetPoseSource:
         clear_min_area: int = 200,
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
         motion: str | SilhouetteMotion | None = None,
+        support: TableSupport | str | None = "table",
     ) -> None:
         self.models = _load(models)
+        self.support = make_support(support)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
         self.width, self.height = int(meta.get("width", 640)), int(meta.get("height", 480))
@@ -170,13 +177,13 @@ class ModelSetPoseSource:
         """The primary camera's estimate; where it is invalid (e.g. the arm hides the object
         from above), the first valid one of the fallback cameras, for the same object."""
         self._masks = {}
-        pose = self._estimate_primary(frame)
+        pose = self._supported(self._estimate_primary(frame), frame)
         if not (pose.valid or pose.object_name is None):
             timings = dict(pose.timings_ms)  # shared: fallbacks' times add up under "fallback"
             for models in self.fallback_models:
                 alt = self._estimate_with(models, frame, pose.object_name, timings)
                 if alt.valid:
-                    pose = alt
+                    pose = self._supported(alt, frame)
                     break
             else:
                 pose = dataclasses.replace(pose, timings_ms=timings)
@@ -188,6 +195,12 @@ class ModelSetPoseSource:
         if pose.valid:
             self._last = pose
         return pose
+
+    def _supported(self, pose: WorldPose, frame: PerceptionFrame) -> WorldPose:
+        """``pose`` refined by the support prior (if any) with its camera's calibration."""
+        if self.support is None or not pose.valid:
+            return pose
+        return self.support.refine(pose, frame.cameras[pose.camera])
 
     def _moved(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
         """The last valid pose, moved to where a clear silhouette now places the object; or,

@@ -376,7 +376,15 @@ def _is_plain(value: Any) -> bool:
 
 # Stages a pose source reports at top level, and the wrapper's "neighbours" (the other objects,
 # where asked for); their sum is the perception time of one step.
-_TOP_LEVEL_STAGES = ("segment", "recognise", "estimate", "fallback", "motion", "neighbours")
+_TOP_LEVEL_STAGES = (
+    "segment",
+    "recognise",
+    "estimate",
+    "support",
+    "fallback",
+    "motion",
+    "neighbours",
+)
 
 _POINTS: dict[str, tuple[np.ndarray, Any]] = {}
 
