@@ -70,7 +70,7 @@ def test_blob_choice_sources_run_from_a_rollout_config():
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     config = RolloutConfig(pose="largest_blob", pose_model="m.npz", distractors=2)
-    assert config.pose_kwargs() == {"models": "m.npz", "splitter": "none"}
+    assert config.pose_kwargs() == {"models": "m.npz", "splitter": "none", "support": "table"}
     with pytest.raises(ValueError, match="chooses its blob itself: drop recognize"):
         RolloutConfig(pose="random_blob", recognize=True)
 
