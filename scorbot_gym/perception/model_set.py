@@ -15,7 +15,6 @@ kept for the episode, since the arm hides the object later in a grasp.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import os
 import time
 from collections.abc import Sequence
@@ -30,7 +29,7 @@ from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
-from scorbot_gym.perception.support import TableSupport, make_support
+from scorbot_gym.perception.support import TableSupport, hull_points, make_support
 from scorbot_gym.sim.simulation import mat_to_quat
 
 _MOVED = "moved"  # the start of the reason of an answer from the motion detector
@@ -210,7 +209,7 @@ class ModelSetPoseSource:
         if last is None or last.object_name != invalid.object_name:
             return None
         excluded = getattr(self.segmenter, "excluded", lambda c: None)
-        points = _hull_points(last.object_name)
+        points = hull_points(last.object_name)
         for cam in self.cameras:
             if cam not in self._masks:  # not segmented on the way here (a recognition camera)
                 self._masks[cam] = self.segmenter.segment(frame, cam)
@@ -303,16 +302,6 @@ class ModelSetPoseSource:
             timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
             timings["estimate"] = est.timings_ms.get("total", 0.0)
         return _world_pose(est, cam, name, timings, cam_name)
-
-
-@functools.lru_cache(maxsize=64)
-def _hull_points(name: str) -> np.ndarray:
-    """The vertices of the object's convex hull (object frame): its silhouette's outline."""
-    import trimesh
-
-    from scorbot_gym.objects import get_object
-
-    return np.asarray(trimesh.convex.convex_hull(get_object(name).mesh_vertices()).vertices)
 
 
 def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:

@@ -139,14 +139,22 @@ def make_support(support: TableSupport | str | None) -> Any:
 
 
 @functools.lru_cache(maxsize=64)
-def _object_geometry(name: str) -> tuple[np.ndarray, tuple[np.ndarray, ...], np.ndarray]:
-    """The object's convex-hull vertices (object frame; its lowest point is one of them), its
-    resting rotations and its symmetry rotations (a continuous one every degree)."""
+def hull_points(name: str) -> np.ndarray:
+    """The vertices of the object's convex hull (object frame): its silhouette's outline, and
+    its lowest point under any rotation."""
     import trimesh
 
     from scorbot_gym.objects import get_object
 
+    return np.asarray(trimesh.convex.convex_hull(get_object(name).mesh_vertices()).vertices)
+
+
+@functools.lru_cache(maxsize=64)
+def _object_geometry(name: str) -> tuple[np.ndarray, tuple[np.ndarray, ...], np.ndarray]:
+    """The object's convex-hull vertices, its resting rotations and its symmetry rotations (a
+    continuous one every degree)."""
+    from scorbot_gym.objects import get_object
+
     spec = get_object(name)
-    hull = np.asarray(trimesh.convex.convex_hull(spec.mesh_vertices()).vertices)
     resting = tuple(quat_to_mat(np.asarray(q, float)) for q in spec.resting_quats)
-    return hull, resting, spec.symmetry.rotations()
+    return hull_points(name), resting, spec.symmetry.rotations()
