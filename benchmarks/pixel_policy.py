@@ -10,8 +10,8 @@ pose instead of the image. Both were trained by BC (DART) + DAgger with the scri
 labelling from the oracle pose; neither runs a controller at test time. The paired difference
 pixel - state on the same episodes is what the explicit pose estimate buys.
 
-    nice -n 5 python benchmarks/pixel_policy.py [--demos 200] [--dagger-rounds 8]
-        [--dagger-episodes 80] [--fit-steps 6000] [--episodes 200] [--eval-seed 50000]
+    nice -n 5 python benchmarks/pixel_policy.py [--demos 400] [--dagger-rounds 3]
+        [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--episodes 200] [--eval-seed 50000]
         [--jobs 3] [--out runs/pixel_policy] [--skip-training]
 
 Training uses CUDA when available. Writes ``benchmarks/results/pixel_policy.json`` (the
@@ -131,16 +131,16 @@ def main(argv: list[str] | None = None) -> None:
     from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--demos", type=positive_int, default=200)
+    p.add_argument("--demos", type=positive_int, default=400)
     p.add_argument("--dart-sigma", type=non_negative_float, default=0.2)
-    p.add_argument("--dagger-rounds", type=non_negative_int, default=8)
-    p.add_argument("--dagger-episodes", type=positive_int, default=80)
-    p.add_argument("--fit-steps", type=positive_int, default=6000)
+    p.add_argument("--dagger-rounds", type=non_negative_int, default=3)
+    p.add_argument("--dagger-episodes", type=positive_int, default=60)
+    p.add_argument("--fit-steps", type=positive_int, default=8000)
     p.add_argument("--batch-size", type=positive_int, default=256)
     p.add_argument(
         "--shift",
         type=non_negative_int,
-        default=4,
+        default=0,
         help="random-shift augmentation, pixels (DrQ; 0: none). At 84 px one pixel is ~1 cm "
         "on the table, so a shift also blurs where the object is",
     )
