@@ -135,6 +135,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "none (estimates as the models answer them)",
     )
     p.add_argument(
+        "--estimator",
+        default="manifold",
+        metavar="NAME",
+        help="with --pose manifold: manifold (default: the trained models) or a pose.registry "
+        "baseline fitted on the same views, e.g. chance (the image-blind answer), with masks, "
+        "recognition and prior unchanged",
+    )
+    p.add_argument(
         "--regrasps",
         type=non_negative_int,
         default=0,
@@ -258,6 +266,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         recognize=args.recognize,
         splitter=args.splitter,
         support=args.support,
+        estimator=args.estimator,
         estimate_every=args.estimate_every,
         disturbance=None if args.disturb == "none" else args.disturb,
         noise=noise,

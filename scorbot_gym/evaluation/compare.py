@@ -502,33 +502,13 @@ def with_models(
 
 
 def _chance_kwargs(cond: PoseCondition, models: Any, progress: bool, jobs: int) -> dict:
-    """The ``chance`` condition's models (fitted on ``models``'s objects and training views)
-    and recogniser (``models``'s, built here once, identity only; with a single object there
-    is nothing to recognise and the source asks no recogniser)."""
-    from pose.model_set import PoseModelSet
-    from scorbot_gym.perception.baseline_models import baseline_models
-    from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
-    from scorbot_gym.perception.training import TrainingSet
+    """The ``chance`` condition's models and recogniser
+    (:func:`~scorbot_gym.perception.baseline_models.baseline_source_kwargs`: fitted on
+    ``models``'s objects and training views, ``models``'s recognition without its estimates)."""
+    from scorbot_gym.perception.baseline_models import baseline_source_kwargs
 
-    meta = models.meta
-    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
-    path = baseline_models(
-        "chance",
-        TrainingSet(**meta["training"]),
-        models.object_names,
-        jobs,
-        progress,
-        camera=camera,
-        width=width,
-        height=height,
-        seed=int(meta["seed"]),
-    )
-    kw: dict[str, Any] = {"models": PoseModelSet.load(path)}
-    if len(models.object_names) > 1:
-        cameras = [camera, *(c for c in cond.kwargs["cameras"] if c != camera)]
-        recognizer = make_recognizer(cond.kwargs["recognizer"], models, cameras, width, height)
-        kw["recognizer"] = IdentityOnlyRecognizer(recognizer)
-    return kw
+    kw = cond.kwargs
+    return baseline_source_kwargs("chance", models, kw["recognizer"], kw["cameras"], jobs, progress)
 
 
 def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:

@@ -54,6 +54,10 @@ class RolloutConfig:
     (:class:`~scorbot_gym.policies.ScriptedGraspPolicy`; ``scripted`` policy only).
     ``support`` is the image-based sources' table-top prior (``"table"``: estimates near a
     resting pose are put on the table, :mod:`scorbot_gym.perception.support`; ``"none"``).
+    ``estimator`` swaps the ``manifold`` source's trained models for a :mod:`pose.registry`
+    baseline fitted on the same views (``"chance"``: the image-blind answer, which every
+    estimator figure reports beside it; :mod:`scorbot_gym.perception.baseline_models`), with
+    segmentation and recognition unchanged; ``"manifold"`` (default) keeps the trained ones.
     """
 
     policy: str = "scripted"
@@ -81,6 +85,7 @@ class RolloutConfig:
     splitter: str = "none"
     regrasps: int = 0
     support: str = "table"
+    estimator: str = "manifold"
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -139,6 +144,21 @@ class RolloutConfig:
             raise ValueError(
                 f"support only applies to the image-based pose sources, not {self.pose!r}"
             )
+        if self.estimator != "manifold":
+            from pose.registry import make_from_spec
+
+            try:
+                make_from_spec(self.estimator)
+            except (KeyError, ValueError, TypeError) as exc:
+                raise ValueError(
+                    f"estimator must be 'manifold' or a pose.registry baseline such as "
+                    f"'chance', got {self.estimator!r}: {exc}"
+                ) from None
+            if self.pose != "manifold" or self.pose_model is not None or self.fallback_cameras:
+                raise ValueError(
+                    f"estimator {self.estimator!r} swaps the default models of pose 'manifold' "
+                    "(no pose_model, no fallback_cameras)"
+                )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
         self.pose_cameras = tuple(self.pose_cameras)
@@ -195,6 +215,15 @@ class RolloutConfig:
             "motion": self.motion,
             "support": self.support,
         }
+        if self.estimator != "manifold":  # the same source, a baseline's models
+            from scorbot_gym.perception.baseline_models import baseline_source_kwargs
+
+            recognizer = self.recognizer if self.recognize else None
+            kwargs.update(
+                baseline_source_kwargs(
+                    self.estimator, models, recognizer, self.pose_cameras, progress=progress
+                )
+            )
         if self.fallback_cameras:
             kwargs["fallback_models"] = [
                 default_pose_models(c, w, h, progress=progress) for c in self.fallback_cameras

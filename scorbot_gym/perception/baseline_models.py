@@ -7,8 +7,10 @@ with a model set of a :mod:`pose.registry` baseline in place of the trained pose
 (``chance``: one constant rotation, the training views' medoid, placed at the silhouette;
 ``pca-nn``, ``least-squares``, ...). :func:`baseline_models` fits that set on exactly the views
 the compared models are trained on (a :class:`~scorbot_gym.perception.training.TrainingSet`,
-read from the same render cache), so the two differ in the estimator alone. The closed-loop
-benchmarks (``benchmarks/tilted_in_loop.py``) and the scripted-vs-learned comparison
+read from the same render cache), so the two differ in the estimator alone;
+:func:`baseline_source_kwargs` adds the recognition of the compared models with their pose
+estimates dropped. The closed-loop benchmarks (``RolloutConfig.estimator``,
+``benchmarks/tilted_in_loop.py``) and the scripted-vs-learned comparison
 (:mod:`scorbot_gym.evaluation.compare`, its ``chance`` pose condition) use it.
 
 It lives apart from :mod:`~scorbot_gym.perception.training` because that module's source is
@@ -139,3 +141,40 @@ def baseline_models(
     path.parent.mkdir(parents=True, exist_ok=True)
     models.save(path)  # atomic
     return path
+
+
+def baseline_source_kwargs(
+    spec: str,
+    models: PoseModelSet,
+    recognizer: str | Any | None,
+    cameras: Sequence[str],
+    jobs: int = 1,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """The ``manifold`` pose source's ``models`` and ``recognizer`` for a baseline arm: the
+    ``spec`` set fitted on ``models``'s objects and training views (:func:`baseline_models`),
+    and ``models``'s own ``recognizer`` (built here, once) wrapped in
+    :class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`, so the arm differs
+    from the trained one in the estimator alone. With a single object, or ``recognizer=None``
+    (the identity is given), no recogniser is returned. ``cameras`` are the source's."""
+    from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+
+    meta = models.meta
+    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
+    path = baseline_models(
+        spec,
+        TrainingSet(**meta["training"]),
+        models.object_names,
+        jobs,
+        progress,
+        camera=camera,
+        width=width,
+        height=height,
+        seed=int(meta["seed"]),
+    )
+    kw: dict[str, Any] = {"models": PoseModelSet.load(path)}
+    if recognizer is not None and len(models.object_names) > 1:
+        ordered = [camera, *(c for c in cameras if c != camera)]
+        built = make_recognizer(recognizer, models, ordered, width, height)
+        kw["recognizer"] = IdentityOnlyRecognizer(built)
+    return kw
