@@ -355,7 +355,11 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
         missing += [] if all(report["robustness"].values()) else [ROBUSTNESS]
         if missing:
             print(f"note: no part ran {missing}; the merged report lacks them")
-    report["machine"] = {**parts[0]["machine"], "merged_from": [str(p) for p in args.merge]}
+    sources = [  # a part that was itself merged names its own parts
+        m for part, path in zip(parts, args.merge, strict=True)
+        for m in part.get("machine", {}).get("merged_from") or [str(path)]
+    ]  # fmt: skip
+    report["machine"] = {**parts[0]["machine"], "merged_from": sources}
     atomic_write_json(out, report)
     plot = _plot_perturbations if kind == "closed_loop_perturbations" else _plot
     plot(report, out.with_suffix(".png"))
