@@ -11,7 +11,8 @@ labelling from the oracle pose; neither runs a controller at test time. The pair
 pixel - state on the same episodes is what the explicit pose estimate buys.
 
     nice -n 5 python benchmarks/pixel_policy.py [--demos 400] [--dagger-rounds 3]
-        [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--episodes 200] [--eval-seed 50000]
+        [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--encoder nature|spatial_softmax]
+        [--keypoints 32] [--episodes 200] [--eval-seed 50000]
         [--jobs 3] [--out runs/pixel_policy] [--skip-training]
 
 Training uses CUDA when available. Writes ``benchmarks/results/pixel_policy.json`` (the
@@ -129,6 +130,7 @@ def arm_record(name: str, results: list) -> dict:
 
 def main(argv: list[str] | None = None) -> None:
     from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
+    from scorbot_gym.policies.pixel import ENCODERS
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--demos", type=positive_int, default=400)
@@ -146,6 +148,13 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument("--learning-rate", type=float, default=3e-4)
     p.add_argument("--grayscale", action="store_true", help="1-channel frames instead of RGB")
+    p.add_argument(
+        "--encoder",
+        choices=ENCODERS,
+        default="nature",
+        help="image encoder: the Nature-DQN stack or spatial-softmax keypoints",
+    )
+    p.add_argument("--keypoints", type=positive_int, default=32, help="spatial_softmax only")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
     p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
@@ -180,7 +189,9 @@ def main(argv: list[str] | None = None) -> None:
             batch_size=args.batch_size,
             shift=args.shift,
             learning_rate=args.learning_rate,
-            net=NetSpec(channels=1 if args.grayscale else 3),
+            net=NetSpec(
+                channels=1 if args.grayscale else 3, encoder=args.encoder, keypoints=args.keypoints
+            ),
             seed=args.seed,
             torch_threads=args.threads,
             device=args.device,
@@ -195,7 +206,12 @@ def main(argv: list[str] | None = None) -> None:
             image_height=height,
         )
         try:
-            policy, _ = train_pixel_imitation(env, config, progress=lambda m: print(m, flush=True))
+            policy, _ = train_pixel_imitation(
+                env,
+                config,
+                progress=lambda m: print(m, flush=True),
+                on_round=lambda pol, _r: pol.save(args.out),  # a cut run leaves a policy
+            )
         finally:
             env.close()
         policy.save(args.out)
@@ -246,6 +262,8 @@ def main(argv: list[str] | None = None) -> None:
             for k in (
                 "demonstration_episodes",
                 "dagger_episodes",
+                "rounds_done",
+                "rounds_planned",
                 "env_steps",
                 "labelled_steps",
                 "frames_mb",
@@ -262,6 +280,8 @@ def main(argv: list[str] | None = None) -> None:
             "render_size": policy.meta["render_size"],
             "frame_size": policy.net_spec.frame_size,
             "channels": policy.net_spec.channels,
+            "encoder": policy.net_spec.encoder,
+            "keypoints": policy.net_spec.keypoints,
             "reads": policy.meta["reads"],
         },
         "pixel_policy_size_kb": round(size_kb, 1),

@@ -150,6 +150,72 @@ def test_random_shift_moves_each_image_by_whole_pixels_within_the_pad():
     assert th.equal(random_shift(img, 0), img)
 
 
+def test_spatial_softmax_answers_where_the_bright_spot_is():
+    """The keypoint encoder's code is a position: with the trunk set to pass the image through
+    (one channel, identity-like filters), every keypoint lands on a lone bright pixel, wherever
+    it is; so moving the object moves the code, which a flattened global code need not do."""
+    import torch as th
+
+    from scorbot_gym.policies.pixel import build_network
+
+    net = build_network(NetSpec(channels=1, encoder="spatial_softmax", keypoints=2), 1)
+    trunk, softmax = net.encoder[0], net.encoder[1]
+    with th.no_grad():
+        for conv in (m for m in trunk if isinstance(m, th.nn.Conv2d)):
+            conv.weight.zero_()
+            conv.bias.zero_()
+            k = conv.kernel_size[0] // 2
+            conv.weight[:, 0, k, k] = 1.0  # channel 0 in → every channel out, unshifted
+        softmax.project.weight.fill_(1.0)
+        softmax.project.bias.zero_()
+        softmax.log_temperature.fill_(-3.0)  # a sharp softmax
+    for row, col in [(20, 30), (60, 10), (42, 70)]:
+        img = th.zeros(1, 1, 84, 84)
+        img[0, 0, row - 1 : row + 2, col - 1 : col + 2] = 1.0
+        xy = net.encoder(img).reshape(2, 2)
+        # trunk: 5x5/2 then two 3x3 valid convolutions; map pixel (r, c) → ((r-2)/2-2, ...)
+        h = w = 36
+        expect = th.tensor([((col - 2) / 2 - 2) / (w - 1), ((row - 2) / 2 - 2) / (h - 1)])
+        assert th.allclose(xy, (2 * expect - 1).expand(2, 2), atol=0.04), (row, col, xy)
+
+
+@pytest.mark.slow
+def test_a_spatial_softmax_policy_trains_saves_and_loads(pixel_env, tmp_path):
+    config = PixelImitationConfig(
+        demos=1,
+        dagger_rounds=0,
+        fit_steps=2,
+        batch_size=8,
+        device="cpu",
+        net=NetSpec(encoder="spatial_softmax", keypoints=8),
+    )
+    saved = []
+    policy, record = train_pixel_imitation(
+        pixel_env, config, on_round=lambda pol, r: saved.append(pol.save(tmp_path / "kp"))
+    )
+    assert len(saved) == 1 and record["rounds_done"] == record["rounds_planned"] == 1
+    folder = saved[0]  # the checkpoint of the last round is the policy
+    meta = json.loads((folder / "policy.json").read_text())
+    assert meta["network"]["encoder"] == "spatial_softmax" and meta["network"]["keypoints"] == 8
+    loaded = PixelPolicy.load(folder).bind(pixel_env)
+    obs, _ = pixel_env.reset(seed=5)
+    loaded.reset(obs)
+    policy.reset(obs)
+    np.testing.assert_allclose(loaded.act(obs), policy.act(obs), atol=1e-6)
+    assert pixel_env.action_space.contains(loaded.act(obs))
+
+
+@pytest.mark.slow
+def test_files_written_before_the_encoder_field_load_as_nature(trained, tmp_path):
+    old = tmp_path / "old"
+    shutil.copytree(trained[0], old)
+    meta = json.loads((old / "policy.json").read_text())
+    meta["network"].pop("keypoints")
+    meta["network"]["encoder"] = "Nature-DQN conv 32x8x8/4, 64x4x4/2, 64x3x3/1, linear"
+    (old / "policy.json").write_text(json.dumps(meta))
+    assert PixelPolicy.load(old).net_spec.encoder == "nature"
+
+
 @pytest.mark.slow
 def test_damaged_or_incompatible_files_give_one_line_errors(trained, tmp_path):
     good = trained[0]
@@ -192,6 +258,8 @@ def test_bad_settings_are_refused_in_one_line():
         ({"shift": -1}, "shift must be >= 0"),
         ({"device": "tpu"}, "device must be"),
         ({"net": {"channels": 2}}, "channels must be 1"),
+        ({"net": {"encoder": "resnet"}}, "encoder must be one of"),
+        ({"net": {"encoder": "spatial_softmax", "keypoints": 0}}, "keypoints must be >= 1"),
         ({"net": NetSpec(frame_size=84), "fit_steps": 0}, "fit_steps must be >= 1"),
         ({"history": {"pose_window": 4}}, "reads no pose estimate"),
     ]:

@@ -15,10 +15,10 @@ The end-to-end arm against which the pose-manifold pipeline is judged. The polic
 
 It never reads ``object_pos``, ``object_quat``, ``pose_valid``, ``pose_confidence`` or
 ``pose_age`` (:data:`POSE_KEYS`): where the object is, and how it is turned, has to come from
-the image. The network is a Nature-DQN encoder (Mnih et al. 2015: 32x8x8/4, 64x4x4/2,
-64x3x3/1, then 256 units) whose embedding is concatenated with the normalised proprioceptive
-features and passed through a 256-unit MLP to the same outputs as the state policy: 5 arm
-values (tanh) and 1 gripper logit (sign).
+the image. The network is an image encoder (:class:`NetSpec` names it: the Nature-DQN stack of
+Mnih et al. 2015, or a spatial-softmax keypoint encoder) whose 256-unit embedding is
+concatenated with the normalised proprioceptive features and passed through a 256-unit MLP to
+the same outputs as the state policy: 5 arm values (tanh) and 1 gripper logit (sign).
 
 A saved policy is a folder: ``policy.json`` (``"algo": "pixel_imitation"``,
 ``"observation": "pixels"``, ``"uses_scripted_controller": false``, the camera, frame size,
@@ -57,22 +57,56 @@ POSE_KEYS = ("object_pos", "object_quat", "object_yaw", "pose_valid", "pose_conf
 DEFAULT_RENDER_SIZE = (112, 84)
 
 
+#: the image encoders a :class:`NetSpec` can name (``policy.json`` records which one)
+ENCODERS = ("nature", "spatial_softmax")
+
+
 @dataclass(frozen=True)
 class NetSpec:
-    """The network's layout (recorded in ``policy.json``; the weights must match it)."""
+    """The network's layout (recorded in ``policy.json``; the weights must match it).
+
+    ``encoder`` swaps the image encoder, the rest of the network staying the same:
+
+    - ``"nature"``: the Nature-DQN stack (strides 4 and 2), flattened: a global code, coarse
+      in position (one cell of its last map spans ~8 px, ~8 cm on the table);
+    - ``"spatial_softmax"``: a stride-2 stack kept at 36 x 36 (for 84 px), then one softmax
+      over each of ``keypoints`` feature maps and its expected image coordinates (Levine et
+      al. 2016, "End-to-end training of deep visuomotor policies"; robomimic's default): the
+      code is *where* things are, at sub-pixel resolution, what a grasp needs.
+    """
 
     frame_size: int = 84
     channels: int = 3  # 3: RGB, 1: grayscale
     embedding: int = 256
     hidden: int = 256
+    encoder: str = "nature"
+    keypoints: int = 32  # spatial_softmax only
 
     def __post_init__(self) -> None:
-        if self.frame_size < 36:  # the three convolutions need at least 36 pixels
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.frame_size < 36:  # the convolutions need at least 36 pixels
             raise ValueError(f"frame_size must be >= 36, got {self.frame_size}")
         if self.channels not in (1, 3):
             raise ValueError(f"channels must be 1 (grayscale) or 3 (RGB), got {self.channels}")
-        if self.embedding < 1 or self.hidden < 1:
-            raise ValueError(f"embedding and hidden must be >= 1, got {self}")
+        if self.embedding < 1 or self.hidden < 1 or self.keypoints < 1:
+            raise ValueError(f"embedding, hidden and keypoints must be >= 1, got {self}")
+
+    @classmethod
+    def from_record(cls, record: dict[str, Any]) -> NetSpec:
+        """The spec a ``policy.json`` ``network`` entry names (files written before the
+        ``encoder`` field existed used the Nature encoder)."""
+        encoder = str(record.get("encoder", "nature"))
+        if encoder.startswith("Nature-DQN"):  # early files kept a description under that key
+            encoder = "nature"
+        return cls(
+            frame_size=int(record["frame_size"]),
+            channels=int(record["channels"]),
+            embedding=int(record["embedding"]),
+            hidden=int(record["hidden"]),
+            encoder=encoder,
+            keypoints=int(record.get("keypoints", 32)),
+        )
 
 
 def build_network(spec: NetSpec, n_vector: int):
@@ -80,11 +114,28 @@ def build_network(spec: NetSpec, n_vector: int):
     import torch as th
     from torch import nn
 
-    class PixelNet(nn.Module):
-        def __init__(self) -> None:
+    class SpatialSoftmax(nn.Module):
+        """(B, C, H, W) feature maps → (B, 2K): the expected (x, y) in [-1, 1] of each of K
+        learned keypoint maps under a softmax with a learned temperature."""
+
+        def __init__(self, channels: int, height: int, width: int, keypoints: int) -> None:
             super().__init__()
-            c = spec.channels
-            self.encoder = nn.Sequential(
+            self.project = nn.Conv2d(channels, keypoints, 1)
+            self.log_temperature = nn.Parameter(th.zeros(1))
+            gy, gx = th.meshgrid(
+                th.linspace(-1.0, 1.0, height), th.linspace(-1.0, 1.0, width), indexing="ij"
+            )
+            grid = th.stack([gx.reshape(-1), gy.reshape(-1)], dim=1)
+            self.register_buffer("grid", grid, persistent=False)  # rebuilt, never saved
+
+        def forward(self, x: th.Tensor) -> th.Tensor:
+            logits = self.project(x).flatten(2) / self.log_temperature.exp()
+            return (th.softmax(logits, dim=-1) @ self.grid).flatten(1)
+
+    def encoder() -> nn.Module:
+        c = spec.channels
+        if spec.encoder == "nature":
+            return nn.Sequential(
                 nn.Conv2d(c, 32, 8, stride=4),
                 nn.ReLU(),
                 nn.Conv2d(32, 64, 4, stride=2),
@@ -93,6 +144,23 @@ def build_network(spec: NetSpec, n_vector: int):
                 nn.ReLU(),
                 nn.Flatten(),
             )
+        trunk = nn.Sequential(
+            nn.Conv2d(c, 32, 5, stride=2),
+            nn.ReLU(),
+            nn.Conv2d(32, 32, 3, stride=1),
+            nn.ReLU(),
+            nn.Conv2d(32, 32, 3, stride=1),
+            nn.ReLU(),
+        )
+        with th.no_grad():
+            _, n, h, w = trunk(th.zeros(1, c, spec.frame_size, spec.frame_size)).shape
+        return nn.Sequential(trunk, SpatialSoftmax(n, h, w, spec.keypoints))
+
+    class PixelNet(nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            c = spec.channels
+            self.encoder = encoder()
             with th.no_grad():
                 n_flat = self.encoder(th.zeros(1, c, spec.frame_size, spec.frame_size)).shape[1]
             self.embed = nn.Sequential(nn.Linear(n_flat, spec.embedding), nn.ReLU())
@@ -313,13 +381,7 @@ class PixelPolicy:
         try:
             norm = meta["normalization"]
             mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
-            net = meta["network"]
-            spec = NetSpec(
-                frame_size=int(net["frame_size"]),
-                channels=int(net["channels"]),
-                embedding=int(net["embedding"]),
-                hidden=int(net["hidden"]),
-            )
+            spec = NetSpec.from_record(meta["network"])
             HistorySpec.from_record(meta["history"])
             meta["classes"], meta["action_type"], meta["camera"]
             width, height = meta["render_size"]
@@ -368,7 +430,11 @@ def new_meta(
         "features": "CNN(frame) + proprioception + class one-hot + previous actions + "
         "gripper-command history (scorbot_gym.policies.pixel); no pose estimate",
         "network": {
-            "encoder": "Nature-DQN conv 32x8x8/4, 64x4x4/2, 64x3x3/1, linear embedding",
+            "encoders": {
+                "nature": "Nature-DQN conv 32x8x8/4, 64x4x4/2, 64x3x3/1, linear embedding",
+                "spatial_softmax": "conv 32x5x5/2, 32x3x3/1, 32x3x3/1, 1x1 to K keypoint "
+                "maps, spatial softmax to K (x, y), linear embedding",
+            },
             "activation": "relu",
             "outputs": "5 arm (tanh) + 1 gripper logit (sign)",
         },

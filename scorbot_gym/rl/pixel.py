@@ -159,6 +159,7 @@ def fit_pixel_policy(
     th.set_num_threads(config.torch_threads)
     th.manual_seed(seed)
     device = config.torch_device()
+    th.backends.cudnn.benchmark = device == "cuda"  # fixed input sizes: let cuDNN pick
     gen = th.Generator(device=device).manual_seed(seed)
     policy.mean = vectors.mean(axis=0).astype(np.float32)
     policy.std = vectors.std(axis=0).astype(np.float32)
@@ -214,13 +215,18 @@ def train_pixel_imitation(
     env: gym.Env,
     config: PixelImitationConfig,
     progress: Callable[[str], None] | None = None,
+    on_round: Callable[[PixelPolicy, dict[str, Any]], None] | None = None,
 ) -> tuple[PixelPolicy, dict[str, Any]]:
     """BC on ``config.demos`` DART-noised scripted demonstrations (seeds ``seed, seed + 1,
     ...``), then ``config.dagger_rounds`` DAgger rounds on fresh seeds, the scripted controller
     labelling from the oracle pose. ``env`` renders ``config.camera`` and has ``class_names``
     (e.g. ``make_env(pose="oracle", include_class=True, cameras=["top"], image_width=112,
     image_height=84)``; its pose entries are there for the expert's bookkeeping only, the
-    policy never reads them). Returns the policy and the training record (also in its meta)."""
+    policy never reads them). Returns the policy and the training record (also in its meta).
+
+    ``on_round(policy, round_record)`` is called after every fit (BC, then each DAgger round)
+    with the record so far already in ``policy.meta`` (``"rounds_done"`` of
+    ``config.dagger_rounds + 1``): save it there and a run cut short still leaves a policy."""
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     rng = np.random.default_rng(config.seed)
@@ -237,6 +243,8 @@ def train_pixel_imitation(
         _round_record(0, 1.0, data, losses, fit_s, policy, frames, vectors, labels),
     ]
     say(f"BC on {len(data)} demonstrations ({len(labels)} steps): {rounds[-1]}")
+    if on_round is not None:
+        on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
     next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
     for r in range(1, config.dagger_rounds + 1):
         beta = config.beta * config.beta_decay ** (r - 1)
@@ -262,27 +270,44 @@ def train_pixel_imitation(
         fit_s = time.perf_counter() - fit_t0
         rounds.append(_round_record(r, beta, new, losses, fit_s, policy, frames, vectors, labels))
         say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
-    record = {
+        if on_round is not None:
+            on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
+    _record(policy, config, start, rounds, frames, labels)
+    return policy, policy.meta["training"]
+
+
+def _record(
+    policy: PixelPolicy,
+    config: PixelImitationConfig,
+    start: float,
+    rounds: list[dict],
+    frames: np.ndarray,
+    labels: np.ndarray,
+) -> PixelPolicy:
+    """Write the training record so far into the policy's meta (after every round)."""
+    dagger = int(sum(r["episodes"] for r in rounds[1:]))
+    policy.meta["training"] = {
         "config": asdict(config),
         "demonstration_episodes": config.demos,
-        "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])),
+        "dagger_episodes": dagger,
+        "rounds_done": len(rounds),
+        "rounds_planned": config.dagger_rounds + 1,
         "env_steps": int(sum(r["env_steps"] for r in rounds)),
         "labelled_steps": int(len(labels)),
         "frames_mb": round(frames.nbytes / 2**20, 1),
         "wall_time_s": time.perf_counter() - start,
         "fit_time_s": float(sum(r["fit_s"] for r in rounds)),
         "device": config.torch_device(),
-        "rounds": rounds,
+        "rounds": list(rounds),
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
         "augmentation": f"random shift +-{config.shift} px (DrQ)",
     }
-    policy.meta["training"] = record
     policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
         "residual_base": False,
         "bc_demo_episodes": config.demos,
-        "dagger_labelled_episodes": record["dagger_episodes"],
+        "dagger_labelled_episodes": dagger,
     }
-    return policy, record
+    return policy
 
 
 def _concat(parts: Sequence[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
