@@ -73,8 +73,13 @@ def short(spec: str, names: dict[str, str]) -> str:
 
 def headline_closed_loop() -> str:
     d = read("closed_loop.json")
-    a, o = d["arms"]["manifold"], d["arms"]["oracle"]
-    c = d["arms"][CHANCE_ARM]
+    missing = [k for k in ("manifold", "oracle", CHANCE_ARM) if k not in d["arms"]]
+    if missing:  # the headline states the chance level beside the estimator, or nothing
+        sys.exit(
+            f"closed_loop.json lacks the arms {missing}: run benchmarks/closed_loop.py --arms "
+            f"'{';'.join(missing)}' --out PART.json and --merge it"
+        )
+    a, o, c = d["arms"]["manifold"], d["arms"]["oracle"], d["arms"][CHANCE_ARM]
     return (
         f"**{pct(a['success_rate'])}** of {a['episodes']} seeded grasps "
         f"(95 % CI {ci(a['success_rate_ci95'])[1:-1]}) with the pose estimated from the camera "
