@@ -15,7 +15,8 @@ pixel - state on the same episodes is what the explicit pose estimate buys.
         [--keypoints 32] [--episodes 200] [--eval-seed 50000]
         [--jobs 3] [--out runs/pixel_policy] [--skip-training]
 
-Training uses CUDA when available. Writes ``benchmarks/results/pixel_policy.json`` (the
+Training uses CUDA when available; ``--jobs`` also collects the training episodes in that many
+processes (the same episodes for any number). Writes ``benchmarks/results/pixel_policy.json`` (the
 policy folder goes to ``--out``, not into the package: its weights are ~4 MB).
 """
 
@@ -160,7 +161,10 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
     p.add_argument("--eval-seed", type=int, default=50_000)
     p.add_argument(
-        "--jobs", type=positive_int, default=1, help=f"evaluation processes ({CHUNK} episodes each)"
+        "--jobs",
+        type=positive_int,
+        default=1,
+        help=f"processes for the training episodes and the evaluation ({CHUNK} episodes each)",
     )
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("runs") / "pixel_policy")
@@ -194,23 +198,27 @@ def main(argv: list[str] | None = None) -> None:
             ),
             seed=args.seed,
             torch_threads=args.threads,
+            jobs=args.jobs,
             device=args.device,
         )
         width, height = DEFAULT_RENDER_SIZE
-        env = make_env(
-            "ScorbotGraspCartesian-v0",
-            pose="oracle",
-            include_class=True,
-            cameras=[config.camera],
-            image_width=width,
-            image_height=height,
-        )
+        env_kwargs = {
+            "env_id": "ScorbotGraspCartesian-v0",
+            "pose": "oracle",
+            "include_class": True,
+            "cameras": [config.camera],
+            "image_width": width,
+            "image_height": height,
+        }
+        kw = dict(env_kwargs)
+        env = make_env(kw.pop("env_id"), **kw)
         try:
             policy, _ = train_pixel_imitation(
                 env,
                 config,
                 progress=lambda m: print(m, flush=True),
                 on_round=lambda pol, _r: pol.save(args.out),  # a cut run leaves a policy
+                env_kwargs=env_kwargs,
             )
         finally:
             env.close()

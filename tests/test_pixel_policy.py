@@ -25,17 +25,21 @@ TINY = PixelImitationConfig(
 WIDTH, HEIGHT = DEFAULT_RENDER_SIZE
 
 
+ENV_KWARGS = {
+    "env_id": "ScorbotGraspCartesian-v0",
+    "pose": "oracle",
+    "include_class": True,
+    "objects": ["box", "tennis_ball"],
+    "cameras": ["top"],
+    "image_width": WIDTH,
+    "image_height": HEIGHT,
+}
+
+
 @pytest.fixture(scope="module")
 def pixel_env():
-    env = make_env(
-        "ScorbotGraspCartesian-v0",
-        pose="oracle",
-        include_class=True,
-        objects=["box", "tennis_ball"],
-        cameras=["top"],
-        image_width=WIDTH,
-        image_height=HEIGHT,
-    )
+    kw = dict(ENV_KWARGS)
+    env = make_env(kw.pop("env_id"), **kw)
     yield env
     env.close()
 
@@ -131,6 +135,37 @@ def test_dagger_labels_with_the_oracle_expert_and_stores_small_frames(pixel_env,
     frames = episode.observations["top_rgb"]
     assert frames.dtype == np.uint8 and frames.shape[1:] == (84, 84, 3)
     assert not set(POSE_KEYS) & set(episode.observations)
+
+
+@pytest.mark.slow
+def test_collection_in_worker_processes_gives_the_same_episodes(pixel_env, trained):
+    """Demonstrations and DAgger episodes (a trained learner acting half the time) from two
+    spawned workers equal those collected here, frame for frame: every episode draws its
+    noise from its own stream, so ``jobs`` changes the speed only."""
+    from scorbot_gym.rl.pixel import collect_pixel_episodes
+
+    learner = PixelPolicy.load(trained[0]).bind(pixel_env)
+    for round_index, acting in [(0, None), (1, learner)]:
+        runs = [
+            collect_pixel_episodes(
+                pixel_env,
+                range(40, 43),
+                learner,
+                PixelImitationConfig(jobs=jobs, device="cpu"),
+                round_index=round_index,
+                learner=acting,
+                beta=0.5,
+                env_kwargs=ENV_KWARGS,
+            )
+            for jobs in (1, 2)
+        ]
+        assert [ep.seed for ep in runs[1]] == [40, 41, 42]
+        for one, two in zip(*runs, strict=True):
+            np.testing.assert_array_equal(one.actions, two.actions)
+            np.testing.assert_array_equal(one.labels, two.labels)
+            np.testing.assert_array_equal(one.observations["top_rgb"], two.observations["top_rgb"])
+    with pytest.raises(ValueError, match="give env_kwargs"):
+        train_pixel_imitation(pixel_env, PixelImitationConfig(jobs=2, device="cpu"))
 
 
 def test_random_shift_moves_each_image_by_whole_pixels_within_the_pad():

@@ -2,7 +2,8 @@
 policy's recipe, BC from scripted demonstrations with DART noise then DAgger, with the top
 camera image in place of the pose estimate.
 
-Collection and DAgger are :func:`scorbot_gym.rl.imitation.collect_episodes` unchanged: the
+Collection and DAgger are :func:`scorbot_gym.rl.imitation.collect_episodes` unchanged (in
+``jobs`` worker processes if asked: rendering, not the fit, is what a run waits for): the
 scripted controller acts (demonstrations) or labels (DAgger) from the **oracle** pose in
 ``info``, the learner acts from its frame, proprioception and action history. Episodes store
 only what the policy reads, the image as its 84 x 84 uint8 frame (``keep``), so memory grows by
@@ -50,6 +51,7 @@ class PixelImitationConfig:
     history: HistorySpec = field(default_factory=HistorySpec)
     seed: int = 0
     torch_threads: int = 1
+    jobs: int = 1  # collection processes (the episodes do not depend on it)
     sync_expert: bool = True
     device: str = "auto"
 
@@ -60,7 +62,7 @@ class PixelImitationConfig:
             raise ValueError("a pixel policy reads no pose estimate: history.pose_window must be 0")
         if isinstance(self.net, dict):
             self.net = NetSpec(**self.net)
-        for name in ("demos", "fit_steps", "batch_size", "torch_threads"):
+        for name in ("demos", "fit_steps", "batch_size", "torch_threads", "jobs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         for name in ("dagger_rounds", "dagger_episodes", "shift"):
@@ -216,6 +218,7 @@ def train_pixel_imitation(
     config: PixelImitationConfig,
     progress: Callable[[str], None] | None = None,
     on_round: Callable[[PixelPolicy, dict[str, Any]], None] | None = None,
+    env_kwargs: dict[str, Any] | None = None,
 ) -> tuple[PixelPolicy, dict[str, Any]]:
     """BC on ``config.demos`` DART-noised scripted demonstrations (seeds ``seed, seed + 1,
     ...``), then ``config.dagger_rounds`` DAgger rounds on fresh seeds, the scripted controller
@@ -226,15 +229,36 @@ def train_pixel_imitation(
 
     ``on_round(policy, round_record)`` is called after every fit (BC, then each DAgger round)
     with the record so far already in ``policy.meta`` (``"rounds_done"`` of
-    ``config.dagger_rounds + 1``): save it there and a run cut short still leaves a policy."""
+    ``config.dagger_rounds + 1``): save it there and a run cut short still leaves a policy.
+
+    With ``config.jobs > 1`` the episodes are collected in that many worker processes, each
+    with its own env made by :func:`scorbot_gym.make_env` from ``env_kwargs`` (the keywords
+    ``env`` was made with). Every episode draws its DART noise and who acts from its own
+    stream (``config.seed``, the round, the episode's seed), so the data do not depend on
+    ``jobs``."""
+    if config.jobs > 1 and env_kwargs is None:
+        raise ValueError(
+            "jobs > 1 collects in worker processes: give env_kwargs, the make_env keywords "
+            "of env, for their envs"
+        )
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
-    rng = np.random.default_rng(config.seed)
     policy = skeleton(env, config)
+
+    def collect(round_index: int, seeds: range, learner: PixelPolicy | None, beta: float):
+        return collect_pixel_episodes(
+            env,
+            seeds,
+            policy,
+            config,
+            round_index=round_index,
+            learner=learner,
+            beta=beta,
+            env_kwargs=env_kwargs,
+        )
+
     seeds = range(config.seed, config.seed + config.demos)
-    data = collect_episodes(
-        env, seeds, dart_sigma=config.dart_sigma, rng=rng, keep=policy.compact_observation
-    )
+    data = collect(0, seeds, None, 1.0)
     frames, vectors, labels = _concat([episode_arrays(ep, policy) for ep in data])
     fit_t0 = time.perf_counter()
     losses = fit_pixel_policy(policy, frames, vectors, labels, config, seed=config.seed)
@@ -250,15 +274,7 @@ def train_pixel_imitation(
         beta = config.beta * config.beta_decay ** (r - 1)
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
-        new = collect_episodes(
-            env,
-            seeds,
-            learner=policy,
-            beta=beta,
-            rng=rng,
-            sync_expert=config.sync_expert,
-            keep=policy.compact_observation,
-        )
+        new = collect(r, seeds, policy, beta)
         f, v, y = _concat([episode_arrays(ep, policy) for ep in new])
         frames = np.concatenate([frames, f])
         vectors = np.concatenate([vectors, v])
@@ -274,6 +290,75 @@ def train_pixel_imitation(
             on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
     _record(policy, config, start, rounds, frames, labels)
     return policy, policy.meta["training"]
+
+
+def collect_pixel_episodes(
+    env: gym.Env,
+    seeds: range,
+    policy: PixelPolicy,
+    config: PixelImitationConfig,
+    *,
+    round_index: int,
+    learner: PixelPolicy | None = None,
+    beta: float = 1.0,
+    env_kwargs: dict[str, Any] | None = None,
+) -> list[LabelledEpisode]:
+    """One round's episodes (:func:`~scorbot_gym.rl.imitation.collect_episodes`, stored as
+    ``policy``'s compact observations): demonstrations with DART noise when ``learner`` is
+    None, else DAgger with the learner acting with probability ``1 - beta``. In
+    ``config.jobs`` processes when it is above 1 (their envs from ``env_kwargs``); the same
+    episodes either way."""
+    key = (config.seed % 2**32, round_index)
+    kwargs = {"beta": beta, "sync_expert": config.sync_expert and learner is not None}
+    if learner is None:
+        kwargs["dart_sigma"] = config.dart_sigma
+    if config.jobs == 1 or len(seeds) < 2:
+        return _collect_seeds(env, seeds, key, policy, learner, kwargs)
+    from scorbot_gym.evaluation.chunks import run_chunked
+
+    blob = _policy_blob(learner if learner is not None else policy)
+    acting = learner is not None
+
+    def chunk_args(_task: int, n: int, first: int) -> tuple:
+        return (env_kwargs, range(first, first + n), key, blob, acting, kwargs)
+
+    done = run_chunked(_collect_chunk, [(len(seeds), seeds.start)], chunk_args, config.jobs)
+    return [ep for chunk in done[0] for ep in chunk]
+
+
+def _collect_seeds(env, seeds, key, policy, learner, kwargs) -> list[LabelledEpisode]:
+    out = []
+    for seed in seeds:
+        rng = np.random.default_rng([*key, seed % 2**32])
+        out += collect_episodes(
+            env, [seed], learner=learner, rng=rng, keep=policy.compact_observation, **kwargs
+        )
+    return out
+
+
+def _policy_blob(policy: PixelPolicy) -> tuple:
+    """What rebuilds ``policy`` in a worker (plain arrays and dicts: they pickle)."""
+    return (policy.net_spec, policy.state_arrays(), policy.mean, policy.std, policy.meta)
+
+
+_WORKER_ENVS: dict[str, gym.Env] = {}  # a worker's env, built once per set of keywords
+
+
+def _collect_chunk(env_kwargs, seeds, key, blob, with_learner, kwargs) -> list[LabelledEpisode]:
+    """A worker's share of a round (module level: it pickles for spawned processes)."""
+    import torch as th
+
+    from scorbot_gym.envs.factory import make_env
+
+    th.set_num_threads(1)  # one-sample predictions: threads only add contention
+    name = repr(sorted(env_kwargs.items()))
+    if name not in _WORKER_ENVS:
+        kw = dict(env_kwargs)
+        _WORKER_ENVS[name] = make_env(kw.pop("env_id", "ScorbotGraspCartesian-v0"), **kw)
+    env = _WORKER_ENVS[name]
+    policy = PixelPolicy(*blob).bind(env)
+    learner = policy if with_learner else None
+    return _collect_seeds(env, seeds, key, policy, learner, kwargs)
 
 
 def _record(
