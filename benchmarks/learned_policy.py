@@ -12,6 +12,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
         [--pose-window 8]   # the policy remembers its last 8 fresh estimates
         [--pose-dispersion]   # ... and sees how much they disagree (HistorySpec)
+        [--stall-steps 50]   # ... and how long its TCP has been still
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -91,6 +92,13 @@ def main(argv: list[str] | None = None) -> None:
         "(HistorySpec.pose_dispersion; needs --pose-window)",
     )
     p.add_argument(
+        "--stall-steps",
+        type=non_negative_int,
+        default=0,
+        help="the policy sees how long its TCP has been still, up to this many steps "
+        "(HistorySpec.stall_steps; 0: not)",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -122,7 +130,11 @@ def main(argv: list[str] | None = None) -> None:
             poses=tuple(v for v in args.poses.split(",") if v),
             beta=args.beta,
             init_policy=args.init_policy,
-            history=HistorySpec(pose_window=args.pose_window, pose_dispersion=args.pose_dispersion),
+            history=HistorySpec(
+                pose_window=args.pose_window,
+                pose_dispersion=args.pose_dispersion,
+                stall_steps=args.stall_steps,
+            ),
         )
         demos = None
         if args.dataset:

@@ -23,6 +23,12 @@ ception, the estimated object pose, ``pose_valid``/``pose_confidence``/``pose_ag
   agree from step to step, met heading noise with its agreement input at ten standard
   deviations and lost most grasps; pinning that input to its training mean recovered them).
 
+- optionally (``stall_steps`` > 0) how many steps the TCP has been still (moved under 1 mm a
+  step), up to ``stall_steps``: the scripted controller closes when its descent reaches the
+  grasp point *or* after 2 s of descending (another internal timer). A policy blocked on an
+  object's rim, commanding down with the fingers open, otherwise sees the same input every
+  step and waits for the time limit.
+
 A few features are computed from the observation, as a feature extractor would: the object
 relative to the TCP, and the object's heading relative to the base and wrist (sin/cos of twice
 the angle: a parallel gripper closes along the same line after a half turn).
@@ -86,6 +92,8 @@ class HistorySpec:
     pose_window: int = 0
     #: the window's summary also gives the estimates' disagreement (module docstring)
     pose_dispersion: bool = False
+    #: > 0: how long the TCP has been still, counted up to this many steps (module docstring)
+    stall_steps: int = 0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -110,6 +118,8 @@ class HistorySpec:
             raise ValueError(f"history {record!r}: {exc}") from None
 
 
+#: a TCP that moved less than this between two observations was still (``stall_steps``)
+STILL_M = 0.001
 #: values summarising the window of fresh estimates (:meth:`ActionHistory.pose_features`)
 N_POSE_WINDOW_FEATURES = 15
 #: the window's disagreement values, with ``pose_dispersion``
@@ -123,9 +133,13 @@ def n_window_features(history: HistorySpec) -> int:
     return N_POSE_WINDOW_FEATURES + N_POSE_DISPERSION_FEATURES * history.pose_dispersion
 
 
+def n_history_features(history: HistorySpec) -> int:
+    """How many values :meth:`ActionHistory.features` gives under ``history``."""
+    return 6 * history.previous_actions + history.gripper_commands + (history.stall_steps > 0)
+
+
 def n_features(n_classes: int, history: HistorySpec) -> int:
-    window = n_window_features(history)
-    return 47 + n_classes + 6 * history.previous_actions + history.gripper_commands + window
+    return 47 + n_classes + n_history_features(history) + n_window_features(history)
 
 
 def _fresh_estimate(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float] | None:
@@ -149,16 +163,25 @@ class ActionHistory:
         # before the first step the gripper was commanded open, as the env resets it
         self.gripper = np.ones(self.spec.gripper_commands, np.float32)
         self.estimates: list[tuple[np.ndarray, float]] = []
+        self.still_steps = 0  # consecutive steps the TCP moved under STILL_M
+        self._tcp: np.ndarray | None = None
 
     def push(self, action: np.ndarray, obs: dict[str, np.ndarray] | None = None) -> None:
         """Remember the action that was executed (whoever chose it) and the observation it was
         chosen on (needed with ``pose_window``: its estimate joins the window if fresh)."""
+        if (self.spec.pose_window or self.spec.stall_steps) and obs is None:
+            raise ValueError(
+                "a history with pose_window or stall_steps > 0 needs the observation in push"
+            )
         if self.spec.pose_window:
-            if obs is None:
-                raise ValueError("a history with pose_window > 0 needs the observation in push")
             fresh = _fresh_estimate(obs)
             if fresh is not None:
                 self.estimates = [*self.estimates, fresh][-self.spec.pose_window :]
+        if self.spec.stall_steps:
+            tcp = np.asarray(obs["ee_pos"], float)
+            still = self._tcp is not None and np.linalg.norm(tcp - self._tcp) < STILL_M
+            self.still_steps = self.still_steps + 1 if still else 0
+            self._tcp = tcp
         a = np.asarray(action, np.float32)
         if self.spec.previous_actions:
             self.actions = np.roll(self.actions, 1, axis=0)
@@ -168,7 +191,13 @@ class ActionHistory:
             self.gripper[0] = 1.0 if a[-1] > 0 else -1.0
 
     def features(self) -> np.ndarray:
-        return np.r_[self.actions.ravel(), self.gripper].astype(np.float32)
+        """Previous actions, gripper commands and, with ``stall_steps``, how long the TCP has
+        been still (0 moving ... 1 for ``stall_steps`` steps or more; counted up to the
+        observation the last action was chosen on)."""
+        parts = [self.actions.ravel(), self.gripper]
+        if self.spec.stall_steps:
+            parts.append([min(self.still_steps, self.spec.stall_steps) / self.spec.stall_steps])
+        return np.concatenate(parts).astype(np.float32)
 
     def pose_features(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """The window of the last ``pose_window`` fresh estimates, ``obs``'s own included:

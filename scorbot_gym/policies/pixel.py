@@ -42,6 +42,7 @@ from scorbot_gym.policies.imitation import (
     ActionHistory,
     HistorySpec,
     _atomic,
+    n_history_features,
     open_policy_folder,
     to_action,
 )
@@ -401,7 +402,7 @@ class PixelPolicy:
 
 
 def n_vector_features(n_classes: int, history: HistorySpec) -> int:
-    return PROPRIO_SIZE + n_classes + 6 * history.previous_actions + history.gripper_commands
+    return PROPRIO_SIZE + n_classes + n_history_features(history)
 
 
 def new_meta(
