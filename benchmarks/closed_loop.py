@@ -115,7 +115,7 @@ def _plot(report: dict, path: Path) -> None:
         ax.set_ylim(0, 1.02)
         ax.set_xlabel(f"noisy_oracle {key} sigma ({unit})")
         ax.set_ylabel("grasp success")
-        ax.set_title(f"robustness to {key} noise (re-estimated every step)")
+        ax.set_title(f"robustness to {key} noise\n(re-estimated every step)")
         ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
