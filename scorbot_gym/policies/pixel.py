@@ -133,28 +133,21 @@ def build_network(spec: NetSpec, n_vector: int):
             logits = self.project(x).flatten(2) / self.log_temperature.exp()
             return (th.softmax(logits, dim=-1) @ self.grid).flatten(1)
 
+    def convs(layers: list[tuple[int, int, int]]) -> list[nn.Module]:
+        """Conv2d + ReLU per (channels out, kernel, stride), from the frame's channels."""
+        out, c = [], spec.channels
+        for n, k, stride in layers:
+            out += [nn.Conv2d(c, n, k, stride=stride), nn.ReLU()]
+            c = n
+        return out
+
     def encoder() -> nn.Module:
-        c = spec.channels
         if spec.encoder == "nature":
-            return nn.Sequential(
-                nn.Conv2d(c, 32, 8, stride=4),
-                nn.ReLU(),
-                nn.Conv2d(32, 64, 4, stride=2),
-                nn.ReLU(),
-                nn.Conv2d(64, 64, 3, stride=1),
-                nn.ReLU(),
-                nn.Flatten(),
-            )
-        trunk = nn.Sequential(
-            nn.Conv2d(c, 32, 5, stride=2),
-            nn.ReLU(),
-            nn.Conv2d(32, 32, 3, stride=1),
-            nn.ReLU(),
-            nn.Conv2d(32, 32, 3, stride=1),
-            nn.ReLU(),
-        )
+            return nn.Sequential(*convs([(32, 8, 4), (64, 4, 2), (64, 3, 1)]), nn.Flatten())
+        trunk = nn.Sequential(*convs([(32, 5, 2), (32, 3, 1), (32, 3, 1)]))
         with th.no_grad():
-            _, n, h, w = trunk(th.zeros(1, c, spec.frame_size, spec.frame_size)).shape
+            frame = th.zeros(1, spec.channels, spec.frame_size, spec.frame_size)
+            _, n, h, w = trunk(frame).shape
         return nn.Sequential(trunk, SpatialSoftmax(n, h, w, spec.keypoints))
 
     class PixelNet(nn.Module):
