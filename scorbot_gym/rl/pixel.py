@@ -236,11 +236,6 @@ def train_pixel_imitation(
     ``env`` was made with). Every episode draws its DART noise and who acts from its own
     stream (``config.seed``, the round, the episode's seed), so the data do not depend on
     ``jobs``."""
-    if config.jobs > 1 and env_kwargs is None:
-        raise ValueError(
-            "jobs > 1 collects in worker processes: give env_kwargs, the make_env keywords "
-            "of env, for their envs"
-        )
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     policy = skeleton(env, config)
@@ -308,6 +303,11 @@ def collect_pixel_episodes(
     None, else DAgger with the learner acting with probability ``1 - beta``. In
     ``config.jobs`` processes when it is above 1 (their envs from ``env_kwargs``); the same
     episodes either way."""
+    if config.jobs > 1 and env_kwargs is None:
+        raise ValueError(
+            "jobs > 1 collects in worker processes: give env_kwargs, the make_env keywords "
+            "of env, for their envs"
+        )
     key = (config.seed % 2**32, round_index)
     kwargs = {"beta": beta, "sync_expert": config.sync_expert and learner is not None}
     if learner is None:
