@@ -102,6 +102,7 @@ def test_tiny_imitation_run_writes_a_loadable_policy_that_acts_in_the_action_spa
         "gripper_commands": 20,
         "pose_window": 0,
         "pose_dispersion": False,
+        "stall_steps": 0,
     }
     assert len(meta["normalization"]["mean"]) == policy.net.n_inputs
     loaded = load_policy(tmp_path / "p")
