@@ -168,7 +168,8 @@ class ActionHistory:
 
     def push(self, action: np.ndarray, obs: dict[str, np.ndarray] | None = None) -> None:
         """Remember the action that was executed (whoever chose it) and the observation it was
-        chosen on (needed with ``pose_window``: its estimate joins the window if fresh)."""
+        chosen on (needed with ``pose_window``: its estimate joins the window if fresh; and
+        with ``stall_steps``: its TCP position says whether the arm moved)."""
         if (self.spec.pose_window or self.spec.stall_steps) and obs is None:
             raise ValueError(
                 "a history with pose_window or stall_steps > 0 needs the observation in push"
