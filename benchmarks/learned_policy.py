@@ -13,6 +13,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--pose-window 8]   # the policy remembers its last 8 fresh estimates
         [--pose-dispersion]   # ... and sees how much they disagree (HistorySpec)
         [--stall-steps 50]   # ... and how long its TCP has been still
+        [--expert-keeps-close]  # DAgger labels "close" until the learner closes
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -99,6 +100,12 @@ def main(argv: list[str] | None = None) -> None:
         "(HistorySpec.stall_steps; 0: not)",
     )
     p.add_argument(
+        "--expert-keeps-close",
+        action="store_true",
+        help="the DAgger labeller's decision to close stands until the learner closes "
+        "(ImitationConfig.expert_keeps_close)",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -127,6 +134,7 @@ def main(argv: list[str] | None = None) -> None:
             fit_steps=args.fit_steps,
             seed=args.seed,
             sync_expert=not args.no_sync_expert,
+            expert_keeps_close=args.expert_keeps_close,
             poses=tuple(v for v in args.poses.split(",") if v),
             beta=args.beta,
             init_policy=args.init_policy,

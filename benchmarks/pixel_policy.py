@@ -46,8 +46,7 @@ def run_chunk(name: str, seed: int, episodes: int) -> list:
 
     torch.set_num_threads(1)  # one-sample predictions: threads only add contention
     arm = resolve_arm(name)
-    kw = dict(arm.env_kwargs)
-    env = make_env(kw.pop("env_id", "ScorbotGraspCartesian-v0"), pose="oracle", **kw)
+    env = make_env(**{"env_id": "ScorbotGraspCartesian-v0", **arm.env_kwargs}, pose="oracle")
     try:
         return run_episodes(env, arm.build(env, seed), episodes, seed, progress=False)
     finally:
@@ -210,8 +209,7 @@ def main(argv: list[str] | None = None) -> None:
             "image_width": width,
             "image_height": height,
         }
-        kw = dict(env_kwargs)
-        env = make_env(kw.pop("env_id"), **kw)
+        env = make_env(**env_kwargs)
         try:
             policy, _ = train_pixel_imitation(
                 env,

@@ -233,3 +233,41 @@ def test_a_corrupt_or_incompatible_policy_is_a_one_line_error(tmp_path, damage):
     with pytest.raises(ValueError) as exc:
         load_policy(path)
     assert "\n" not in str(exc.value) and str(path) in str(exc.value)
+
+
+@pytest.mark.parametrize("keeps_close", [False, True])
+def test_a_blocked_descent_is_labelled_close_until_the_learner_closes(box_env, keeps_close):
+    """A learner that follows the labels but is held 3 cm above the grasp (a descent blocked on
+    a rim) and never closes: the controller decides to close after its 2 s descent. With
+    ``keeps_close`` every later label says close; without, the learner's open fingers send the
+    controller back to a fresh descent, and close labels come one per 2 s."""
+    expert = ExecutedActionExpert(ScriptedGraspPolicy.for_env(box_env), keeps_close=keeps_close)
+    classes = box_env.get_wrapper_attr("class_names")
+    obs, info = box_env.reset(seed=7)
+    expert.reset(oracle_view(obs, info, classes), info)
+    closing = []
+    while True:
+        label = expert.act(oracle_view(obs, info, classes))
+        closing.append(bool(label[-1] < 0))
+        action = label.copy()
+        grasp = expert.base.grasp
+        if grasp is not None and obs["ee_pos"][2] < grasp[2] + 0.03:
+            action[2] = max(action[2], 0.0)  # blocked: never lower
+        action[-1] = 1.0  # never closes
+        expert.executed(action)
+        obs, _, terminated, truncated, info = box_env.step(action)
+        assert not terminated  # never grasped
+        if truncated:  # the time limit
+            break
+    first = closing.index(True)
+    after = np.mean(closing[first:])
+    if keeps_close:
+        assert after == 1.0
+    else:
+        assert 0 < after < 0.1
+
+
+def test_expert_keeps_close_needs_the_synchronised_expert():
+    with pytest.raises(ValueError, match="expert_keeps_close needs sync_expert"):
+        ImitationConfig(sync_expert=False, expert_keeps_close=True)
+    assert ImitationConfig().expert_keeps_close is False  # the shipped recipe's labeller

@@ -147,10 +147,21 @@ class ExecutedActionExpert:
     back to its descent (where it re-plans from the pose, re-aligns and closes again): labels
     consistent with the history the learner sees. In demonstrations (the controller acts) the
     executed gripper is its own and nothing changes.
+
+    ``keeps_close``: a decision to close stands until the learner closes. The controller
+    closes when its descent reaches the grasp *or after 2 s of descent*, whatever the fingers
+    touch. A learner whose descent is blocked (on the rim of an object a few millimetres off
+    its estimate) and keeps the fingers open would otherwise send the controller back to a
+    fresh 2 s descent: one "close" label per 2 s, all the others "keep descending, open",
+    which teaches the learner to wait at the rim until the time limit. With it, the
+    controller stays in its closing phase (its closing timer restarted, since the fingers
+    have not begun to close), so every step of a blocked descent past the controller's
+    timeout is labelled "close". Lifting and holding still go back to the descent.
     """
 
-    def __init__(self, base: ScriptedGraspPolicy) -> None:
+    def __init__(self, base: ScriptedGraspPolicy, keeps_close: bool = False) -> None:
         self.base = base
+        self.keeps_close = keeps_close
 
     def reset(self, obs: dict[str, np.ndarray], info: dict[str, Any]) -> None:
         self.base.reset(obs, info)
@@ -160,12 +171,16 @@ class ExecutedActionExpert:
 
     def executed(self, action: np.ndarray) -> None:
         b = self.base
-        if action[-1] > 0 and b.phase in ("close", "lift", "hold"):
+        if action[-1] <= 0:
+            return
+        if b.phase == "close" and self.keeps_close:
+            b._phase_time = 0.0
+        elif b.phase in ("close", "lift", "hold"):
             b.phase, b._phase_time = "descend", 0.0
 
     @classmethod
-    def for_env(cls, env: gym.Env) -> ExecutedActionExpert:
-        return cls(ScriptedGraspPolicy.for_env(env))
+    def for_env(cls, env: gym.Env, keeps_close: bool = False) -> ExecutedActionExpert:
+        return cls(ScriptedGraspPolicy.for_env(env), keeps_close=keeps_close)
 
 
 def collect_episodes(
@@ -291,6 +306,9 @@ class ImitationConfig:
     seed: int = 0
     torch_threads: int = 1
     sync_expert: bool = True
+    #: the synchronised expert's decision to close stands until the learner closes
+    #: (:class:`ExecutedActionExpert` ``keeps_close``); runs recorded before it had False
+    expert_keeps_close: bool = False
     #: pose conditions the learner observes, round-robin over episodes (module docstring;
     #: :func:`learner_pose`); the expert labels from the oracle pose under every one
     poses: tuple[str, ...] = ("oracle",)
@@ -319,6 +337,8 @@ class ImitationConfig:
             )
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
+        if self.expert_keeps_close and not self.sync_expert:
+            raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
         self.hidden = tuple(int(h) for h in self.hidden)
 
 
@@ -375,6 +395,13 @@ def make_learner_envs(
             make_env(env_id, pose=source, pose_kwargs=kwargs, identity=identity, **env_kwargs)
         )
     return envs
+
+
+def _expert_kwargs(config: ImitationConfig) -> dict[str, Any]:
+    """How :func:`collect_episodes` builds the DAgger labeller under ``config``."""
+    if not config.expert_keeps_close:
+        return {"sync_expert": config.sync_expert}
+    return {"expert_factory": lambda env: ExecutedActionExpert.for_env(env, keeps_close=True)}
 
 
 def _collect_round_robin(
@@ -586,7 +613,7 @@ def train_imitation(
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
         new = _collect_round_robin(
-            envs, seeds, learner=policy, beta=beta, rng=rng, sync_expert=config.sync_expert
+            envs, seeds, learner=policy, beta=beta, rng=rng, **_expert_kwargs(config)
         )
         data += new
         new_pairs = [episode_features(ep, policy) for ep in new]

@@ -353,8 +353,7 @@ def _collect_chunk(env_kwargs, seeds, key, blob, with_learner, kwargs) -> list[L
     th.set_num_threads(1)  # one-sample predictions: threads only add contention
     name = repr(sorted(env_kwargs.items()))
     if name not in _WORKER_ENVS:
-        kw = dict(env_kwargs)
-        _WORKER_ENVS[name] = make_env(kw.pop("env_id", "ScorbotGraspCartesian-v0"), **kw)
+        _WORKER_ENVS[name] = make_env(**{"env_id": "ScorbotGraspCartesian-v0", **env_kwargs})
     env = _WORKER_ENVS[name]
     policy = PixelPolicy(*blob).bind(env)
     learner = policy if with_learner else None
