@@ -155,6 +155,11 @@ def main(argv: list[str] | None = None) -> None:
         help="image encoder: the Nature-DQN stack or spatial-softmax keypoints",
     )
     p.add_argument("--keypoints", type=positive_int, default=32, help="spatial_softmax only")
+    p.add_argument(
+        "--expert-keeps-close",
+        action="store_true",
+        help="the DAgger labeller's decision to close stands until the learner closes",
+    )
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
     p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
@@ -198,6 +203,7 @@ def main(argv: list[str] | None = None) -> None:
             seed=args.seed,
             torch_threads=args.threads,
             jobs=args.jobs,
+            expert_keeps_close=args.expert_keeps_close,
             device=args.device,
         )
         width, height = DEFAULT_RENDER_SIZE

@@ -267,7 +267,22 @@ def test_a_blocked_descent_is_labelled_close_until_the_learner_closes(box_env, k
         assert 0 < after < 0.1
 
 
-def test_expert_keeps_close_needs_the_synchronised_expert():
+def test_expert_keeps_close_needs_the_synchronised_expert(box_env):
+    from scorbot_gym.rl.pixel import PixelImitationConfig
+
+    for make in (ImitationConfig, PixelImitationConfig):
+        with pytest.raises(ValueError, match="expert_keeps_close needs sync_expert"):
+            make(sync_expert=False, expert_keeps_close=True)
     with pytest.raises(ValueError, match="expert_keeps_close needs sync_expert"):
-        ImitationConfig(sync_expert=False, expert_keeps_close=True)
+        collect_episodes(box_env, [0], expert_keeps_close=True)
     assert ImitationConfig().expert_keeps_close is False  # the shipped recipe's labeller
+
+
+def test_a_run_with_labels_that_keep_closing_records_it(box_env):
+    from dataclasses import replace
+
+    config = replace(TINY, expert_keeps_close=True, history={"stall_steps": 10})
+    policy, record = train_imitation(box_env, config)
+    assert record["config"]["expert_keeps_close"] is True
+    assert policy.meta["training"]["config"]["expert_keeps_close"] is True
+    assert len(record["rounds"]) == 2  # BC, then its DAgger round with the new labeller

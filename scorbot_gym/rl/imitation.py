@@ -193,6 +193,7 @@ def collect_episodes(
     rng: np.random.Generator | None = None,
     expert_factory: Callable[[gym.Env], Any] | None = None,
     sync_expert: bool = False,
+    expert_keeps_close: bool = False,
     keep: Callable[[dict[str, np.ndarray]], dict[str, np.ndarray]] | None = None,
 ) -> list[LabelledEpisode]:
     """Run one episode per seed; the expert labels every observation.
@@ -200,13 +201,21 @@ def collect_episodes(
     Who acts: with ``learner=None`` the expert (plus DART noise ``dart_sigma`` on the arm);
     otherwise, at each step, the expert with probability ``beta`` and the learner otherwise.
     The learner's features use the history of *executed* actions. ``sync_expert`` makes the
-    expert an :class:`ExecutedActionExpert` (the default expert: the scripted controller).
+    expert an :class:`ExecutedActionExpert` (the default expert: the scripted controller),
+    ``expert_keeps_close`` its ``keeps_close``.
     ``keep`` maps each observation to what the episode stores (default: all of it), e.g. a
     pixel policy's small frames instead of the rendered images, to keep memory bounded.
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     classes = tuple(env.get_wrapper_attr("class_names"))
-    default = ExecutedActionExpert.for_env if sync_expert else ScriptedGraspPolicy.for_env
+    if expert_keeps_close and not sync_expert:
+        raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
+
+    def default(env: gym.Env) -> Any:
+        if sync_expert:
+            return ExecutedActionExpert.for_env(env, keeps_close=expert_keeps_close)
+        return ScriptedGraspPolicy.for_env(env)
+
     make_expert = expert_factory or default
     expert = make_expert(env)
     history = ActionHistory(learner.history_spec) if learner is not None else None
@@ -395,13 +404,6 @@ def make_learner_envs(
             make_env(env_id, pose=source, pose_kwargs=kwargs, identity=identity, **env_kwargs)
         )
     return envs
-
-
-def _expert_kwargs(config: ImitationConfig) -> dict[str, Any]:
-    """How :func:`collect_episodes` builds the DAgger labeller under ``config``."""
-    if not config.expert_keeps_close:
-        return {"sync_expert": config.sync_expert}
-    return {"expert_factory": lambda env: ExecutedActionExpert.for_env(env, keeps_close=True)}
 
 
 def _collect_round_robin(
@@ -613,7 +615,13 @@ def train_imitation(
         seeds = range(next_seed, next_seed + config.dagger_episodes)
         next_seed += config.dagger_episodes
         new = _collect_round_robin(
-            envs, seeds, learner=policy, beta=beta, rng=rng, **_expert_kwargs(config)
+            envs,
+            seeds,
+            learner=policy,
+            beta=beta,
+            rng=rng,
+            sync_expert=config.sync_expert,
+            expert_keeps_close=config.expert_keeps_close,
         )
         data += new
         new_pairs = [episode_features(ep, policy) for ep in new]

@@ -53,6 +53,9 @@ class PixelImitationConfig:
     torch_threads: int = 1
     jobs: int = 1  # collection processes (the episodes do not depend on it)
     sync_expert: bool = True
+    #: the DAgger labeller's decision to close stands until the learner closes
+    #: (:class:`~scorbot_gym.rl.imitation.ExecutedActionExpert` ``keeps_close``)
+    expert_keeps_close: bool = False
     device: str = "auto"
 
     def __post_init__(self) -> None:
@@ -74,6 +77,8 @@ class PixelImitationConfig:
             )
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
+        if self.expert_keeps_close and not self.sync_expert:
+            raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
 
@@ -309,7 +314,12 @@ def collect_pixel_episodes(
             "of env, for their envs"
         )
     key = (config.seed % 2**32, round_index)
-    kwargs = {"beta": beta, "sync_expert": config.sync_expert and learner is not None}
+    sync = config.sync_expert and learner is not None
+    kwargs = {
+        "beta": beta,
+        "sync_expert": sync,
+        "expert_keeps_close": sync and config.expert_keeps_close,
+    }
     if learner is None:
         kwargs["dart_sigma"] = config.dart_sigma
     if config.jobs == 1 or len(seeds) < 2:
