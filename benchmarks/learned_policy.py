@@ -17,11 +17,12 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
-the policy learns to act on estimates (default: ``oracle``, the shipped policy's recipe).
+the policy learns to act on estimates (default: ``oracle``).
 
 Writes ``benchmarks/results/learned_policy.json`` and saves the policy folder (``--out``,
 default: the shipped ``imitation_dagger_estimates``, trained with
-``--poses oracle,manifold --pose-window 8 --dagger-rounds 4``).
+``--poses oracle,manifold --pose-window 8 --dagger-rounds 4 --stall-steps 50
+--expert-keeps-close``).
 """
 
 from __future__ import annotations
