@@ -183,6 +183,12 @@ class ExecutedActionExpert:
         return cls(ScriptedGraspPolicy.for_env(env), keeps_close=keeps_close)
 
 
+def check_expert_options(sync_expert: bool, expert_keeps_close: bool) -> None:
+    """One-line error for a labeller option that needs the executed-action expert."""
+    if expert_keeps_close and not sync_expert:
+        raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
+
+
 def collect_episodes(
     env: gym.Env,
     seeds: Sequence[int],
@@ -208,8 +214,7 @@ def collect_episodes(
     """
     rng = rng if rng is not None else np.random.default_rng(0)
     classes = tuple(env.get_wrapper_attr("class_names"))
-    if expert_keeps_close and not sync_expert:
-        raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
+    check_expert_options(sync_expert, expert_keeps_close)
 
     def default(env: gym.Env) -> Any:
         if sync_expert:
@@ -346,8 +351,7 @@ class ImitationConfig:
             )
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
-        if self.expert_keeps_close and not self.sync_expert:
-            raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
+        check_expert_options(self.sync_expert, self.expert_keeps_close)
         self.hidden = tuple(int(h) for h in self.hidden)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from scorbot_gym.policies.imitation import ActionHistory, HistorySpec, to_action
 from scorbot_gym.policies.pixel import NetSpec, PixelPolicy, n_vector_features, new_meta
-from scorbot_gym.rl.imitation import LabelledEpisode, collect_episodes
+from scorbot_gym.rl.imitation import LabelledEpisode, check_expert_options, collect_episodes
 
 
 @dataclass
@@ -77,8 +77,7 @@ class PixelImitationConfig:
             )
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
-        if self.expert_keeps_close and not self.sync_expert:
-            raise ValueError("expert_keeps_close needs sync_expert (the executed-action expert)")
+        check_expert_options(self.sync_expert, self.expert_keeps_close)
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
 
