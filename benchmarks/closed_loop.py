@@ -181,6 +181,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from pose.fileio import atomic_write_json
     from scorbot_gym.evaluation.rollout import RolloutConfig
+    from scorbot_gym.perception.baseline_models import baseline_models_like
     from scorbot_gym.perception.training import default_pose_models
 
     cv2.setNumThreads(1)  # the estimator's figures are for one core
@@ -196,7 +197,8 @@ def main(argv: list[str] | None = None) -> int:
         default_pose_models("eye_in_hand", *EYE_IN_HAND_SIZE, progress=args.progress)
     for config in arms.values():  # a baseline's set is fitted here, once, and cached
         if config.estimator != "manifold":
-            config.pose_kwargs(progress=args.progress)
+            models = default_pose_models(config.pose_cameras[0], *config.pose_size)
+            baseline_models_like(config.estimator, models, args.jobs, args.progress)
     train_s = time.perf_counter() - t0
 
     n, seed = args.episodes, args.seed

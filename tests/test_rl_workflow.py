@@ -339,6 +339,21 @@ def test_resume_continues_appends_to_the_monitor_csv_and_clears_killed_writes(on
     assert not orphan.exists()
 
 
+def test_resume_names_the_settings_an_older_run_lacks(one_run, tmp_path):
+    """A run written before a setting existed resumes with today's default for it, and says so
+    (that default need not be what the older version did)."""
+    run = tmp_path / "run"
+    shutil.copytree(one_run, run)
+    for name, key in (("config.json", None), ("checkpoint/state.json", "config")):
+        data = json.loads((run / name).read_text())
+        (data[key] if key else data).pop("init_policy")
+        (run / name).write_text(json.dumps(data))
+    lacks = r"predates the settings \['init_policy'\].*init_policy=None"
+    with pytest.warns(UserWarning, match=lacks):
+        state = resume(run, timesteps=320)
+    assert state["timesteps"] == 320
+
+
 def test_a_policy_without_its_normalisation_is_refused(one_run, tmp_path):
     policy = tmp_path / "policy"
     shutil.copytree(one_run / "policy", policy)

@@ -143,6 +143,27 @@ def baseline_models(
     return path
 
 
+def baseline_models_like(
+    spec: str, models: PoseModelSet, jobs: int = 1, progress: bool = False
+) -> Path:
+    """:func:`baseline_models` for ``models``'s objects, training views, camera and seed: the
+    ``spec`` set a baseline arm swaps in for ``models`` (fitted once, then read from the cache).
+    A benchmark calls this to fit the set before its worker processes start, without building
+    the recogniser that :func:`baseline_source_kwargs` adds."""
+    meta = models.meta
+    return baseline_models(
+        spec,
+        TrainingSet(**meta["training"]),
+        models.object_names,
+        jobs,
+        progress,
+        camera=str(meta["camera"]),
+        width=int(meta["width"]),
+        height=int(meta["height"]),
+        seed=int(meta["seed"]),
+    )
+
+
 def baseline_source_kwargs(
     spec: str,
     models: PoseModelSet,
@@ -159,20 +180,11 @@ def baseline_source_kwargs(
     (the identity is given), no recogniser is returned. ``cameras`` are the source's."""
     from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
 
-    meta = models.meta
-    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
-    path = baseline_models(
-        spec,
-        TrainingSet(**meta["training"]),
-        models.object_names,
-        jobs,
-        progress,
-        camera=camera,
-        width=width,
-        height=height,
-        seed=int(meta["seed"]),
-    )
-    kw: dict[str, Any] = {"models": PoseModelSet.load(path)}
+    kw: dict[str, Any] = {
+        "models": PoseModelSet.load(baseline_models_like(spec, models, jobs, progress))
+    }
+    camera, width = str(models.meta["camera"]), int(models.meta["width"])
+    height = int(models.meta["height"])
     if recognizer is not None and len(models.object_names) > 1:
         ordered = [camera, *(c for c in cameras if c != camera)]
         built = make_recognizer(recognizer, models, ordered, width, height)

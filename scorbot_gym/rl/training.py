@@ -20,6 +20,7 @@ import dataclasses
 import functools
 import math
 import shutil
+import warnings
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -765,6 +766,19 @@ def _check_compatible(config: dict[str, Any], state: dict[str, Any], out: Path) 
         )
 
 
+def _warn_filled_defaults(config: TrainConfig, raw: dict[str, Any], path: Path) -> None:
+    """Say which settings a run written by an older version lacks: they take today's defaults,
+    which need not be what that version did, so a resumed curve may change behaviour there."""
+    implied = {"residual_gripper"} if raw.get("residual") else set()  # from_json's own rule
+    missing = sorted({f.name for f in dataclasses.fields(TrainConfig)} - set(raw) - implied)
+    if missing:
+        filled = ", ".join(f"{k}={getattr(config, k)!r}" for k in missing)
+        warnings.warn(
+            f"{path} predates the settings {missing}; resuming with today's defaults ({filled})",
+            stacklevel=3,
+        )
+
+
 def _remove_orphaned_writes(out: Path) -> int:
     """Delete the temporary files of atomic writes killed mid-way (``.model.tmp<pid>.zip``,
     ``.state.json.tmp``): a run folder is written by its own run only, so none is in use."""
@@ -827,6 +841,7 @@ def resume(
         config = TrainConfig.from_json(raw)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"cannot resume: {config_path}: {exc}") from None
+    _warn_filled_defaults(config, raw, config_path)
     check_pose_model(config)
     if not zipfile.is_zipfile(ck / "model.zip"):
         raise ValueError(f"cannot resume: {ck / 'model.zip'} is damaged (not a zip file)")
