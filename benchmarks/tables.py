@@ -98,6 +98,8 @@ def headline_closed_loop() -> str:
 
 #: the closed-loop run with the resting-view pose models (the default before the tilted ones)
 RESTING_CLOSED_LOOP = "closed_loop_resting_models.json"
+#: its perturbation run (``closed_loop.py --perturbations``)
+RESTING_PERTURBATIONS = "closed_loop_perturbations_resting_models.json"
 
 
 def closed_loop_arms(name: str = "closed_loop.json") -> str:
@@ -134,6 +136,7 @@ def closed_loop_robustness() -> str:
 
 def closed_loop_perturbations() -> str:
     d = read("closed_loop_perturbations.json")
+    before = read(RESTING_PERTURBATIONS)["arms"]  # the same run with the resting-view models
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -142,6 +145,7 @@ def closed_loop_perturbations() -> str:
             [
                 f"`{label}`",
                 f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}",
+                pct(before[label]["success_rate"]) if label in before else "–",
                 failures(a["failure_causes"]),
                 f"{pct(p['valid_rate'])} / {pct(p['first_estimate_valid_rate'])}",
                 pct(p["recognition_accuracy"]),
@@ -152,6 +156,7 @@ def closed_loop_perturbations() -> str:
         [
             "perturbation",
             "success (95 % CI)",
+            "with the resting-view models",
             "failures",
             "valid estimates (all steps / first)",
             "recognition",

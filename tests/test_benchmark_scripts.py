@@ -250,12 +250,21 @@ def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(
     assert "arms in more than one part" in line, line
 
 
-def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm():
+@pytest.mark.parametrize(
+    ("perturbations", "closed_loop"),
+    [
+        ("closed_loop_perturbations.json", "closed_loop.json"),  # the default models
+        ("closed_loop_perturbations_resting_models.json", "closed_loop_resting_models.json"),
+    ],
+)
+def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm(
+    perturbations, closed_loop
+):
     """The in-loop perturbation table reads every row against its unperturbed one: that row
-    must be the ``manifold`` arm of the closed-loop run with the same (resting-view) models,
-    episode for episode."""
-    report = json.loads((RESULTS / "closed_loop_perturbations.json").read_text())
-    main_run = json.loads((RESULTS / "closed_loop_resting_models.json").read_text())
+    must be the ``manifold`` arm of the closed-loop run with the same models, episode for
+    episode."""
+    report = json.loads((RESULTS / perturbations).read_text())
+    main_run = json.loads((RESULTS / closed_loop).read_text())
     assert report["perturbations"][0] == "none" and report["seed"] == main_run["seed"]
     keys = ("episodes", "successes", "failure_causes", "per_object")
     unperturbed, manifold = report["arms"]["none"], main_run["arms"]["manifold"]
