@@ -22,7 +22,8 @@ estimate <= 40 ms median per step at 320 x 240 on one core.
    recognition kept after the first clear view (the default) and with it at every step.
    OpenCV runs on one thread and Mesa's llvmpipe on one (``LP_NUM_THREADS=1`` unless set).
 
-Writes ``benchmarks/results/segmentation.json`` and ``segmentation.png``.
+Writes ``benchmarks/results/segmentation.json.gz`` (gzip-compressed: it keeps every frame's row)
+and ``segmentation.png``.
 Run: ``MUJOCO_GL=egl python benchmarks/segmentation.py`` (about 10 min on 2 cores).
 """
 
@@ -244,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-timing", action="store_true", help="mask quality only (no stage timings)"
     )
-    parser.add_argument("--out", type=Path, default=RESULTS / "segmentation.json")
+    parser.add_argument("--out", type=Path, default=RESULTS / "segmentation.json.gz")
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     w, h = 320, 240
@@ -316,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
         },
     }
     atomic_write_json(args.out, report)
-    png = args.out.with_suffix(".png")
+    png = args.out.with_name(args.out.name.removesuffix(".gz").removesuffix(".json") + ".png")
     plot(rows, timings, png)
     print(f"wrote {args.out} and {png}")
     return 0
