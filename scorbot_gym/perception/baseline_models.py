@@ -183,8 +183,8 @@ def baseline_source_kwargs(
     kw: dict[str, Any] = {
         "models": PoseModelSet.load(baseline_models_like(spec, models, jobs, progress))
     }
-    camera, width = str(models.meta["camera"]), int(models.meta["width"])
-    height = int(models.meta["height"])
+    meta = models.meta
+    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
     if recognizer is not None and len(models.object_names) > 1:
         ordered = [camera, *(c for c in cameras if c != camera)]
         built = make_recognizer(recognizer, models, ordered, width, height)
