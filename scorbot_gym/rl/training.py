@@ -233,9 +233,14 @@ class TrainConfig:
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown training settings {unknown}; valid: {sorted(known)}")
+        return cls(**cls.as_older_runs_meant(data)).validate()
+
+    @staticmethod
+    def as_older_runs_meant(data: dict[str, Any]) -> dict[str, Any]:
+        """``data`` with the settings a run from before them implies (not today's defaults)."""
         if data.get("residual") and "residual_gripper" not in data:
-            data = {**data, "residual_gripper": True}  # a run from before the setting existed
-        return cls(**data).validate()
+            return {**data, "residual_gripper": True}  # the residual corrected the gripper then
+        return data
 
 
 def check_pose_model(config: TrainConfig) -> None:
@@ -769,8 +774,8 @@ def _check_compatible(config: dict[str, Any], state: dict[str, Any], out: Path) 
 def _warn_filled_defaults(config: TrainConfig, raw: dict[str, Any], path: Path) -> None:
     """Say which settings a run written by an older version lacks: they take today's defaults,
     which need not be what that version did, so a resumed curve may change behaviour there."""
-    implied = {"residual_gripper"} if raw.get("residual") else set()  # from_json's own rule
-    missing = sorted({f.name for f in dataclasses.fields(TrainConfig)} - set(raw) - implied)
+    given = set(TrainConfig.as_older_runs_meant(raw))
+    missing = sorted({f.name for f in dataclasses.fields(TrainConfig)} - given)
     if missing:
         filled = ", ".join(f"{k}={getattr(config, k)!r}" for k in missing)
         warnings.warn(
