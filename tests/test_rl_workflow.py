@@ -249,9 +249,8 @@ def test_bad_train_options_are_refused_while_parsing(argv, message, tmp_path, ca
 def test_out_that_is_a_file_and_a_misplaced_pose_model_are_refused(tmp_path, capsys):
     afile = tmp_path / "afile"
     afile.write_bytes(b"x")
-    with pytest.raises(SystemExit):
-        main(["train", "--out", str(afile)])
-    assert "is a file, not a run folder" in capsys.readouterr().err
+    assert main(["train", "--out", str(afile)]) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err
     junk = tmp_path / "junk.npz"
     junk.write_bytes(np.random.default_rng(0).bytes(256))
     out = tmp_path / "run"
@@ -269,6 +268,7 @@ def test_a_run_stopped_before_its_first_checkpoint_starts_afresh(tmp_path, capsy
     out = tmp_path / "run"
     (out / "tb").mkdir(parents=True)
     (out / "config.json").write_text(json.dumps(tiny().to_json()))  # killed while building
+    (out / ".scorbot-gym-run.json").write_text("{}")  # the marker: the run was this tool's
     assert main(["train", "--resume", str(out)]) == 2
     assert "start it again with --out" in capsys.readouterr().err
     state = train(tiny(), out)

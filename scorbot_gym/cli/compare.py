@@ -147,12 +147,23 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
+def check_outputs(args: argparse.Namespace) -> None:
+    """``--json`` and ``--png`` writable (one-line errors), before any episode runs."""
+    from scorbot_gym.outputs import check_output_file
+
+    if args.json is not None:
+        check_output_file(args.json, "--json", (".json", ".json.gz"))
+    if args.png is not None:
+        check_output_file(args.png, "--png", (".png",))
+
+
 def run(args: argparse.Namespace) -> int:
     from pose.fileio import atomic_write_json
     from scorbot_gym.evaluation.compare import compare, plot_comparison
 
     if args.pose_model is not None and not args.pose_model.is_file():
         raise FileNotFoundError(f"--pose-model {args.pose_model}: no such file")
+    check_outputs(args)
     report = compare(
         args.policies,
         args.pose,

@@ -47,8 +47,10 @@ def _occlusion_list(text: str) -> list[float]:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from scorbot_gym.outputs import check_output_file
     from scorbot_gym.perception.training import train_models
 
+    check_output_file(args.out, "--out", (".npz",))  # before any view is rendered or fitted
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
     params = {"bunches__n_bunches": args.n_bunches}
     if args.no_refine:
@@ -70,7 +72,10 @@ def run_eval(args: argparse.Namespace) -> int:
     from pose.fileio import atomic_write_json
     from pose.model_set import PoseModelSet
     from scorbot_gym.evaluation.pose import evaluate, format_tables
+    from scorbot_gym.outputs import check_output_file
 
+    if args.json:
+        check_output_file(args.json, "--json", (".json", ".json.gz"))
     models = PoseModelSet.load(args.model)
     if args.no_refine:
         for est in models.estimators.values():
@@ -132,9 +137,16 @@ def run_ablate(args: argparse.Namespace) -> int:
         paired_differences,
         report_tables,
     )
+    from scorbot_gym.outputs import check_output_file, check_output_folder
 
     if args.paired is not None and args.paired not in args.estimators:
         raise ValueError(f"--paired {args.paired!r} is not among --estimators {args.estimators}")
+    if args.json:
+        check_output_file(args.json, "--json", (".json", ".json.gz"))
+    if args.png:
+        check_output_file(args.png, "--png", (".png",))
+    if args.bop:
+        check_output_folder(args.bop, "--bop")
     objects = tuple(o for part in (args.objects or []) for o in part.split(",") if o)
     occlusion = args.occlusion
     if occlusion is None:  # the protocol's levels (0:95:5; clutter: its measured-occlusion bins)

@@ -220,7 +220,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         action="store_true",
         help="mark the target and draw the estimated pose's axes on the video",
     )
-    p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the summary as JSON (checked before the run)"
+    )
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
 
@@ -234,6 +236,17 @@ def _policy(text: str) -> str:
     )
 
 
+def check_outputs(args: argparse.Namespace) -> None:
+    """``--json`` and ``--video`` writable (one-line errors), before any episode runs."""
+    from scorbot_gym.evaluation.video import VIDEO_SUFFIXES
+    from scorbot_gym.outputs import check_output_file
+
+    if args.json is not None:
+        check_output_file(args.json, "--json", (".json", ".json.gz"))
+    if args.video is not None:
+        check_output_file(args.video, "--video", VIDEO_SUFFIXES)
+
+
 def config_from_args(args: argparse.Namespace) -> RolloutConfig:
     """Every check happens here, before any episode runs."""
     from scorbot_gym.evaluation.rollout import RolloutConfig
@@ -241,6 +254,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
 
     if args.video and args.video.suffix.lower() not in VIDEO_SUFFIXES:
         raise ValueError(f"--video must end in {' or '.join(VIDEO_SUFFIXES)}, got {args.video}")
+    check_outputs(args)
     if args.overlay and not args.video:
         raise ValueError("--overlay draws on the video: pass --video PATH too")
     if args.pose_model is not None and not args.pose_model.is_file():

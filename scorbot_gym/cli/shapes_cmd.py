@@ -81,7 +81,12 @@ def run(args: argparse.Namespace) -> int:
     from pose.fileio import atomic_write_json
     from pose.shape.descriptors import shape_descriptors
     from pose.shape.evaluation import evaluate, plot_confusions
+    from scorbot_gym.outputs import check_output_file
 
+    if args.json:  # before the silhouettes are rendered or read
+        check_output_file(args.json, "--json", (".json", ".json.gz"))
+    if args.png:
+        check_output_file(args.png, "--png", (".png",))
     t0 = time.perf_counter()
     data, layout, what = load_silhouettes(args)
     X = shape_descriptors(data.masks)

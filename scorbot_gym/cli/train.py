@@ -51,16 +51,9 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _new_run_folder(text: str) -> Path:
-    path = Path(text)
-    if path.exists() and not path.is_dir():
-        raise argparse.ArgumentTypeError(f"{text} is a file, not a run folder")
-    return path
-
-
 def _run_folder(text: str) -> Path:
     path = Path(text)
-    if not path.is_dir():
+    if not text or not path.is_dir():
         raise argparse.ArgumentTypeError(f"no run folder at {text}")
     return path
 
@@ -133,7 +126,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--n-envs", type=positive_int, default=1, help="SubprocVecEnv workers (1: in-process)"
     )
-    p.add_argument("--out", type=_new_run_folder, default=None, help="run folder (new)")
+    p.add_argument(
+        "--out",
+        default=None,
+        help="run folder: new or empty (or a run of this command that stopped before its first "
+        "checkpoint); locked while training",
+    )
     p.add_argument(
         "--resume", type=_run_folder, default=None, help="continue the run in this folder"
     )
@@ -273,6 +271,10 @@ def run(args: argparse.Namespace) -> int:
         if given:
             flags = ", ".join(f"--{k.replace('_', '-')}" for k in given)
             raise ValueError(f"--resume continues the run's own settings; {flags} cannot change")
+    if args.out is not None:  # before any work: a folder of something else is never touched
+        from scorbot_gym.rl.runs import check_new_run_folder
+
+        args.out = check_new_run_folder(args.out)
     from scorbot_gym.rl.training import resume, train, train_seeds
 
     if args.resume is not None:

@@ -132,9 +132,10 @@ def record_episodes(
     returns the results and the number of frames."""
     import imageio.v3 as iio
 
+    from scorbot_gym.outputs import check_output_file
+
+    check_output_file(path, "video", VIDEO_SUFFIXES)  # before the episodes
     suffix = os.fspath(path).lower()[-4:]
-    if suffix not in VIDEO_SUFFIXES:
-        raise ValueError(f"video path must end in {' or '.join(VIDEO_SUFFIXES)}, got {path}")
     base = env.unwrapped
     frames: list[np.ndarray] = []
     camera: CameraModel | None = None

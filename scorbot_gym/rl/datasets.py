@@ -9,7 +9,10 @@ calibration ``camera_<name>_K`` / ``_world_from_camera`` / ``_size``) plus ``exp
 the scripted controller's clean action on that observation, given the oracle pose, which is
 the label :func:`scorbot_gym.rl.imitation.train_imitation` learns from.
 
-Datasets live under ``MINARI_DATASETS_PATH`` (Minari's default: ``~/.minari/datasets``).
+Datasets live under ``MINARI_DATASETS_PATH`` (Minari's default: ``~/.minari/datasets``). The id
+is checked (well formed, not taken, the folder writable) before any episode runs, and a dataset
+appears whole or not at all: it is written under a hidden staging folder and renamed into place,
+so a killed run leaves nothing that Minari lists or that blocks a rerun.
 
     from scorbot_gym.rl.datasets import record_demonstrations, load_demonstrations
     record_demonstrations("scorbot/grasp-oracle-v0", episodes=100, pose="oracle")
@@ -18,12 +21,22 @@ Datasets live under ``MINARI_DATASETS_PATH`` (Minari's default: ``~/.minari/data
 
 from __future__ import annotations
 
+import contextlib
+import os
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from scorbot_gym.outputs import (
+    check_dataset_id,
+    datasets_root,
+    exclusive_lock,
+    parse_dataset_id,
+    staging_dir,
+)
 from scorbot_gym.rl.imitation import LabelledEpisode, collect_episodes
 
 LABEL_KEY = "expert_action"
@@ -46,6 +59,45 @@ def to_episode_buffer(episode: LabelledEpisode, index: int):
     )
 
 
+@contextlib.contextmanager
+def _minari_root(path: os.PathLike) -> Iterator[None]:
+    """Minari's dataset folder pointed at ``path`` for the body (Minari reads
+    ``MINARI_DATASETS_PATH`` at every call)."""
+    before = os.environ.get("MINARI_DATASETS_PATH")
+    os.environ["MINARI_DATASETS_PATH"] = os.fspath(path)
+    try:
+        yield
+    finally:
+        if before is None:
+            del os.environ["MINARI_DATASETS_PATH"]
+        else:
+            os.environ["MINARI_DATASETS_PATH"] = before
+
+
+@contextlib.contextmanager
+def reserve_dataset_id(dataset_id: str) -> Iterator[None]:
+    """Check ``dataset_id`` (well formed, not taken, writable; one-line errors) and hold it for
+    the body: a second process recording the same id is refused at once, not after its
+    episodes."""
+    check_dataset_id(dataset_id, "dataset")
+    locks = datasets_root() / ".scorbot-gym-locks"
+    locks.mkdir(parents=True, exist_ok=True)
+    with exclusive_lock(locks / f"{dataset_id.replace('/', '__')}.lock", f"dataset {dataset_id!r}"):
+        yield
+
+
+def _move_namespace_records(staging: Path, root: Path, namespace: str | None) -> None:
+    """The namespace folders Minari made in ``staging`` (each with its metadata file), made in
+    ``root`` where they are missing; existing namespaces keep their own metadata."""
+    parts = namespace.split("/") if namespace else []
+    for depth in range(1, len(parts) + 1):
+        level = Path(*parts[:depth])
+        (root / level).mkdir(exist_ok=True)
+        for record in (staging / level).glob("*.json"):
+            if not (root / level / record.name).exists():
+                os.replace(record, root / level / record.name)
+
+
 def write_dataset(
     dataset_id: str,
     episodes: Sequence[LabelledEpisode],
@@ -54,29 +106,35 @@ def write_dataset(
     description: str,
     algorithm_name: str = "ScriptedGraspPolicy (oracle-pose labels) + DART noise",
 ):
-    """Create the Minari dataset ``dataset_id`` from episodes; returns the ``MinariDataset``."""
+    """Create the Minari dataset ``dataset_id`` from episodes; returns the ``MinariDataset``.
+
+    Minari writes it into a hidden staging folder beside the datasets, which is then renamed
+    into place in one step: the dataset is whole or absent, never half-written."""
     import minari
 
-    if dataset_id in minari.list_local_datasets():
-        raise ValueError(
-            f"a Minari dataset {dataset_id!r} exists already (choose another --out, or "
-            f"minari.delete_dataset({dataset_id!r}))"
-        )
+    target = check_dataset_id(dataset_id, "dataset")
     buffers = [to_episode_buffer(ep, i) for i, ep in enumerate(episodes)]
-    with warnings.catch_warnings():  # author, permalink...: optional metadata Minari asks for
-        warnings.simplefilter("ignore", UserWarning)
-        return minari.create_dataset_from_buffers(
-            dataset_id,
-            buffers,
-            action_space=env.action_space,
-            observation_space=env.observation_space,
-            algorithm_name=algorithm_name,
-            author="scorbot-gym",
-            description=description,
-            code_permalink="https://github.com/scorbot-gym (scorbot_gym/rl/datasets.py)",
-            data_format="hdf5",
-            jpeg_encoding=False,  # Minari's default JPEG-compresses images: lossy
-        )
+    root = datasets_root()
+    with staging_dir(root) as staging:
+        with _minari_root(staging), warnings.catch_warnings():
+            # author, permalink...: optional metadata Minari asks for
+            warnings.simplefilter("ignore", UserWarning)
+            minari.create_dataset_from_buffers(
+                dataset_id,
+                buffers,
+                action_space=env.action_space,
+                observation_space=env.observation_space,
+                algorithm_name=algorithm_name,
+                author="scorbot-gym",
+                description=description,
+                code_permalink="https://github.com/scorbot-gym (scorbot_gym/rl/datasets.py)",
+                data_format="hdf5",
+                jpeg_encoding=False,  # Minari's default JPEG-compresses images: lossy
+            )
+        _move_namespace_records(staging, root, parse_dataset_id(dataset_id)[0])
+        check_dataset_id(dataset_id, "dataset")  # taken meanwhile? (rename would merge into it)
+        os.rename(staging / dataset_id, target)
+    return minari.load_dataset(dataset_id)
 
 
 def record_demonstrations(
@@ -99,28 +157,29 @@ def record_demonstrations(
         raise ValueError(f"pose must be one of {POSES}, got {pose!r}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    if pose == "manifold" and not pose_kwargs:
-        from scorbot_gym.evaluation.rollout import RolloutConfig
+    with reserve_dataset_id(dataset_id):  # checked and held before any episode runs
+        if pose == "manifold" and not pose_kwargs:
+            from scorbot_gym.evaluation.rollout import RolloutConfig
 
-        pose_kwargs = RolloutConfig(pose="manifold").pose_kwargs()
-    env_kwargs.setdefault("env_id", "ScorbotGraspCartesian-v0")
-    env = make_env(pose=pose, pose_kwargs=pose_kwargs, **env_kwargs)
-    rng = np.random.default_rng(seed)
-    try:
-        data = []
-        for i in range(episodes):
-            data += collect_episodes(env, [seed + i], dart_sigma=dart_sigma, rng=rng)
-            if progress:
-                progress(i + 1, episodes)
-        success = float(np.mean([ep.success for ep in data]))
-        description = (
-            f"{episodes} scripted grasping episodes (seeds {seed}..{seed + episodes - 1}), "
-            f"pose source {pose!r}, DART sigma {dart_sigma}, success {success:.1%}; "
-            f"infos[{LABEL_KEY!r}] is the controller's clean action given the oracle pose"
-        )
-        return write_dataset(dataset_id, data, env, description=description)
-    finally:
-        env.close()
+            pose_kwargs = RolloutConfig(pose="manifold").pose_kwargs()
+        env_kwargs.setdefault("env_id", "ScorbotGraspCartesian-v0")
+        env = make_env(pose=pose, pose_kwargs=pose_kwargs, **env_kwargs)
+        rng = np.random.default_rng(seed)
+        try:
+            data = []
+            for i in range(episodes):
+                data += collect_episodes(env, [seed + i], dart_sigma=dart_sigma, rng=rng)
+                if progress:
+                    progress(i + 1, episodes)
+            success = float(np.mean([ep.success for ep in data]))
+            description = (
+                f"{episodes} scripted grasping episodes (seeds {seed}..{seed + episodes - 1}), "
+                f"pose source {pose!r}, DART sigma {dart_sigma}, success {success:.1%}; "
+                f"infos[{LABEL_KEY!r}] is the controller's clean action given the oracle pose"
+            )
+            return write_dataset(dataset_id, data, env, description=description)
+        finally:
+            env.close()
 
 
 def load_demonstrations(dataset: Any) -> list[LabelledEpisode]:

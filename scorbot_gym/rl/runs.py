@@ -10,15 +10,31 @@ A run folder (``scorbot-gym train --out DIR``)::
     best/              the policy of the best evaluation so far (latest among equals)
     tb/                TensorBoard logs
 
+    .scorbot-gym-run.json  the marker: this folder is a run this tool made (see :func:`claim`)
+    .scorbot-gym-run.lock  locked (flock) by the process training or resuming the run
+
 ``--seeds 0,1,2`` makes one such folder per seed (``seed_0/``, ...) next to ``seeds.json``.
 This module imports no SB3 or torch: the CLI and the rollout resolve folders with it.
 """
 
 from __future__ import annotations
 
+import contextlib
+import datetime
 import json
+import os
+import shutil
+import socket
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
+
+from scorbot_gym.outputs import (
+    OutputError,
+    atomic_write_json,
+    check_output_folder,
+    exclusive_lock,
+)
 
 CONFIG = "config.json"
 HYPERPARAMS = "hyperparams.yml"
@@ -32,6 +48,8 @@ TENSORBOARD = "tb"
 #: what a run writes besides config.json (removed when a run that never checkpointed restarts)
 ARTEFACTS = (HYPERPARAMS, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
 CHECKPOINTS = ("best", "last")
+MARKER = ".scorbot-gym-run.json"
+LOCK = ".scorbot-gym-run.lock"
 
 
 def read_json(path: Path, what: str = "a JSON object") -> dict[str, Any]:
@@ -83,17 +101,96 @@ def policy_dir(path: str | Path, checkpoint: str = "best") -> Path:
     )
 
 
+def is_own_run(folder: Path) -> bool:
+    """Whether ``folder`` carries the marker a run of this tool writes before anything else."""
+    return (Path(folder) / MARKER).is_file()
+
+
+def check_new_run_folder(out: str | Path) -> Path:
+    """``out`` as the folder of a new run, checked without writing anything: a folder that can
+    be made or written, and missing, empty, or one of this tool's own runs that stopped before
+    its first checkpoint; anything else is a one-line :class:`OutputError` naming what is
+    there."""
+    out = check_output_folder(out, "--out")
+    _refuse_unless_claimable(out)
+    return out
+
+
+def _refuse_unless_claimable(out: Path) -> None:
+    if not out.is_dir():
+        return
+    present = sorted(set(os.listdir(out)) - {LOCK})
+    if not present:
+        return
+    if not is_own_run(out):
+        shown = ", ".join(present[:4]) + (", ..." if len(present) > 4 else "")
+        raise OutputError(
+            f"--out {out} is not empty and not a scorbot-gym run ({shown}); nothing in it "
+            "is touched: train into a new or empty folder"
+        )
+    if has_checkpoint(out) or (out / SEEDS).is_file() or seed_runs(out):
+        raise OutputError(f"--out {out} already holds a run; resume it with --resume {out}")
+
+
+@contextlib.contextmanager
+def claim(out: str | Path, *, new: bool) -> Iterator[Path]:
+    """Hold the run folder ``out`` for the ``with`` body: the only process training into it.
+
+    ``new``: ``out`` must be missing, empty, or a run of this tool (its :data:`MARKER`) that
+    stopped before its first checkpoint, whose files (:data:`ARTEFACTS`, ``config.json``) are
+    removed; nothing this tool did not write is ever deleted. The marker is written first.
+    Otherwise (resuming) ``out`` must be a run folder. Either way the folder's :data:`LOCK` is
+    held (``flock``) until the body ends, so a second ``train --out``/``--resume`` of the same
+    folder is refused in one line rather than overwriting the first.
+    """
+    out = Path(out)
+    if new:
+        check_new_run_folder(out)  # before anything is written into the folder
+        out.mkdir(parents=True, exist_ok=True)
+    else:
+        if not out.is_dir():
+            raise FileNotFoundError(f"cannot resume {out}: no such run folder")
+        if not ((out / CONFIG).is_file() or (out / SEEDS).is_file()):
+            raise FileNotFoundError(f"cannot resume {out}: {CONFIG} is missing (not a run folder)")
+        check_output_folder(out, "--resume")
+    with exclusive_lock(out / LOCK, f"run folder {out}"):
+        if new:
+            _refuse_unless_claimable(out)  # another run may have finished in between
+            if is_own_run(out):
+                for name in (*ARTEFACTS, CONFIG):
+                    target = out / name
+                    if target.is_dir() and not target.is_symlink():
+                        shutil.rmtree(target)
+                    elif target.exists() or target.is_symlink():
+                        target.unlink()
+            atomic_write_json(
+                out / MARKER,
+                {
+                    "written_by": "scorbot-gym train",
+                    "created": datetime.datetime.now(datetime.timezone.utc).isoformat(),
+                    "host": socket.gethostname(),
+                    "pid": os.getpid(),
+                },
+            )
+        yield out
+
+
 __all__ = [
     "ARTEFACTS",
     "BEST",
     "CHECKPOINT",
     "CONFIG",
     "HYPERPARAMS",
+    "LOCK",
+    "MARKER",
     "MONITOR",
     "POLICY",
     "SEEDS",
     "STATE",
+    "check_new_run_folder",
+    "claim",
     "has_checkpoint",
+    "is_own_run",
     "policy_dir",
     "read_json",
     "seed_runs",

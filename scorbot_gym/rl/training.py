@@ -10,8 +10,11 @@ dumped as soon as it is made).
 
 ``config.json`` is written only once the run has started (settings checked, envs and model
 built); a folder whose run stopped before its first checkpoint is started afresh by
-:func:`train`. :func:`resume` continues from the last checkpoint up to the configured number of
-steps and refuses, with the file and what is wrong, damaged files or a changed configuration.
+:func:`train`, which takes no other folder than a new or empty one (a folder of something
+else is refused, untouched). A run folder is locked while a process trains in it (see
+:func:`scorbot_gym.rl.runs.claim`). :func:`resume` continues from the last checkpoint up to the
+configured number of steps and refuses, with the file and what is wrong, damaged files or a
+changed configuration.
 """
 
 from __future__ import annotations
@@ -19,7 +22,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import shutil
 import warnings
 import zipfile
 from dataclasses import dataclass, field
@@ -641,35 +643,22 @@ def _hyperparams_record(config: TrainConfig) -> bytes:
     return yaml.safe_dump(record, sort_keys=False).encode()
 
 
-def _prepare_fresh(out: Path) -> None:
-    """``out`` may be new, empty, or hold a run that stopped before its first checkpoint
-    (its files are removed: nothing of it can be continued); anything else is refused."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file, not a run folder")
-    if runs.has_checkpoint(out) or (out / runs.SEEDS).is_file():
-        raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
-    if (out / runs.CONFIG).is_file():
-        for name in runs.ARTEFACTS:
-            target = out / name
-            if target.is_dir():
-                shutil.rmtree(target)
-            elif target.exists():
-                target.unlink()
-        (out / runs.CONFIG).unlink()
-
-
 def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
     """Train from scratch into ``out``; returns the state.
 
     Every setting is checked and the envs and model are built before ``config.json`` is
-    written, so a refused run leaves no half-made run folder behind.
+    written, so a refused run leaves no half-made run folder behind. ``out`` must be new,
+    empty or a run of this tool that stopped before its first checkpoint, and is locked for
+    the run's life (:func:`scorbot_gym.rl.runs.claim`).
     """
     config = config.validate().resolved()
     check_pose_model(config)
-    out = Path(out)
-    _prepare_fresh(out)
+    with runs.claim(out, new=True) as out:
+        return _train(config, out)
+
+
+def _train(config: TrainConfig, out: Path) -> dict[str, Any]:
     _limit_threads(config.torch_threads)
-    out.mkdir(parents=True, exist_ok=True)
     venv = make_vec_env(config, out / runs.MONITOR)
     try:
         model = build_model(config, venv, out / runs.TENSORBOARD if config.tensorboard else None)
@@ -698,14 +687,9 @@ def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
     config = config.validate().resolved()
     check_pose_model(config)
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} is a file, not a run folder")
-    if (out / runs.SEEDS).is_file() or (out / runs.CONFIG).is_file() or runs.seed_runs(out):
-        raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-    return {"seeds": _train_seeds(config, out, seeds)}
+    with runs.claim(out, new=True) as out:
+        atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
+        return {"seeds": _train_seeds(config, out, seeds)}
 
 
 def _train_seeds(
@@ -812,12 +796,14 @@ def resume(
 ) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
     the configured number; ``progress_bar`` default as configured); returns the state. A
-    ``--seeds`` folder continues every seed."""
+    ``--seeds`` folder continues every seed. The folder is locked while it trains."""
+    with runs.claim(out, new=False) as out:
+        return _resume(out, timesteps, progress_bar)
+
+
+def _resume(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
     from stable_baselines3.common.vec_env import VecNormalize
 
-    out = Path(out)
-    if not out.is_dir():
-        raise FileNotFoundError(f"cannot resume {out}: no such run folder")
     if (out / runs.SEEDS).is_file():
         return _resume_seeds(out, timesteps, progress_bar)
     ck = out / runs.CHECKPOINT
