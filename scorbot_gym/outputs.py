@@ -104,11 +104,11 @@ def check_output_file(
     its folder existing or creatable and writable. One-line :class:`OutputError` otherwise.
     Creates nothing."""
     out = _as_path(path, what, "file")
-    if suffixes and not out.name.lower().endswith(tuple(s.lower() for s in suffixes)):
-        raise OutputError(f"{_label(what, out)}: the name must end in {' or '.join(suffixes)}")
     try:
         if out.is_dir():
             raise OutputError(f"{_label(what, out)} is a folder; give a file name")
+        if suffixes and not out.name.lower().endswith(tuple(s.lower() for s in suffixes)):
+            raise OutputError(f"{_label(what, out)}: the name must end in {' or '.join(suffixes)}")
         _probe_writable(_nearest_existing(out.parent, what, out), what, out)
     except OSError as exc:
         raise OutputError(f"{_label(what, out)}: {exc.strerror or exc}") from None
@@ -116,6 +116,37 @@ def check_output_file(
 
 
 # --- exclusive use of a folder --------------------------------------------------------------
+
+
+_HELD = (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES)
+
+
+def _holder(fd: int) -> str:
+    return os.pread(fd, 64, 0).decode(errors="replace").strip()
+
+
+def _in_use(what: str, holder: str) -> OutputError:
+    by = f" (pid {holder})" if holder.isdigit() else ""
+    return OutputError(
+        f"{what} is in use by another process{by}; wait for it to finish or choose another"
+    )
+
+
+def refuse_if_locked(lock_file: str | os.PathLike, what: str) -> None:
+    """The one-line :class:`OutputError` of :func:`exclusive_lock` if another process holds
+    ``lock_file`` now; writes nothing (a missing lock file is free)."""
+    try:
+        fd = os.open(Path(lock_file), os.O_RDONLY)
+    except FileNotFoundError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)  # conflicts with a holder's LOCK_EX
+    except OSError as exc:
+        if exc.errno not in _HELD:
+            raise
+        raise _in_use(what, _holder(fd)) from None
+    finally:
+        os.close(fd)  # releases the shared lock, if taken
 
 
 @contextlib.contextmanager
@@ -126,19 +157,15 @@ def exclusive_lock(lock_file: str | os.PathLike, what: str) -> Iterator[None]:
     naming ``what`` and the holder's process id. The kernel drops the lock when its holder
     exits, however it exits (a SIGKILL too), so a stale lock file never blocks anyone; the file
     itself is left in place (removing it would let two processes lock two different files)."""
-    lock_file = Path(lock_file)
-    fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+    fd = os.open(Path(lock_file), os.O_RDWR | os.O_CREAT, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError as exc:
-        holder = os.pread(fd, 64, 0).decode(errors="replace").strip()
+        holder = _holder(fd)
         os.close(fd)
-        if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+        if exc.errno not in _HELD:
             raise
-        by = f" (pid {holder})" if holder.isdigit() else ""
-        raise OutputError(
-            f"{what} is in use by another process{by}; wait for it to finish or choose another"
-        ) from None
+        raise _in_use(what, holder) from None
     try:
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
@@ -264,6 +291,7 @@ __all__ = [
     "datasets_root",
     "exclusive_lock",
     "parse_dataset_id",
+    "refuse_if_locked",
     "remove_orphaned_staging",
     "staging_dir",
 ]

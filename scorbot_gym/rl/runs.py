@@ -34,6 +34,7 @@ from scorbot_gym.outputs import (
     atomic_write_json,
     check_output_folder,
     exclusive_lock,
+    refuse_if_locked,
 )
 
 CONFIG = "config.json"
@@ -112,6 +113,7 @@ def check_new_run_folder(out: str | Path) -> Path:
     its first checkpoint; anything else is a one-line :class:`OutputError` naming what is
     there."""
     out = check_output_folder(out, "--out")
+    refuse_if_locked(out / LOCK, f"run folder {out}")  # a run training now: say so first
     _refuse_unless_claimable(out)
     return out
 
