@@ -59,7 +59,13 @@ def one_run(two_seeds):
 
 # --- #36 item 4: the workflow ------------------------------------------------------------------
 def test_seeds_give_one_run_each_with_the_overrides_recorded(two_seeds):
-    assert sorted(p.name for p in two_seeds.iterdir()) == ["seed_0", "seed_1", "seeds.json"]
+    assert sorted(p.name for p in two_seeds.iterdir()) == [
+        ".scorbot-gym-run.json",  # the marker: a run of this tool
+        ".scorbot-gym-run.lock",
+        "seed_0",
+        "seed_1",
+        "seeds.json",
+    ]
     for seed in (0, 1):
         run = two_seeds / f"seed_{seed}"
         config = json.loads((run / "config.json").read_text())
