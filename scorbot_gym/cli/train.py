@@ -35,6 +35,7 @@ _NEW_RUN_OPTIONS = (
     "bc_demos",
     "bc_steps",
     "init_policy",
+    "hyperparams_entry",
     "hyperparams",
     "net_arch",
     "learning_starts",
@@ -174,6 +175,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         f"PPO: {', '.join(hparams.valid_keys('ppo'))})",
     )
     p.add_argument(
+        "--hyperparams-entry",
+        default=None,
+        metavar="NAME",
+        help="the entry of hyperparams/<algo>.yml, e.g. 'scratch' (learning from scratch with "
+        "the normalized_dense reward); default: 'residual' with --residual, 'finetune' with "
+        "--init-policy, else 'default'",
+    )
+    p.add_argument(
+        "--device",
+        default=None,
+        help="where the networks update: auto (CUDA when there is one; the default), cpu, "
+        "cuda, cuda:N (with --resume: move the run there)",
+    )
+    p.add_argument(
         "--net-arch",
         type=positive_int,
         nargs="+",
@@ -237,6 +252,8 @@ def config_from_args(args: argparse.Namespace):
         bc_demos=args.bc_demos,
         bc_steps=args.bc_steps,
         init_policy=args.init_policy,
+        hyperparams_entry=args.hyperparams_entry,
+        device=args.device or "auto",
         normalize=args.init_policy is None,  # a fine-tune uses the policy's own statistics
         hyperparams=_overrides(args),
         eval_every=args.eval_every,
@@ -278,7 +295,10 @@ def run(args: argparse.Namespace) -> int:
     if args.resume is not None:
         out = args.resume
         state = resume(
-            out, timesteps=args.timesteps, progress_bar=False if args.no_progress else None
+            out,
+            timesteps=args.timesteps,
+            progress_bar=False if args.no_progress else None,
+            device=args.device,
         )
     else:
         out, config = args.out, config_from_args(args)
