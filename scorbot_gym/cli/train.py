@@ -134,6 +134,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--n-envs", type=positive_int, default=1, help="SubprocVecEnv workers (1: in-process)"
     )
+    p.add_argument(
+        "--parallel",
+        type=positive_int,
+        default=1,
+        metavar="N",
+        help="with --seeds (or --resume of a --seeds folder): train N seeds at a time, each in "
+        "a process of its own (default 1: one after another)",
+    )
     p.add_argument("--out", type=_new_run_folder, default=None, help="run folder (new)")
     p.add_argument(
         "--resume", type=_run_folder, default=None, help="continue the run in this folder"
@@ -299,10 +307,16 @@ def run(args: argparse.Namespace) -> int:
             timesteps=args.timesteps,
             progress_bar=False if args.no_progress else None,
             device=args.device,
+            processes=args.parallel,
         )
     else:
         out, config = args.out, config_from_args(args)
-        state = train_seeds(config, out, args.seeds) if args.seeds else train(config, out)
+        if args.parallel > 1 and not args.seeds:
+            raise ValueError("--parallel runs several seeds: give --seeds S,S,...")
+        if args.seeds:
+            state = train_seeds(config, out, args.seeds, processes=args.parallel)
+        else:
+            state = train(config, out)
     if "seeds" in state:  # a multi-seed folder
         for seed, seed_state in state["seeds"].items():
             print(f"seed {seed}: {_summary(seed_state)}")

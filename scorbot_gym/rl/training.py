@@ -23,6 +23,7 @@ import re
 import shutil
 import warnings
 import zipfile
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -721,12 +722,16 @@ def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
     return run.state
 
 
-def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[str, Any]:
-    """Train ``config`` once per seed, one after another, into ``out/seed_<s>/``; ``seeds.json``
-    records the seeds and the configuration, so :func:`resume` continues all of them.
-    Returns ``{"seeds": {seed: state}}``."""
+def train_seeds(
+    config: TrainConfig, out: str | Path, seeds: list[int], processes: int = 1
+) -> dict[str, Any]:
+    """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
+    (each in a process of its own, see :func:`train_seed`; 1: one after another in this
+    process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
+    continues all of them. Returns ``{"seeds": {seed: state}}``."""
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
+    _check_processes(processes)
     config = config.validate().resolved()
     check_pose_model(config)
     out = Path(out)
@@ -736,7 +741,27 @@ def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[
         raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-    return {"seeds": _train_seeds(config, out, seeds)}
+    return {"seeds": _train_seeds(config, out, seeds, processes=processes)}
+
+
+def _check_processes(processes: int) -> None:
+    if isinstance(processes, bool) or not isinstance(processes, int) or processes < 1:
+        raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
+
+
+def train_seed(
+    config: dict[str, Any],
+    run: str | Path,
+    progress_bar: bool | None = None,
+    device: str | None = None,
+) -> dict[str, Any]:
+    """Train one seed's run (``config`` as in ``config.json``, its ``seed`` set) into ``run``,
+    or continue it from its checkpoint to ``config["timesteps"]``: what a worker process of
+    :func:`train_seeds` does, and what a Ray task or a cluster job can call."""
+    run = Path(run)
+    if runs.has_checkpoint(run):
+        return resume(run, timesteps=config["timesteps"], progress_bar=progress_bar, device=device)
+    return train(TrainConfig.from_json(config), run)
 
 
 def _train_seeds(
@@ -745,17 +770,35 @@ def _train_seeds(
     seeds: list[int],
     progress_bar: bool | None = None,
     device: str | None = None,
+    processes: int = 1,
 ) -> dict[int, dict]:
-    states = {}
-    for seed in seeds:
-        run = out / f"seed_{seed}"
-        if runs.has_checkpoint(run):
-            states[seed] = resume(
-                run, timesteps=config.timesteps, progress_bar=progress_bar, device=device
-            )
-        else:
-            states[seed] = train(dataclasses.replace(config, seed=seed), run)
-    return states
+    jobs = {seed: dataclasses.replace(config, seed=seed).to_json() for seed in seeds}
+    if processes == 1 or len(seeds) == 1:
+        return {s: train_seed(c, out / f"seed_{s}", progress_bar, device) for s, c in jobs.items()}
+    from scorbot_gym.experiments.workers import worker_pool
+
+    config.pose_args()  # default pose models are trained here once, not by every seed at once
+    quiet = False  # progress bars of several processes would overwrite each other
+    jobs = {s: {**c, "progress_bar": quiet} for s, c in jobs.items()}
+    states: dict[int, dict] = {}
+    errors: list[str] = []
+    with worker_pool(min(processes, len(seeds))) as pool:
+        futures = {
+            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device): s
+            for s, c in jobs.items()
+        }
+        for future in as_completed(futures):
+            seed = futures[future]
+            try:
+                states[seed] = future.result()
+            except Exception as exc:  # the others go on; every failure is reported below
+                errors.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+    if errors:
+        raise RuntimeError(
+            f"{len(errors)} of {len(seeds)} seeds failed ({'; '.join(errors)}); the others are "
+            f"in {out}, and --resume {out} continues every seed"
+        )
+    return {s: states[s] for s in seeds}
 
 
 def _read_state(path: Path) -> dict[str, Any]:
@@ -849,17 +892,19 @@ def resume(
     timesteps: int | None = None,
     progress_bar: bool | None = None,
     device: str | None = None,
+    processes: int = 1,
 ) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
     the configured number; ``progress_bar`` and ``device`` default as configured); returns the
-    state. A ``--seeds`` folder continues every seed."""
+    state. A ``--seeds`` folder continues every seed, ``processes`` at a time."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     out = Path(out)
     if not out.is_dir():
         raise FileNotFoundError(f"cannot resume {out}: no such run folder")
+    _check_processes(processes)
     if (out / runs.SEEDS).is_file():
-        return _resume_seeds(out, timesteps, progress_bar, device)
+        return _resume_seeds(out, timesteps, progress_bar, device, processes)
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
@@ -949,7 +994,11 @@ def _model_class(config: TrainConfig, hp: dict[str, Any] | None = None):
 
 
 def _resume_seeds(
-    out: Path, timesteps: int | None, progress_bar: bool | None, device: str | None = None
+    out: Path,
+    timesteps: int | None,
+    progress_bar: bool | None,
+    device: str | None = None,
+    processes: int = 1,
 ) -> dict[str, Any]:
     record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
     seeds = record.get("seeds")
@@ -965,7 +1014,7 @@ def _resume_seeds(
         config.progress_bar = bool(progress_bar)
     if device is not None:
         config.device = device
-    return {"seeds": _train_seeds(config, out, seeds, progress_bar, device)}
+    return {"seeds": _train_seeds(config, out, seeds, progress_bar, device, processes)}
 
 
 __all__ = [
@@ -978,5 +1027,6 @@ __all__ = [
     "make_vec_env",
     "resume",
     "train",
+    "train_seed",
     "train_seeds",
 ]
