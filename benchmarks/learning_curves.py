@@ -1,10 +1,17 @@
-"""Learning curves over seeds: mean success with a 95 % band, against env steps and wall time.
+"""Learning curves over seeds: mean success and return with a 95 % band, against env steps and
+training wall time, and the steps and time each seed took to reach 50 % and 80 % success.
 
 Reads the evaluation logs of ``scorbot-gym train`` run folders (a ``--seeds`` folder counts as
 its seeds) and writes JSON + PNG (:mod:`scorbot_gym.rl.curves`). With ``--train``, an arm whose
 folder holds no run yet is first trained with ``scorbot-gym train --seeds`` settings from
-``PRESETS`` (and one that stopped early is resumed), so the figure is reproducible:
+``PRESETS`` (and one that stopped early, or was interrupted, is resumed: run the same command
+again), ``--parallel`` seeds at a time in processes of their own, so the figure is
+reproducible. Learning from scratch (#49) on a 16-core GPU machine, 1M env steps:
 
+    python benchmarks/learning_curves.py --train --arm scratch=runs/scratch_sac_cartesian \\
+        --algo sac --action-type cartesian --seeds 0,1,2 --parallel 3 --timesteps 1000000 \\
+        --eval-every 10000 --eval-episodes 50 --checkpoint-every 50000 \\
+        --out runs/scratch_sac_cartesian.json
     python benchmarks/learning_curves.py --arm residual=runs/curves_residual --train \\
         --seeds 0,1,2 --timesteps 3000
     python benchmarks/learning_curves.py --arm sac=runs/a --arm tqc=runs/b   # existing runs
@@ -16,16 +23,22 @@ import argparse
 import os
 import platform
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from scorbot_gym.cli._args import seed_list
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-#: TrainConfig settings of the arms --train can start (oracle pose, Cartesian actions)
+#: TrainConfig settings of the arms --train can start (oracle pose; --algo, --action-type)
 PRESETS = {
     "residual": {"residual": True},
-    "scratch": {},
+    # learning from scratch: the 'scratch' hyperparameters (normalized_dense reward) ...
+    "scratch": {"hyperparams_entry": "scratch"},
+    # ... and the same with the old dense reward, the reward ablation
+    "scratch_dense": {"hyperparams_entry": "scratch", "hyperparams": {"reward_type": "dense"}},
+    # the 'default' entry (64x64, 50k buffer, dense reward): what learning_curves_scratch_56k ran
+    "default": {},
     "bc": {"bc_demos": 100, "bc_steps": 3000},
 }
 
@@ -44,6 +57,24 @@ def _positive(text: str) -> int:
     return value
 
 
+def _train_arm(config, folder: Path, args: argparse.Namespace) -> None:
+    """Train an arm's seeds into ``folder``, or continue them (an interrupted or shorter run)."""
+    from scorbot_gym.rl import runs
+    from scorbot_gym.rl.training import resume, train_seeds
+
+    if (folder / runs.SEEDS).is_file():
+        resume(folder, timesteps=args.timesteps, processes=args.parallel)
+    else:
+        train_seeds(config, folder, args.seeds, processes=args.parallel)
+
+
+def _gpu_name() -> str | None:
+    """The CUDA device the runs' ``device="auto"`` updates on here, if any."""
+    import torch
+
+    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
@@ -59,6 +90,29 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=_positive, default=3000, help="with --train")
     parser.add_argument("--eval-every", type=_positive, default=1000, help="with --train")
     parser.add_argument("--eval-episodes", type=_positive, default=10, help="with --train")
+    parser.add_argument(
+        "--checkpoint-every", type=_positive, default=None, help="with --train (default: eval)"
+    )
+    parser.add_argument("--algo", choices=("sac", "tqc", "ppo"), default="sac", help="with --train")
+    parser.add_argument(
+        "--action-type", choices=("cartesian", "joint"), default="cartesian", help="with --train"
+    )
+    parser.add_argument(
+        "--n-envs", type=_positive, default=1, help="with --train: vector envs per seed (PPO: 8-16)"
+    )
+    parser.add_argument(
+        "--device", default="auto", help="with --train: auto (CUDA when there is one), cpu, cuda"
+    )
+    parser.add_argument(
+        "--parallel", type=_positive, default=1, help="with --train: seeds trained at a time"
+    )
+    parser.add_argument(
+        "--hyperparams",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="with --train: overrides on top of each preset's entry, e.g. buffer_size=100000",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/learning_curves.json"))
     args = parser.parse_args(argv)
     arms = dict(args.arm)
@@ -76,26 +130,47 @@ def main(argv: list[str] | None = None) -> int:
     import scorbot_gym
     from pose.fileio import atomic_write_json
     from scorbot_gym.rl.curves import learning_curves, plot_learning_curves
+    from scorbot_gym.rl.hyperparams import parse_overrides
+    from scorbot_gym.rl.training import TrainConfig
 
     trained = {}
     if args.train:
-        from scorbot_gym.rl import runs
-        from scorbot_gym.rl.training import TrainConfig, resume, train_seeds
-
-        for label, (folder,) in arms.items():
-            config = TrainConfig(
-                **PRESETS[label],
-                timesteps=args.timesteps,
-                eval_every=args.eval_every,
-                eval_episodes=args.eval_episodes,
-                checkpoint_every=args.eval_every,
-                progress_bar=False,
-            )
-            if (folder / runs.SEEDS).is_file():
-                resume(folder, timesteps=args.timesteps)
-            else:
-                train_seeds(config, folder, args.seeds)
-            trained[label] = {"preset": PRESETS[label], "seeds": args.seeds}
+        configs = {}
+        for label in arms:
+            preset = dict(PRESETS[label])
+            try:
+                overrides = parse_overrides(args.hyperparams)
+                preset["hyperparams"] = {**preset.get("hyperparams", {}), **overrides}
+                configs[label] = TrainConfig(
+                    **preset,
+                    algo=args.algo,
+                    action_type=args.action_type,
+                    n_envs=args.n_envs,
+                    device=args.device,
+                    timesteps=args.timesteps,
+                    eval_every=args.eval_every,
+                    eval_episodes=args.eval_episodes,
+                    checkpoint_every=args.checkpoint_every or args.eval_every,
+                    progress_bar=False,
+                ).validate()
+            except ValueError as exc:
+                parser.error(f"arm {label}: {exc}")
+        # every arm at once (each with --parallel seeds at a time): the arms of a comparison
+        # then share the machine's load and their wall times compare
+        with ThreadPoolExecutor(len(arms)) as threads:
+            jobs = [threads.submit(_train_arm, configs[a], d[0], args) for a, d in arms.items()]
+            for job in jobs:
+                job.result()
+        for label in arms:
+            trained[label] = {
+                "preset": PRESETS[label],
+                "hyperparams_overrides": parse_overrides(args.hyperparams),
+                "algo": args.algo,
+                "action_type": args.action_type,
+                "n_envs": args.n_envs,
+                "seeds": args.seeds,
+                "parallel": args.parallel,
+            }
 
     try:
         curves = learning_curves(arms)
@@ -111,6 +186,7 @@ def main(argv: list[str] | None = None) -> int:
         "machine": {
             "platform": platform.platform(),
             "cpu_count": os.cpu_count(),
+            "gpu": _gpu_name(),
             "load_avg_1m_at_end": os.getloadavg()[0],
             "scorbot_gym": scorbot_gym.__version__,
         },
@@ -123,6 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         band = f" (95% CI {lo[-1]:.1%} - {hi[-1]:.1%})" if lo else ""
         steps = int(final["timesteps"][-1])
         print(f"{label}: {final['mean'][-1]:.1%}{band} at {steps} env steps, seeds {arm['seeds']}")
+        for level, hit in arm["first_reached"].items():
+            print(
+                f"  {float(level):.0%} reached by {hit['seeds_reached']} seeds: {hit['timesteps']}"
+            )
     print(f"written {args.out} and {args.out.with_suffix('.png')}")
     return 0
 

@@ -35,6 +35,7 @@ _NEW_RUN_OPTIONS = (
     "bc_demos",
     "bc_steps",
     "init_policy",
+    "hyperparams_entry",
     "hyperparams",
     "net_arch",
     "learning_starts",
@@ -127,6 +128,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--n-envs", type=positive_int, default=1, help="SubprocVecEnv workers (1: in-process)"
     )
     p.add_argument(
+        "--parallel",
+        type=positive_int,
+        default=1,
+        metavar="N",
+        help="with --seeds (or --resume of a --seeds folder): train N seeds at a time, each in "
+        "a process of its own (default 1: one after another)",
+    )
+    p.add_argument(
         "--out",
         default=None,
         help="run folder: new or empty (or a run of this command that stopped before its first "
@@ -170,6 +179,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="override the YAML entry, e.g. gamma=0.98 net_arch=[256,256] ent_coef=auto_0.1 "
         f"(SAC/TQC: {', '.join(hparams.valid_keys('tqc'))}; "
         f"PPO: {', '.join(hparams.valid_keys('ppo'))})",
+    )
+    p.add_argument(
+        "--hyperparams-entry",
+        default=None,
+        metavar="NAME",
+        help="the entry of hyperparams/<algo>.yml, e.g. 'scratch' (learning from scratch with "
+        "the normalized_dense reward); default: 'residual' with --residual, 'finetune' with "
+        "--init-policy, else 'default'",
+    )
+    p.add_argument(
+        "--device",
+        default=None,
+        help="where the networks update: auto (CUDA when there is one; the default), cpu, "
+        "cuda, cuda:N (with --resume: move the run there)",
     )
     p.add_argument(
         "--net-arch",
@@ -235,6 +258,8 @@ def config_from_args(args: argparse.Namespace):
         bc_demos=args.bc_demos,
         bc_steps=args.bc_steps,
         init_policy=args.init_policy,
+        hyperparams_entry=args.hyperparams_entry,
+        device=args.device or "auto",
         normalize=args.init_policy is None,  # a fine-tune uses the policy's own statistics
         hyperparams=_overrides(args),
         eval_every=args.eval_every,
@@ -280,11 +305,20 @@ def run(args: argparse.Namespace) -> int:
     if args.resume is not None:
         out = args.resume
         state = resume(
-            out, timesteps=args.timesteps, progress_bar=False if args.no_progress else None
+            out,
+            timesteps=args.timesteps,
+            progress_bar=False if args.no_progress else None,
+            device=args.device,
+            processes=args.parallel,
         )
     else:
         out, config = args.out, config_from_args(args)
-        state = train_seeds(config, out, args.seeds) if args.seeds else train(config, out)
+        if args.parallel > 1 and not args.seeds:
+            raise ValueError("--parallel runs several seeds: give --seeds S,S,...")
+        if args.seeds:
+            state = train_seeds(config, out, args.seeds, processes=args.parallel)
+        else:
+            state = train(config, out)
     if "seeds" in state:  # a multi-seed folder
         for seed, seed_state in state["seeds"].items():
             print(f"seed {seed}: {_summary(seed_state)}")

@@ -94,12 +94,15 @@ class SuccessEvalCallback(BaseCallback):
             "episodes": s["episodes"],
             "success_rate": s["success_rate"],
             "ci95": s["success_rate_ci95"],
+            # undiscounted, in the run's own reward (its reward_type)
+            "mean_return": sum(r.total_reward for r in results) / len(results),
             "mean_steps_to_success": s["mean_steps_to_success"],
             "failure_causes": s["failure_causes"],
         }
         best = max((e["success_rate"] for e in self.history), default=-1.0)
         self.history.append(rec)
         self.logger.record("eval/success_rate", rec["success_rate"])
+        self.logger.record("eval/mean_reward", rec["mean_return"])  # SB3 EvalCallback's name
         self.logger.record("eval/wall_s", rec["wall_s"])
         self.logger.record("time/total_timesteps", rec["timesteps"], exclude="tensorboard")
         self.logger.dump(self.num_timesteps)

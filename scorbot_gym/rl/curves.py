@@ -1,7 +1,8 @@
 """Learning curves over seeds: mean success and a 95 % band, against env steps and wall time.
 
-Each run's curve is its own evaluation history (``checkpoint/state.json``: success rate on
-held-out seeds, with the env steps and the training wall time at which it was measured). The
+Each run's curve is its own evaluation history (``checkpoint/state.json``: success rate and
+mean return on held-out seeds, with the env steps and the training wall time at which they
+were measured). The
 seeds of an arm are put on a common axis by linear interpolation, over the range every seed
 reached (no extrapolation), and the band is the Student-t 95 % interval of the mean over seeds
 (none for a single seed): what RL papers print, e.g. rliable's and RL Zoo's plots.
@@ -57,11 +58,14 @@ def eval_history(run: str | Path) -> dict[str, Any]:
         "timesteps": np.array([e["timesteps"] for e in evals], float),
         "wall_s": np.array([e["wall_s"] for e in evals], float),
         "success_rate": np.array([e["success_rate"] for e in evals], float),
+        # NaN for evaluations from before the return was recorded
+        "mean_return": np.array([e.get("mean_return", np.nan) for e in evals], float),
     }
 
 
-def _band(values: np.ndarray) -> dict[str, list[float] | None]:
-    """Mean over seeds (rows) per point and the t-interval of the mean, clipped to [0, 1]."""
+def _band(values: np.ndarray, clip: bool = True) -> dict[str, list[float] | None]:
+    """Mean over seeds (rows) per point and the t-interval of the mean (a rate's clipped to
+    [0, 1])."""
     from scipy import stats
 
     mean = values.mean(axis=0)
@@ -69,15 +73,20 @@ def _band(values: np.ndarray) -> dict[str, list[float] | None]:
     if n < 2:
         return {"mean": mean.tolist(), "ci95_low": None, "ci95_high": None}
     half = stats.t.ppf(0.975, n - 1) * values.std(axis=0, ddof=1) / np.sqrt(n)
-    return {
-        "mean": mean.tolist(),
-        "ci95_low": np.clip(mean - half, 0.0, 1.0).tolist(),
-        "ci95_high": np.clip(mean + half, 0.0, 1.0).tolist(),
-    }
+    low, high = mean - half, mean + half
+    if clip:
+        low, high = np.clip(low, 0.0, 1.0), np.clip(high, 0.0, 1.0)
+    return {"mean": mean.tolist(), "ci95_low": low.tolist(), "ci95_high": high.tolist()}
 
 
-def curve(histories: Sequence[dict[str, Any]], axis: str, points: int = 50) -> dict[str, Any]:
-    """Mean and band of the seeds' success against ``axis`` (``timesteps`` or ``wall_s``).
+def curve(
+    histories: Sequence[dict[str, Any]],
+    axis: str,
+    points: int = 50,
+    metric: str = "success_rate",
+) -> dict[str, Any]:
+    """Mean and band of the seeds' ``metric`` (``success_rate`` or ``mean_return``) against
+    ``axis`` (``timesteps`` or ``wall_s``).
 
     Env steps use the union of the evaluation points (they coincide when every seed evaluates
     on the same schedule); wall time, which differs between seeds, ``points`` even steps."""
@@ -87,8 +96,23 @@ def curve(histories: Sequence[dict[str, Any]], axis: str, points: int = 50) -> d
     else:
         start = max(h[axis][0] for h in histories)
         grid = np.linspace(start, end, points) if end > start else np.array([end])
-    values = np.stack([np.interp(grid, h[axis], h["success_rate"]) for h in histories])
-    return {axis: grid.tolist(), **_band(values)}
+    values = np.stack([np.interp(grid, h[axis], h[metric]) for h in histories])
+    return {axis: grid.tolist(), **_band(values, clip=metric == "success_rate")}
+
+
+def first_reached(histories: Sequence[dict[str, Any]], level: float) -> dict[str, Any]:
+    """Per seed, the env steps and training wall time of the first evaluation whose success
+    rate is at least ``level`` (None: not reached), and how many seeds reached it."""
+    steps, walls = [], []
+    for h in histories:
+        hit = np.flatnonzero(h["success_rate"] >= level)
+        steps.append(int(h["timesteps"][hit[0]]) if hit.size else None)
+        walls.append(float(h["wall_s"][hit[0]]) if hit.size else None)
+    return {
+        "timesteps": steps,
+        "wall_s": walls,
+        "seeds_reached": sum(s is not None for s in steps),
+    }
 
 
 def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) -> dict[str, Any]:
@@ -106,12 +130,19 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
             "final_success_rate": [float(h["success_rate"][-1]) for h in histories],
             "by_timesteps": curve(histories, "timesteps", points),
             "by_wall_s": curve(histories, "wall_s", points),
+            "first_reached": {f"{lv:g}": first_reached(histories, lv) for lv in (0.5, 0.8)},
         }
+        if all(np.isfinite(h["mean_return"]).all() for h in histories):
+            report[label]["return_by_timesteps"] = curve(
+                histories, "timesteps", points, "mean_return"
+            )
+            report[label]["return_by_wall_s"] = curve(histories, "wall_s", points, "mean_return")
     return report
 
 
 def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
-    """Two panels (success vs env steps, vs training wall time), one line + band per arm."""
+    """Success against env steps and against training wall time, one line + band per arm; a
+    second row for the mean return where every arm recorded it."""
     import io
 
     import matplotlib
@@ -121,25 +152,31 @@ def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
 
     from pose.fileio import atomic_write_bytes
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8), sharey=True)
-    for label, arm in report.items():
-        n = len(arm["seeds"])
-        for ax, key, axis in (
-            (axes[0], "by_timesteps", "timesteps"),
-            (axes[1], "by_wall_s", "wall_s"),
-        ):
-            c = arm[key]
-            x = np.asarray(c[axis]) / (60.0 if axis == "wall_s" else 1.0)
-            (line,) = ax.plot(x, c["mean"], label=f"{label} ({n} seed{'s' * (n > 1)})")
-            if c["ci95_low"] is not None:
-                ax.fill_between(
-                    x, c["ci95_low"], c["ci95_high"], alpha=0.25, color=line.get_color()
-                )
-    axes[0].set_xlabel("env steps")
-    axes[1].set_xlabel("training wall time (min)")
-    axes[0].set_ylabel("success rate (held-out seeds)")
-    axes[0].set_ylim(-0.02, 1.02)
-    axes[0].legend(loc="best", fontsize=8)
+    rows = [("", "success rate (held-out seeds)")]
+    if report and all("return_by_timesteps" in arm for arm in report.values()):
+        rows.append(("return_", "mean return (held-out seeds)"))
+    fig, axes = plt.subplots(
+        len(rows), 2, figsize=(10, 3.8 * len(rows)), sharey="row", squeeze=False
+    )
+    for r, (prefix, ylabel) in enumerate(rows):
+        for label, arm in report.items():
+            n = len(arm["seeds"])
+            for ax, key, axis in (
+                (axes[r, 0], f"{prefix}by_timesteps", "timesteps"),
+                (axes[r, 1], f"{prefix}by_wall_s", "wall_s"),
+            ):
+                c = arm[key]
+                x = np.asarray(c[axis]) / (60.0 if axis == "wall_s" else 1.0)
+                (line,) = ax.plot(x, c["mean"], label=f"{label} ({n} seed{'s' * (n > 1)})")
+                if c["ci95_low"] is not None:
+                    ax.fill_between(
+                        x, c["ci95_low"], c["ci95_high"], alpha=0.25, color=line.get_color()
+                    )
+        axes[r, 0].set_xlabel("env steps")
+        axes[r, 1].set_xlabel("training wall time (min)")
+        axes[r, 0].set_ylabel(ylabel)
+    axes[0, 0].set_ylim(-0.02, 1.02)
+    axes[0, 0].legend(loc="best", fontsize=8)
     fig.suptitle("mean over seeds, band: 95 % CI of the mean")
     fig.tight_layout()
     buf = io.BytesIO()
@@ -148,4 +185,11 @@ def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-__all__ = ["curve", "eval_history", "expand_runs", "learning_curves", "plot_learning_curves"]
+__all__ = [
+    "curve",
+    "eval_history",
+    "expand_runs",
+    "first_reached",
+    "learning_curves",
+    "plot_learning_curves",
+]

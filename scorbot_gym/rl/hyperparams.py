@@ -1,12 +1,17 @@
 """Hyperparameters of the training runs: YAML files shipped with the package, plus overrides.
 
 As in RL Zoo, each algorithm has a file (``hyperparams/sac.yml``, ``tqc.yml``, ``ppo.yml``)
-with one entry per setting (``default``: the policy acts alone; ``residual``: a correction on
-top of the scripted controller; ``finetune``, SAC only: RLPD-style fine-tuning of a saved
-imitation policy, ``--init-policy``, see :mod:`scorbot_gym.rl.finetune`). A run takes its
-entry, applies ``key=value`` overrides, checks every value, and records the resolved set in
-its folder (``config.json`` and ``hyperparams.yml``), so a run is a function of its folder, not
-of the package version.
+with one entry per setting (``default``: the policy acts alone; ``scratch``: the policy acts
+alone and learns from scratch, with the ``normalized_dense`` reward; ``residual``: a correction
+on top of the scripted controller; ``finetune``, SAC only: RLPD-style fine-tuning of a saved
+imitation policy, ``--init-policy``, see :mod:`scorbot_gym.rl.finetune`). A run takes the entry
+its kind implies, or the one it names (``--hyperparams-entry``), applies ``key=value``
+overrides, checks every value, and records the resolved set in its folder (``config.json`` and
+``hyperparams.yml``), so a run is a function of its folder, not of the package version.
+
+``reward_type`` is the env's reward (an env setting kept with the hyperparameters, as RL Zoo
+keeps ``env_kwargs``: the reward and the learner's settings are tuned together, e.g. the
+scratch entries' small initial ``ent_coef`` is sized to the normalised reward's scale).
 
 ``train_freq`` and ``gradient_steps`` (off-policy) are counted per env, as if there were one:
 :func:`sb3_schedule` scales ``gradient_steps`` with the number of envs, so updates per env step
@@ -27,9 +32,12 @@ import yaml
 
 ALGOS = ("sac", "tqc", "ppo")
 POSES = ("oracle", "noisy", "manifold")  # the pose sources a run trains with
-SETTINGS = ("default", "residual")  # every algorithm's file has these
+SETTINGS = ("default", "scratch", "residual")  # every algorithm's file has these
 FINETUNE = "finetune"  # the setting of --init-policy (sac.yml only)
 OFF_POLICY = ("sac", "tqc")
+#: the env's reward types (scorbot_gym.tasks.grasp.REWARD_TYPES; repeated here, as this module
+#: imports PyYAML only, and a test checks that the two agree)
+REWARD_TYPES = ("dense", "normalized_dense", "sparse")
 
 
 def _int(low: int) -> Callable[[Any], int]:
@@ -85,6 +93,12 @@ def _net_arch(v: Any) -> list[int]:
     return list(v)
 
 
+def _reward_type(v: Any) -> str:
+    if v not in REWARD_TYPES:
+        raise ValueError(f"must be one of {', '.join(REWARD_TYPES)}")
+    return v
+
+
 def _finite(v: Any) -> float:
     return _float(-math.inf)(v)
 
@@ -129,6 +143,8 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     # fine-tuning (--init-policy) only: the demonstrations
     "demo_ratio": (("sac",), _float(0.0, 1.0), "share of each batch drawn from demonstrations"),
     "bc_coef": (("sac",), _float(0.0), "BC term on demo samples, times mean |Q|"),
+    # the env's reward, tuned with the rest (RL Zoo's env_kwargs)
+    "reward_type": (ALGOS, _reward_type, "the env's reward (scorbot_gym.tasks.grasp)"),
 }
 
 #: keys that only the fine-tuning setting reads (they weigh its demonstrations)
@@ -147,11 +163,25 @@ def valid_keys(algo: str) -> list[str]:
     return sorted(k for k, (algos, _, _) in KEYS.items() if algo in algos)
 
 
-def setting_for(residual: bool, finetune: bool = False) -> str:
-    """The entry of the algorithm's file a run uses."""
-    if finetune:
-        return FINETUNE
-    return "residual" if residual else "default"
+def setting_for(residual: bool, finetune: bool = False, entry: str | None = None) -> str:
+    """The entry of the algorithm's file a run uses: ``entry`` if given, else the one its kind
+    implies. The ``residual`` and ``finetune`` entries belong to those kinds of run, and those
+    runs to them (their keys start the policy at the controller or the imitation policy);
+    a policy acting alone may use any other entry (``default``, ``scratch``, ...)."""
+    kind = FINETUNE if finetune else "residual" if residual else "default"
+    if entry is None:
+        return kind
+    if not isinstance(entry, str) or not entry:
+        raise ValueError(f"hyperparams entry must be a name such as 'scratch', got {entry!r}")
+    if kind != "default" and entry != kind:
+        run = "--init-policy" if finetune else "--residual"
+        raise ValueError(f"a {run} run uses the hyperparams entry {kind!r}, got {entry!r}")
+    if entry in (FINETUNE, "residual") and entry != kind:
+        raise ValueError(
+            f"the hyperparams entry {entry!r} is for {entry} runs; a policy acting alone uses "
+            "'default', 'scratch' or another entry"
+        )
+    return entry
 
 
 def load_defaults(algo: str, setting: str) -> dict[str, Any]:
@@ -210,10 +240,14 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
 
 
 def resolve(
-    algo: str, residual: bool, overrides: dict[str, Any], finetune: bool = False
+    algo: str,
+    residual: bool,
+    overrides: dict[str, Any],
+    finetune: bool = False,
+    entry: str | None = None,
 ) -> dict[str, Any]:
     """The shipped entry for (``algo``, setting) updated by the checked ``overrides``."""
-    setting = setting_for(residual, finetune)
+    setting = setting_for(residual, finetune, entry)
     resolved = load_defaults(algo, setting)
     resolved.update(check(algo, overrides, setting=setting))
     return dict(sorted(resolved.items()))
@@ -247,6 +281,7 @@ __all__ = [
     "KEYS",
     "WARMUP_KEYS",
     "POSES",
+    "REWARD_TYPES",
     "SETTINGS",
     "check",
     "load_defaults",

@@ -22,8 +22,10 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import re
 import warnings
 import zipfile
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -58,6 +60,7 @@ RESUMABLE_CHANGES = (
     "progress_bar",
     "torch_threads",
     "tensorboard",
+    "device",
 )
 
 
@@ -87,6 +90,8 @@ class TrainConfig:
     bc_demos: int = 0
     bc_steps: int = 2000
     init_policy: str | None = None  # fine-tune this imitation policy ("learned" or a folder)
+    #: the entry of hyperparams/<algo>.yml (None: 'residual', 'finetune' or 'default' by kind)
+    hyperparams_entry: str | None = None
     hyperparams: dict[str, Any] = field(default_factory=dict)
     normalize: bool = True
     eval_every: int = 5000
@@ -95,6 +100,7 @@ class TrainConfig:
     progress_bar: bool = True
     torch_threads: int = 1  # more threads slow small-network updates on a shared machine
     tensorboard: bool = True
+    device: str = "auto"  # where networks update: "auto" (CUDA if there is one), "cpu", "cuda:N"
 
     def validate(self) -> TrainConfig:
         """Check every setting (one-line errors naming it); hyperparameters included."""
@@ -136,9 +142,13 @@ class TrainConfig:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
         if self.residual_gripper and not self.residual:
             raise ValueError("residual_gripper applies only to a residual run (residual=True)")
+        if not re.fullmatch(r"auto|cpu|cuda(:\d+)?", self.device):
+            raise ValueError(
+                f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {self.device!r}"
+            )
         if self.init_policy is not None:
             self._check_finetune()
-        hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
+        self.resolved_hyperparams()
         return self
 
     @property
@@ -162,7 +172,9 @@ class TrainConfig:
 
         init = load_init_policy(self.init_policy, self.action_type)
         hidden = list(init.meta["network"]["hidden"])
-        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, finetune=True)
+        hp = hparams.resolve(
+            self.algo, self.residual, self.hyperparams, True, self.hyperparams_entry
+        )
         if list(hp["net_arch"]) != hidden:
             raise ValueError(
                 f"net_arch must be the initial policy's hidden layers {hidden} to "
@@ -184,6 +196,8 @@ class TrainConfig:
                 kind = "a list of names"
             elif f.name in ("pose_model", "init_policy"):
                 ok, kind = value is None or isinstance(value, str), "a path"
+            elif f.name == "hyperparams_entry":
+                ok, kind = value is None or isinstance(value, str), "an entry name"
             else:
                 want = type(default)
                 kind = kinds[want]
@@ -193,9 +207,20 @@ class TrainConfig:
             if not ok:
                 raise ValueError(f"{f.name} must be {kind}, got {value!r}")
 
+    def resolved_hyperparams(self) -> dict[str, Any]:
+        """The shipped entry of this run updated by its ``hyperparams`` (checked)."""
+        return hparams.resolve(
+            self.algo, self.residual, self.hyperparams, self.finetune, self.hyperparams_entry
+        )
+
+    @property
+    def setting(self) -> str:
+        """The name of the hyperparameter entry this run uses."""
+        return hparams.setting_for(self.residual, self.finetune, self.hyperparams_entry)
+
     def resolved(self) -> TrainConfig:
         """A copy whose ``hyperparams`` is the full set the run uses."""
-        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
+        hp = self.resolved_hyperparams()
         return dataclasses.replace(self, hyperparams=hp)
 
     @property
@@ -223,7 +248,7 @@ class TrainConfig:
 
     def schedule(self) -> dict[str, Any]:
         """SB3's arguments for this many envs and the updates per env step they give."""
-        hp = hparams.resolve(self.algo, self.residual, self.hyperparams, self.finetune)
+        hp = self.resolved_hyperparams()
         return hparams.sb3_schedule(self.algo, hp, self.n_envs)
 
     def to_json(self) -> dict[str, Any]:
@@ -241,7 +266,13 @@ class TrainConfig:
     def as_older_runs_meant(data: dict[str, Any]) -> dict[str, Any]:
         """``data`` with the settings a run from before them implies (not today's defaults)."""
         if data.get("residual") and "residual_gripper" not in data:
-            return {**data, "residual_gripper": True}  # the residual corrected the gripper then
+            data = {**data, "residual_gripper": True}  # the residual corrected the gripper then
+        # runs from before these settings: the kind's entry, updates on the CPU
+        data = {"hyperparams_entry": None, "device": "cpu", **data}
+        hp = data.get("hyperparams")
+        if isinstance(hp, dict) and hp and "reward_type" not in hp:
+            # a resolved set from before reward_type was one: the env's reward then, "dense"
+            data = {**data, "hyperparams": {**hp, "reward_type": "dense"}}
         return data
 
 
@@ -273,6 +304,7 @@ def make_policy_env(config: TrainConfig, objects: list[str] | None = None) -> gy
         pose_kwargs=kwargs,
         classes=config.class_names(),
         objects=objects if objects is not None else config.objects,
+        reward_type=config.resolved_hyperparams()["reward_type"],
     )
 
 
@@ -394,7 +426,7 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
     for how they map onto SB3's per-vector-step arguments)."""
     from stable_baselines3 import PPO
 
-    hp = hparams.resolve(config.algo, config.residual, config.hyperparams, config.finetune)
+    hp = config.resolved_hyperparams()
     sched = hparams.sb3_schedule(config.algo, hp, config.n_envs)
     policy_kwargs: dict[str, Any] = {"net_arch": list(hp["net_arch"])}
     for key in ("log_std_init", "n_critics", "n_quantiles"):
@@ -409,7 +441,7 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
         "policy_kwargs": policy_kwargs,
         "seed": config.seed,
         "verbose": 0,
-        "device": "cpu",
+        "device": config.device,
         "tensorboard_log": str(tb_dir) if tb_dir else None,
     }
     if config.algo == "ppo":
@@ -635,7 +667,7 @@ def _hyperparams_record(config: TrainConfig) -> bytes:
     """``hyperparams.yml``: the resolved set, where it came from, and SB3's schedule."""
     record = {
         "algo": config.algo,
-        "setting": hparams.setting_for(config.residual, config.finetune),
+        "setting": config.setting,
         "n_envs": config.n_envs,
         "hyperparams": config.hyperparams,
         "sb3": config.schedule(),
@@ -679,30 +711,78 @@ def _train(config: TrainConfig, out: Path) -> dict[str, Any]:
     return run.state
 
 
-def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[str, Any]:
-    """Train ``config`` once per seed, one after another, into ``out/seed_<s>/``; ``seeds.json``
-    records the seeds and the configuration, so :func:`resume` continues all of them.
-    Returns ``{"seeds": {seed: state}}``."""
+def train_seeds(
+    config: TrainConfig, out: str | Path, seeds: list[int], processes: int = 1
+) -> dict[str, Any]:
+    """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
+    (each in a process of its own, see :func:`train_seed`; 1: one after another in this
+    process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
+    continues all of them. Returns ``{"seeds": {seed: state}}``."""
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
+    _check_processes(processes)
     config = config.validate().resolved()
     check_pose_model(config)
     with runs.claim(out, new=True) as out:
         atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-        return {"seeds": _train_seeds(config, out, seeds)}
+        return {"seeds": _train_seeds(config, out, seeds, processes=processes)}
+
+
+def _check_processes(processes: int) -> None:
+    if isinstance(processes, bool) or not isinstance(processes, int) or processes < 1:
+        raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
+
+
+def train_seed(
+    config: dict[str, Any],
+    run: str | Path,
+    progress_bar: bool | None = None,
+    device: str | None = None,
+) -> dict[str, Any]:
+    """Train one seed's run (``config`` as in ``config.json``, its ``seed`` set) into ``run``,
+    or continue it from its checkpoint to ``config["timesteps"]``: what a worker process of
+    :func:`train_seeds` does, and what a Ray task or a cluster job can call."""
+    run = Path(run)
+    if runs.has_checkpoint(run):
+        return resume(run, timesteps=config["timesteps"], progress_bar=progress_bar, device=device)
+    return train(TrainConfig.from_json(config), run)
 
 
 def _train_seeds(
-    config: TrainConfig, out: Path, seeds: list[int], progress_bar: bool | None = None
+    config: TrainConfig,
+    out: Path,
+    seeds: list[int],
+    progress_bar: bool | None = None,
+    device: str | None = None,
+    processes: int = 1,
 ) -> dict[int, dict]:
-    states = {}
-    for seed in seeds:
-        run = out / f"seed_{seed}"
-        if runs.has_checkpoint(run):
-            states[seed] = resume(run, timesteps=config.timesteps, progress_bar=progress_bar)
-        else:
-            states[seed] = train(dataclasses.replace(config, seed=seed), run)
-    return states
+    jobs = {seed: dataclasses.replace(config, seed=seed).to_json() for seed in seeds}
+    if processes == 1 or len(seeds) == 1:
+        return {s: train_seed(c, out / f"seed_{s}", progress_bar, device) for s, c in jobs.items()}
+    from scorbot_gym.experiments.workers import worker_pool
+
+    config.pose_args()  # default pose models are trained here once, not by every seed at once
+    quiet = False  # progress bars of several processes would overwrite each other
+    jobs = {s: {**c, "progress_bar": quiet} for s, c in jobs.items()}
+    states: dict[int, dict] = {}
+    errors: list[str] = []
+    with worker_pool(min(processes, len(seeds))) as pool:
+        futures = {
+            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device): s
+            for s, c in jobs.items()
+        }
+        for future in as_completed(futures):
+            seed = futures[future]
+            try:
+                states[seed] = future.result()
+            except Exception as exc:  # the others go on; every failure is reported below
+                errors.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+    if errors:
+        raise RuntimeError(
+            f"{len(errors)} of {len(seeds)} seeds failed ({'; '.join(errors)}); the others are "
+            f"in {out}, and --resume {out} continues every seed"
+        )
+    return {s: states[s] for s in seeds}
 
 
 def _read_state(path: Path) -> dict[str, Any]:
@@ -740,8 +820,8 @@ def _check_compatible(config: dict[str, Any], state: dict[str, Any], out: Path) 
     trained = state.get("config")
     if not isinstance(trained, dict):  # a checkpoint from before the configuration was recorded
         return
-    now = _flat(config)
-    trained = _flat(trained)
+    now = _flat(TrainConfig.as_older_runs_meant(config))
+    trained = _flat(TrainConfig.as_older_runs_meant(trained))
     differ = sorted(
         k
         for k in set(now) | set(trained)
@@ -792,20 +872,28 @@ def _load_checkpoint_file(path: Path, what: str, load):
 
 
 def resume(
-    out: str | Path, timesteps: int | None = None, progress_bar: bool | None = None
+    out: str | Path,
+    timesteps: int | None = None,
+    progress_bar: bool | None = None,
+    device: str | None = None,
+    processes: int = 1,
 ) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
-    the configured number; ``progress_bar`` default as configured); returns the state. A
-    ``--seeds`` folder continues every seed. The folder is locked while it trains."""
+    the configured number; ``progress_bar`` and ``device`` default as configured); returns the
+    state. A ``--seeds`` folder continues every seed, ``processes`` at a time. The folder is
+    locked while it trains."""
+    _check_processes(processes)
     with runs.claim(out, new=False) as out:
-        return _resume(out, timesteps, progress_bar)
+        return _resume(out, timesteps, progress_bar, device, processes)
 
 
-def _resume(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
+def _resume(
+    out: Path, timesteps: int | None, progress_bar: bool | None, device: str | None, processes: int
+) -> dict[str, Any]:
     from stable_baselines3.common.vec_env import VecNormalize
 
     if (out / runs.SEEDS).is_file():
-        return _resume_seeds(out, timesteps, progress_bar)
+        return _resume_seeds(out, timesteps, progress_bar, device, processes)
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
@@ -827,6 +915,8 @@ def _resume(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict
         raw["timesteps"] = int(timesteps)
     if progress_bar is not None:
         raw["progress_bar"] = bool(progress_bar)
+    if device is not None:
+        raw["device"] = device
     _check_compatible(raw, state, out)
     try:
         config = TrainConfig.from_json(raw)
@@ -854,7 +944,9 @@ def _resume(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict
         model = _load_checkpoint_file(
             ck / "model.zip",
             f"a {config.algo} model",
-            lambda p: _model_class(config).load(p, env=venv, device="cpu", tensorboard_log=tb),
+            lambda p: _model_class(config).load(
+                p, env=venv, device=config.device, tensorboard_log=tb
+            ),
         )
         if (ck / "replay_buffer.pkl").is_file() and hasattr(model, "replay_buffer"):
             _load_checkpoint_file(
@@ -863,7 +955,7 @@ def _resume(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict
     except BaseException:
         venv.close()
         raise
-    if timesteps is not None or progress_bar is not None:
+    if timesteps is not None or progress_bar is not None or device is not None:
         atomic_write_json(config_path, config.to_json())
     model._last_obs = None  # the interrupted episode is not continued: start fresh episodes
     run = _Run(config, out, model, venv, state)
@@ -880,7 +972,7 @@ def _model_class(config: TrainConfig, hp: dict[str, Any] | None = None):
     keeping: a fine-tune's imitation policy, or a run whose entry sets the warm-up keys (the
     residual's zero correction, i.e. the scripted controller)."""
     if hp is None:
-        hp = hparams.resolve(config.algo, config.residual, config.hyperparams, config.finetune)
+        hp = config.resolved_hyperparams()
     if config.finetune or (config.algo == "sac" and any(k in hp for k in hparams.WARMUP_KEYS)):
         from scorbot_gym.rl.finetune import RLPDSAC
 
@@ -890,7 +982,13 @@ def _model_class(config: TrainConfig, hp: dict[str, Any] | None = None):
     return _algorithms()[config.algo]
 
 
-def _resume_seeds(out: Path, timesteps: int | None, progress_bar: bool | None) -> dict[str, Any]:
+def _resume_seeds(
+    out: Path,
+    timesteps: int | None,
+    progress_bar: bool | None,
+    device: str | None = None,
+    processes: int = 1,
+) -> dict[str, Any]:
     record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
     seeds = record.get("seeds")
     if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
@@ -903,7 +1001,9 @@ def _resume_seeds(out: Path, timesteps: int | None, progress_bar: bool | None) -
         config.timesteps = int(timesteps)
     if progress_bar is not None:
         config.progress_bar = bool(progress_bar)
-    return {"seeds": _train_seeds(config, out, seeds, progress_bar)}
+    if device is not None:
+        config.device = device
+    return {"seeds": _train_seeds(config, out, seeds, progress_bar, device, processes)}
 
 
 __all__ = [
@@ -916,5 +1016,6 @@ __all__ = [
     "make_vec_env",
     "resume",
     "train",
+    "train_seed",
     "train_seeds",
 ]

@@ -24,6 +24,19 @@ SUCCESS_MARGIN = 1.5
 SUCCESS_BONUS = SUCCESS_MARGIN * SHAPING_MAX / (1.0 - REWARD_GAMMA)
 #: The reward terms, as ``info["reward_<term>"]`` (Gymnasium MuJoCo v5 style).
 REWARD_TERMS = ("reach", "grasp", "lift", "success")
+#: The reward types: ``dense`` (:func:`grasp_reward`, what every shipped policy and result was
+#: trained with), ``normalized_dense`` (:func:`normalized_grasp_reward`, for learning from
+#: scratch) and ``sparse`` (1 on success).
+REWARD_TYPES = ("dense", "normalized_dense", "sparse")
+#: The terms of ``reward_type="normalized_dense"``; they sum to the reward.
+NORMALIZED_REWARD_TERMS = ("reach", "grasp", "lift", "hold", "collision", "success")
+#: ``k`` of the normalised reach term ``1 - tanh(k d)``, 1/m: ManiSkill's PickCube uses 5 for
+#: start distances of ~0.15 m; ours are twice that (median 0.34 m), where 5 leaves 6 % of the
+#: term and 3 leaves 23 %, with a slope that still rises 2.5-fold towards the grasp point.
+NORMALIZED_REACH_K = 3.0
+#: The most a step that does not succeed can pay: ``(1 - REWARD_GAMMA) / 2`` = 0.005, so that
+#: never finishing is worth at most half of a success (see :func:`normalized_grasp_reward`).
+NORMALIZED_SHAPING_MAX = (1.0 - REWARD_GAMMA) / 2.0
 #: fingers closer than this (m) hold nothing: "closed empty" (the thinnest catalogue object is
 #: several times wider); the scripted controller's re-grasp reads the same test
 CLOSED_EMPTY_OPENING = 0.004
@@ -58,6 +71,64 @@ def grasp_reward(
     return float(sum(terms.values())), terms
 
 
+def normalized_grasp_reward(
+    reach: float,
+    grasped: bool,
+    lift: float,
+    held_time: float,
+    collision: bool,
+    success: bool,
+    lift_height: float,
+    hold_time: float,
+) -> tuple[float, dict[str, float]]:
+    """The normalised dense reward of one step (in [0, 1]) and its terms (they sum to it).
+
+    Four stages, each a progress in [0, 1] as in ManiSkill's PickCube: ``reach = 1 - tanh(3 d)``
+    (``d`` the TCP's distance to the grasp point), ``grasp = 1`` while both fingers touch the
+    object, ``lift = min(lift / lift_height, 1)`` while grasped, ``hold = held_time /
+    hold_time`` (time held at the lift height, towards success). A step that does not succeed
+    pays their mean times ``w = NORMALIZED_SHAPING_MAX = (1 - gamma) / 2`` = 0.005; the step
+    that succeeds (and terminates the episode) pays ``1 - w`` more, so every reward is in
+    [0, 1] and the success step's is at least ``1 - w`` = 0.995.
+
+    Why success is worth more than any way of not finishing, at ``gamma = REWARD_GAMMA`` =
+    0.99 with the 150-step time limit bootstrapped (SB3 treats truncation as non-terminal, so
+    the critic values a continuation as if it never ended): a continuation that never succeeds
+    collects at most ``w / (1 - gamma)`` = 0.5, whatever it does (the time limit only lowers
+    this to ``w (1 - gamma^n) / (1 - gamma)`` for n steps left); one that succeeds ``n`` steps
+    later collects at least ``gamma^n (1 - w)``, which is more for every ``n <= 68``
+    (``0.99^68 * 0.995 = 0.50``): finishing within 68 steps beats never finishing from any
+    state, and finishing now beats it by at least 0.495. The reward depends on ``gamma`` only
+    through ``w``: for any discount below 0.995 the bound still holds; a learner with a larger
+    discount should use another reward. Rewards stay >= 0, so ending an episode any other way
+    (the object knocked off the table) is worth 0 from then on: never better than going on.
+
+    Why ``w`` is small: it scales what a Q-function fits to [0, 1]; the old ``dense`` reward
+    (4 per step, +600 once) fits 0.002 ... 600 and paid 0.002 per step at the median start
+    distance; here the reach term there is 23 % of its maximum (``1 - tanh(3 * 0.34)``) and
+    worth ``0.23 * w / 4`` = 2.9e-4 per step, 1/3,500 of a success (the old one: 1/270,000).
+
+    Collisions: a step on which an arm link (not a finger) touches the table, pushes the
+    object before both fingers hold it, or the arm hits itself pays nothing (the ``collision``
+    term is minus the step's shaping), so a collision costs what the step would have earned,
+    and a path that reaches the object through the table earns less than one around it. Not a
+    termination: the episode's success and failure semantics are the env's, the same for
+    every reward type, and an early exploration that brushes the table should not end it.
+    """
+    w4 = NORMALIZED_SHAPING_MAX / 4.0
+    progress = {
+        "reach": 1.0 - math.tanh(NORMALIZED_REACH_K * reach),
+        "grasp": float(grasped),
+        "lift": min(max(lift / lift_height, 0.0), 1.0) * float(grasped),
+        "hold": min(max(held_time / hold_time, 0.0), 1.0),
+    }
+    terms = {k: w4 * v for k, v in progress.items()}
+    shaping = sum(terms.values())
+    terms["collision"] = -shaping if collision else 0.0
+    terms["success"] = (1.0 - NORMALIZED_SHAPING_MAX) if success else 0.0
+    return float(sum(terms.values())), terms
+
+
 @dataclass
 class EpisodeState:
     rest_pos: np.ndarray
@@ -81,8 +152,8 @@ class GraspTask:
         lift_height: float = 0.05,
         hold_time: float = 0.5,
     ) -> None:
-        if reward_type not in ("dense", "sparse"):
-            raise ValueError(f"reward_type must be 'dense' or 'sparse', got {reward_type!r}")
+        if reward_type not in REWARD_TYPES:
+            raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
         self.sim, self.robot = sim, robot
         self.reward_type = reward_type
         self.lift_height, self.hold_time = lift_height, hold_time
@@ -123,8 +194,9 @@ class GraspTask:
         lifted = lift >= self.lift_height
         st.held_time = st.held_time + dt if (grasped and lifted) else 0.0
         st.ever_grasped |= grasped
+        self_collision = self.self_collision()
         st.arm_collision |= link_obj or link_table
-        st.self_collision |= self.self_collision()
+        st.self_collision |= self_collision
         opening = self.robot.gripper_opening
         st.closed_empty |= opening < CLOSED_EMPTY_OPENING and not grasped
         st.success |= st.held_time >= self.hold_time - 1e-9
@@ -137,6 +209,8 @@ class GraspTask:
             "lift": lift,
             "reach": reach,
             "fell": fell,
+            # an arm link on the table, pushing the object it does not hold, or on itself
+            "collision": bool(link_table or self_collision or (link_obj and not grasped)),
         }
 
     def self_collision(self) -> bool:
@@ -145,11 +219,28 @@ class GraspTask:
         # a loop: a handful of contacts (see Robot.contacts_with)
         return any(g1 in arm and g2 in arm for g1, g2 in d.contact.geom[: d.ncon].tolist())
 
+    @property
+    def reward_terms(self) -> tuple[str, ...]:
+        """The terms of this reward type, each in ``info["reward_<term>"]``."""
+        return NORMALIZED_REWARD_TERMS if self.reward_type == "normalized_dense" else REWARD_TERMS
+
     def reward(self, facts: dict) -> tuple[float, dict[str, float]]:
-        """The step's reward and its terms (see :func:`grasp_reward`); the sparse reward is
-        1 on success, its only term."""
+        """The step's reward and its terms (see :func:`grasp_reward` and
+        :func:`normalized_grasp_reward`); the sparse reward is 1 on success, its only term."""
+        st = self.state
         if self.reward_type == "sparse":
-            return float(self.state.success), {"success": float(self.state.success)}
+            return float(st.success), {"success": float(st.success)}
+        if self.reward_type == "normalized_dense":
+            return normalized_grasp_reward(
+                facts["reach"],
+                facts["grasped"],
+                facts["lift"],
+                st.held_time,
+                facts["collision"],
+                st.success,
+                self.lift_height,
+                self.hold_time,
+            )
         return grasp_reward(
             facts["reach"], facts["grasped"], facts["lift"], self.state.success, self.lift_height
         )

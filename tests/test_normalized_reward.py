@@ -1,0 +1,156 @@
+"""The normalised dense reward (``reward_type="normalized_dense"``): its documented arithmetic,
+checked on the real env (bounds, success against never finishing, the reach slope where
+episodes start, what a collision costs)."""
+
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import scorbot_gym  # noqa: F401  (registers the envs)
+from scorbot_gym.envs.factory import make_env
+from scorbot_gym.policies.scripted import ScriptedGraspPolicy
+from scorbot_gym.rl import hyperparams as hparams
+from scorbot_gym.tasks.grasp import (
+    NORMALIZED_REWARD_TERMS,
+    NORMALIZED_SHAPING_MAX,
+    REWARD_GAMMA,
+    REWARD_TYPES,
+    SUCCESS_BONUS,
+    normalized_grasp_reward,
+)
+
+W = NORMALIZED_SHAPING_MAX
+
+
+def _terms_sum(info: dict) -> float:
+    return sum(info[f"reward_{k}"] for k in NORMALIZED_REWARD_TERMS)
+
+
+def _scripted_episode(seed: int, reward_type: str = "normalized_dense"):
+    env = make_env("ScorbotGraspCartesian-v0", pose="oracle", reward_type=reward_type)
+    policy = ScriptedGraspPolicy.for_env(env)
+    obs, info = env.reset(seed=seed)
+    policy.reset(obs, info)
+    rewards, infos = [], []
+    for _ in range(150):
+        obs, r, terminated, truncated, info = env.step(policy.act(obs))
+        rewards.append(r)
+        infos.append(info)
+        if terminated or truncated:
+            break
+    env.close()
+    return np.array(rewards), infos
+
+
+def test_reward_types_agree_between_env_and_hyperparams():
+    assert hparams.REWARD_TYPES == REWARD_TYPES
+
+
+def test_every_step_is_in_0_1_and_the_terms_sum_to_it():
+    """A scripted success and a random episode: non-success steps pay at most w, the success
+    step at least 1 - w, and the info terms add up to the reward."""
+    rewards, infos = _scripted_episode(seed=0)
+    assert infos[-1]["is_success"]
+    assert all(0.0 <= r <= 1.0 for r in rewards)
+    assert all(
+        _terms_sum(i) == pytest.approx(r, abs=1e-12) for r, i in zip(rewards, infos, strict=True)
+    )
+    assert rewards[:-1].max() <= W and rewards[-1] >= 1.0 - W
+    assert rewards[:-1].max() > 0.9 * W  # near the bound while holding: the bound is tight
+
+    env = gym.make("ScorbotGrasp-v0", object_name="box", reward_type="normalized_dense")
+    _, info = env.reset(seed=1)
+    assert {k for k in info if k.startswith("reward_")} == {
+        f"reward_{k}" for k in NORMALIZED_REWARD_TERMS
+    }
+    rng = np.random.default_rng(1)
+    for _ in range(60):
+        _, r, terminated, truncated, info = env.step(rng.uniform(-1, 1, 6))
+        assert 0.0 <= r <= W and _terms_sum(info) == pytest.approx(r, abs=1e-12)
+        if terminated or truncated:
+            break
+    env.close()
+
+
+def test_success_beats_any_way_of_not_finishing():
+    """At gamma = 0.99 with the time limit bootstrapped (infinite horizon), never finishing is
+    worth at most w / (1 - gamma) = 0.5; a success within 68 steps at least gamma^68 (1 - w).
+    On a real scripted episode, from every step of its last 68 the remaining discounted return
+    beats that bound. A learner with gamma 0.995 would break it (the documented limit)."""
+    gamma = REWARD_GAMMA
+    # the largest a non-success step can pay (best case of every stage) is w
+    best, _ = normalized_grasp_reward(0.0, True, 1.0, 10.0, False, False, 0.05, 0.5)
+    assert best == pytest.approx(W)
+    never_finish = W / (1 - gamma)
+    assert never_finish == pytest.approx(0.5)
+    worst_success, _ = normalized_grasp_reward(1.0, False, 0.0, 0.0, True, True, 0.05, 0.5)
+    assert worst_success == pytest.approx(1 - W)
+    assert gamma**68 * (1 - W) > never_finish > gamma**69 * (1 - W)
+    # at 0.995 the same reward lets never finishing (1.0) outweigh finishing now (0.995)
+    assert W / (1 - 0.995) > 1 - W
+
+    rewards, infos = _scripted_episode(seed=2)
+    assert infos[-1]["is_success"]
+    n = len(rewards)
+    for t in range(max(0, n - 68), n):
+        rest = rewards[t:]
+        value = float(np.sum(gamma ** np.arange(len(rest)) * rest))
+        assert value > never_finish
+    # the old dense reward's arithmetic needed a 600 bonus; this one stays in [0, 1]
+    assert SUCCESS_BONUS == pytest.approx(600.0)
+
+
+def test_reach_has_a_usable_slope_where_episodes_start():
+    """The median start distance (TCP to grasp point) is about 0.34 m; there the reach term
+    keeps over 20 % of its maximum, and a 2 cm step towards the object is worth, as a share
+    of a success, over 10 times what the old dense reward pays for it (measured: 19 times)."""
+    distances = []
+    gains = {}
+    for reward_type in ("normalized_dense", "dense"):
+        env = gym.make("ScorbotGraspCartesian-v0", object_name="box", reward_type=reward_type)
+        gain = []
+        for seed in range(9):
+            env.reset(seed=seed)
+            task, robot = env.unwrapped.task, env.unwrapped.robot
+            gap = task.grasp_point_world() - robot.tcp_pos
+            if reward_type == "dense":
+                distances.append(float(np.linalg.norm(gap)))
+            stay = np.array([0, 0, 0, 0, 0, 1.0])
+            _, _, _, _, before = env.step(stay)
+            toward = np.r_[gap / np.linalg.norm(gap), 0.0, 0.0, 1.0]
+            _, _, _, _, after = env.step(toward)  # one step: up to 2 cm closer
+            gain.append(after["reward_reach"] - before["reward_reach"])
+        env.close()
+        success = 1.0 if reward_type == "normalized_dense" else SUCCESS_BONUS
+        gains[reward_type] = np.median(gain) / success
+    median = float(np.median(distances))
+    assert 0.25 < median < 0.45
+    assert 1 - math.tanh(3.0 * median) > 0.2
+    assert gains["normalized_dense"] > 0
+    assert gains["normalized_dense"] > 10 * gains["dense"]
+
+
+def test_a_collision_step_pays_nothing():
+    """Pushing the TCP down from the start makes the arm collide: those steps pay 0 (the
+    collision term takes back the step's shaping), where the dense reward still pays."""
+    paid = {}
+    for reward_type in ("normalized_dense", "dense"):
+        env = gym.make("ScorbotGraspCartesian-v0", object_name="box", reward_type=reward_type)
+        env.reset(seed=0)
+        for _ in range(80):
+            _, r, terminated, truncated, info = env.step(np.array([0, 0, -1.0, 0, 0, 1.0]))
+            if info["failure_cause"] == "collision":
+                break
+        assert info["failure_cause"] == "collision"
+        paid[reward_type] = (r, info)
+        env.close()
+    r, info = paid["normalized_dense"]
+    assert info["reward_collision"] < 0
+    shaping = sum(info[f"reward_{k}"] for k in ("reach", "grasp", "lift", "hold"))
+    assert info["reward_collision"] == pytest.approx(-shaping)
+    assert r == 0.0
+    assert paid["dense"][0] > 0  # collisions cost nothing under the old reward

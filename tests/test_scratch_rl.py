@@ -1,0 +1,103 @@
+"""Learning from scratch (#49 item 2): the shipped ``scratch`` hyperparameter entries, the
+reward recorded with every run, the entry selection, and where the networks update."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from scorbot_gym.cli import main
+from scorbot_gym.rl import hyperparams as hparams
+from scorbot_gym.rl.training import TrainConfig, build_model, make_policy_env, make_vec_env
+
+pytestmark = pytest.mark.rl
+
+
+def test_scratch_entries_are_set_for_learning_not_for_fine_tuning():
+    for algo in hparams.ALGOS:
+        hp = hparams.load_defaults(algo, "scratch")
+        assert hp["reward_type"] == "normalized_dense"
+        assert hp["net_arch"] == [256, 256]
+        if algo in hparams.OFF_POLICY:
+            assert hp["buffer_size"] >= 1_000_000  # holds a 1M-step run
+            assert hp["learning_starts"] >= 1000
+            assert hp["ent_coef"] == "auto_0.001"  # sized to the normalised reward
+        else:
+            assert hp["n_steps"] >= 4096
+    # every entry the shipped policies and results came from names the old reward
+    for algo in hparams.ALGOS:
+        for setting in ("default", "residual"):
+            assert hparams.load_defaults(algo, setting)["reward_type"] == "dense"
+    assert hparams.load_defaults("sac", hparams.FINETUNE)["reward_type"] == "dense"
+
+
+def test_the_entry_picks_the_reward_of_the_training_and_evaluation_envs():
+    config = TrainConfig(objects=["box"], hyperparams_entry="scratch").validate().resolved()
+    assert config.hyperparams["reward_type"] == "normalized_dense"
+    assert config.setting == "scratch"
+    env = make_policy_env(config)
+    assert env.unwrapped.reward_type == "normalized_dense"
+    env.close()
+    ablation = TrainConfig(hyperparams_entry="scratch", hyperparams={"reward_type": "dense"})
+    assert ablation.resolved_hyperparams()["reward_type"] == "dense"
+    assert TrainConfig().resolved_hyperparams()["reward_type"] == "dense"
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"hyperparams_entry": "nope"}, "has no entry 'nope'"),
+        ({"hyperparams_entry": "residual"}, "is for residual runs"),
+        ({"residual": True, "hyperparams_entry": "scratch"}, "uses the hyperparams entry"),
+        ({"hyperparams": {"reward_type": "shaped"}}, "reward_type must be one of"),
+        ({"device": "gpu"}, "device must be"),
+    ],
+)
+def test_bad_entries_rewards_and_devices_are_one_line_errors(kwargs, message):
+    with pytest.raises(ValueError, match=message) as err:
+        TrainConfig(**kwargs).validate()
+    assert len(str(err.value).splitlines()) == 1
+
+
+def test_a_run_from_before_reward_type_keeps_the_dense_reward():
+    """An older run's resolved hyperparameters lack reward_type: it trained with the env's
+    reward then, 'dense', whatever today's entries say."""
+    old = TrainConfig(hyperparams_entry=None).resolved().to_json()
+    del old["hyperparams"]["reward_type"], old["hyperparams_entry"], old["device"]
+    config = TrainConfig.from_json(old)
+    assert config.hyperparams["reward_type"] == "dense"
+    assert config.device == "cpu" and config.hyperparams_entry is None
+
+
+def test_updates_run_where_the_device_says():
+    import torch as th
+
+    want = "cuda" if th.cuda.is_available() else "cpu"
+    for device, expected in (("auto", want), ("cpu", "cpu")):
+        config = TrainConfig(
+            objects=["box"],
+            device=device,
+            hyperparams={"buffer_size": 100, "net_arch": [8, 8]},
+        ).resolved()
+        venv = make_vec_env(config)
+        try:
+            assert build_model(config, venv, None).device.type == expected
+        finally:
+            venv.close()
+
+
+def test_train_records_the_entry_and_the_reward(tmp_path):
+    out = tmp_path / "run"
+    argv = [
+        "train", "--hyperparams-entry", "scratch", "--objects", "box", "--timesteps", "40",
+        "--learning-starts", "20", "--eval-every", "40", "--eval-episodes", "1",
+        "--checkpoint-every", "40", "--no-progress", "--no-tensorboard", "--device", "cpu",
+        "--hyperparams", "buffer_size=200", "batch_size=8", "net_arch=[8,8]", "--out", str(out),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["hyperparams_entry"] == "scratch" and config["device"] == "cpu"
+    assert config["hyperparams"]["reward_type"] == "normalized_dense"
+    policy = json.loads((out / "policy" / "policy.json").read_text())
+    assert policy["config"]["hyperparams"]["reward_type"] == "normalized_dense"
