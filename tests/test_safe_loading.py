@@ -322,3 +322,49 @@ def test_an_old_format_run_converts_with_trust_and_resumes(run_copy, capsys):
         assert json.loads(str(z["layout"]))["rows"] == 60
     state = resume(run_copy, timesteps=90)
     assert state["timesteps"] == 90
+
+
+def test_a_fine_tunes_demonstration_buffer_round_trips(tmp_path):
+    """The fine-tune's buffer keeps its demonstrations in a buffer of its own (``demos``)."""
+    from gymnasium import spaces
+
+    from scorbot_gym.rl.finetune import DemoMixReplayBuffer, demo_buffer
+
+    obs_space = spaces.Box(-5.0, 5.0, (7,), np.float32)
+    act_space = spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+    def fresh() -> DemoMixReplayBuffer:
+        return DemoMixReplayBuffer(40, obs_space, act_space, device="cpu", demo_ratio=0.5)
+
+    class Spaces:  # what demo_buffer reads of a model
+        observation_space, action_space = obs_space, act_space
+
+    rng = np.random.default_rng(0)
+    buffer = fresh()
+    for _ in range(45):  # wraps around: all 40 rows, pos 5
+        o, a = rng.normal(size=(1, 7)), rng.uniform(-1, 1, (1, 3))
+        buffer.add(o, o + 1, a, np.ones(1), np.zeros(1), [{}])
+    n = 12
+    buffer.demos = demo_buffer(
+        {
+            "observations": rng.normal(size=(n, 7)),
+            "next_observations": rng.normal(size=(n, 7)),
+            "actions": rng.uniform(-1, 1, (n, 3)),
+            "rewards": rng.normal(size=n),
+            "dones": np.zeros(n),
+        },
+        Spaces,
+    )
+    buffer.demo_rows_drawn = 17
+    checkpoint.save_replay_buffer(buffer, tmp_path / "b.npz")
+    loaded = fresh()
+    checkpoint.load_replay_buffer(loaded, tmp_path / "b.npz")
+    assert (loaded.pos, loaded.full, loaded.demo_rows_drawn) == (5, True, 17)
+    for field in ("observations", "next_observations", "actions", "rewards", "dones"):
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(buffer, field))
+        np.testing.assert_array_equal(getattr(loaded.demos, field), getattr(buffer.demos, field))
+    assert loaded.demos.size() == n
+    with pytest.raises(ValueError, match="buffer_size 40 differs from the run's 50"):
+        checkpoint.load_replay_buffer(
+            DemoMixReplayBuffer(50, obs_space, act_space, device="cpu"), tmp_path / "b.npz"
+        )

@@ -258,7 +258,7 @@ def describe(model) -> dict[str, Any]:
 def save_model(model, path: str | Path, training: bool = False) -> None:
     """Write ``model`` to ``path`` (a ``.safetensors`` file): the policy's weights, or with
     ``training`` everything a resumed run needs (optimisers, entropy coefficient, counters)."""
-    from safetensors.torch import save_file
+    from safetensors.torch import save
     from stable_baselines3.common.save_util import recursive_getattr
 
     description = describe(model)
@@ -280,7 +280,8 @@ def save_model(model, path: str | Path, training: bool = False) -> None:
             "ep_info_buffer": _plain(list(model.ep_info_buffer or [])),
             "ep_success_buffer": _plain(list(model.ep_success_buffer or [])),
         }
-    save_file(tensors, str(path), metadata={_METADATA_KEY: json.dumps(description)})
+    # written by Python (safetensors' own file writer makes it readable by its owner only)
+    Path(path).write_bytes(save(tensors, metadata={_METADATA_KEY: json.dumps(description)}))
 
 
 # --- reading ---------------------------------------------------------------------------------
