@@ -368,3 +368,13 @@ def test_a_fine_tunes_demonstration_buffer_round_trips(tmp_path):
         checkpoint.load_replay_buffer(
             DemoMixReplayBuffer(50, obs_space, act_space, device="cpu"), tmp_path / "b.npz"
         )
+
+
+def test_a_damaged_old_file_is_a_one_line_error_even_when_trusted(policy_copy, capsys):
+    (policy_copy / "model.safetensors").unlink()
+    (policy_copy / "model.zip").write_bytes(b"half a zip")
+    assert main(["convert", str(policy_copy), "--trust-pickle"]) == 2
+    assert f"cannot convert {policy_copy}" in one_line_error(capsys)
+    assert not (policy_copy / "model.safetensors").exists()
+    assert main(["convert", str(policy_copy / "nothing")]) == 2
+    assert "no policy folder or training run folder" in one_line_error(capsys)

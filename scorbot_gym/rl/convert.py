@@ -108,10 +108,20 @@ def convert(path: str | Path, trust_pickle: bool = False) -> list[Path]:
     written = []
     for folder in policies:
         if (folder / OLD_MODEL_FILE).is_file() and not (folder / MODEL_FILE).is_file():
-            written.append(_convert_policy(folder))
+            written.append(_one_line(_convert_policy, folder))
     for run in run_folders:
-        written += _convert_checkpoint(run)
+        written += _one_line(_convert_checkpoint, run)
     return written
+
+
+def _one_line(convert_one, folder: Path):
+    """``convert_one(folder)`` with a damaged old file (SB3, zip and pickle raise many kinds)
+    as a one-line error naming the folder."""
+    try:
+        return convert_one(folder)
+    except Exception as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        raise ValueError(f"cannot convert {folder}: {type(exc).__name__}: {msg[:300]}") from None
 
 
 __all__ = ["convert", "old_format_files"]
