@@ -148,6 +148,26 @@ def test_normalisation_statistics_holding_a_pickle_are_refused(policy_copy, tmp_
     assert not marker.exists()
 
 
+def test_imitation_weights_holding_a_pickle_are_refused(tmp_path, capsys):
+    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+
+    marker, folder = tmp_path / "ran", tmp_path / "learned"
+    shutil.copytree(SHIPPED_LEARNED_POLICY, folder)
+    np.savez(folder / "weights.npz", w0=np.array([Payload(marker)], dtype=object))
+    assert main(["rollout", "--policy", str(folder), "--episodes", "1"]) == 2
+    assert "could not be read as policy weights" in one_line_error(capsys)
+    assert not marker.exists()
+
+
+def test_a_pose_model_file_holding_a_pickle_is_refused(tmp_path, capsys):
+    marker, model = tmp_path / "ran", tmp_path / "models.npz"
+    np.savez(model, __header__=np.array([Payload(marker)], dtype=object))
+    argv = ["rollout", "--pose", "manifold", "--pose-model", str(model), "--episodes", "1"]
+    assert main(argv) == 2
+    assert "corrupt model file" in one_line_error(capsys)
+    assert not marker.exists()
+
+
 def test_the_shipped_rl_policy_acts_as_before_its_conversion():
     """The observations and actions recorded with SB3's own loader on the old ``model.zip``
     (3 episodes, 180 steps); the converted policy gives the same actions, bit for bit."""
