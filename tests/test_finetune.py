@@ -139,7 +139,7 @@ def test_tiny_fine_tune_writes_a_loadable_stand_alone_policy(tiny_run, tmp_path,
         action = policy.act(obs)
         assert env.action_space.contains(action)
         obs, *_ = env.step(action)
-    assert (out / "checkpoint" / "model.zip").is_file()
+    assert (out / "checkpoint" / "model.safetensors").is_file()
     assert main(["rollout", "--policy", str(out), "--episodes", "1", "--objects", "box"]) == 0
     assert "success" in capsys.readouterr().out.lower()
 

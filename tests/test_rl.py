@@ -2,10 +2,10 @@
 
 import json
 import shutil
-import zipfile
 
 import numpy as np
 import pytest
+from safetensors.torch import save_file
 
 from scorbot_gym.cli import main
 from scorbot_gym.envs.factory import make_env
@@ -13,6 +13,7 @@ from scorbot_gym.evaluation import run_episode
 from scorbot_gym.evaluation.compare import newcombe_paired_diff
 from scorbot_gym.policies import ScriptedGraspPolicy
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, ObservationNormalizer, SB3Policy
+from scorbot_gym.policies.sb3_files import read_model_file
 from scorbot_gym.rl import ResidualActionWrapper, TrainConfig, resume, train
 from scorbot_gym.rl.training import build_model, make_vec_env
 from scorbot_gym.tasks import FAILURE_CAUSES
@@ -55,7 +56,7 @@ def test_training_writes_a_loadable_model_checkpoints_and_curve(trained_run):
     assert [e["timesteps"] for e in state["eval"]] == [0, 150, 300]
     assert all(0.0 <= e["success_rate"] <= 1.0 and e["episodes"] == 2 for e in state["eval"])
     assert state["demos"]["transitions"] > 0
-    for name in ("model.zip", "replay_buffer.pkl", "vecnormalize.pkl", "state.json"):
+    for name in ("model.safetensors", "replay_buffer.npz", "vecnormalize.json", "state.json"):
         assert (out / "checkpoint" / name).is_file(), name
     assert list((out / "tb").rglob("events.out.tfevents.*"))
     policy = SB3Policy.load(out / "policy")
@@ -247,14 +248,18 @@ def test_shipped_policy_on_a_user_added_object(user_object):
 def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
     bad = tmp_path / "bad"
     shutil.copytree(SHIPPED_POLICY, bad)
-    (bad / "model.zip").write_bytes(b"not a zip at all")
-    with pytest.raises(ValueError, match="not a zip file"):
+    (bad / "model.safetensors").write_bytes(b"not a safetensors file at all")
+    with pytest.raises(ValueError, match="not a safetensors model file"):
         SB3Policy.load(bad)
-    with zipfile.ZipFile(bad / "model.zip", "w") as z:
-        z.writestr("data", "{broken")
-    with pytest.raises(ValueError, match="could not be loaded"):
+    description, tensors = read_model_file(SHIPPED_POLICY / "model.safetensors")
+    save_file(tensors, str(bad / "model.safetensors"), metadata={"scorbot_gym": "{broken"})
+    with pytest.raises(ValueError, match="no scorbot-gym model description"):
         SB3Policy.load(bad)
-    shutil.copy(SHIPPED_POLICY / "model.zip", bad / "model.zip")
+    wrong = {**description, "policy_kwargs": {**description["policy_kwargs"], "net_arch": [8]}}
+    save_file(tensors, str(bad / "model.safetensors"), metadata={"scorbot_gym": json.dumps(wrong)})
+    with pytest.raises(ValueError, match="could not be loaded as a SAC model"):
+        SB3Policy.load(bad)
+    shutil.copy(SHIPPED_POLICY / "model.safetensors", bad / "model.safetensors")
     meta = json.loads((bad / "policy.json").read_text())
     meta["observation_shapes"]["joint_pos"] = [7]
     (bad / "policy.json").write_text(json.dumps(meta))

@@ -287,9 +287,9 @@ def test_a_run_stopped_before_its_first_checkpoint_starts_afresh(tmp_path, capsy
 def _damage(run, name: str) -> None:
     path = run / name
     rng = np.random.default_rng(1)
-    if name == "checkpoint/model.zip":
+    if name in ("checkpoint/model.safetensors", "checkpoint/replay_buffer.npz"):
         path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
-    elif name.endswith(".pkl"):
+    elif name == "checkpoint/vecnormalize.json":
         path.write_bytes(rng.bytes(512))
     elif name == "checkpoint/state.json":
         state = json.loads(path.read_text())
@@ -309,9 +309,9 @@ def _damage(run, name: str) -> None:
 @pytest.mark.parametrize(
     ("damage", "message"),
     [
-        ("checkpoint/model.zip", "model.zip is damaged"),
-        ("checkpoint/vecnormalize.pkl", "vecnormalize.pkl is damaged or not VecNormalize"),
-        ("checkpoint/replay_buffer.pkl", "replay_buffer.pkl is damaged or not a replay buffer"),
+        ("checkpoint/model.safetensors", "model.safetensors is not a safetensors model file"),
+        ("checkpoint/vecnormalize.json", "vecnormalize.json is damaged or not VecNormalize"),
+        ("checkpoint/replay_buffer.npz", "replay_buffer.npz is damaged or not a replay buffer"),
         ("checkpoint/state.json", "state.json: 'eval' is missing or of the wrong type (5)"),
         ("config.json:truncated", "config.json is not valid JSON"),
         ('config.json:algo="ppo"', "differs from the checkpoint's configuration in algo"),

@@ -37,6 +37,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
         "compare policies (scripted, rl, random, a policy directory) on paired seeds",
     ),
     "demos": ("scorbot_gym.cli.demos", "record scripted demonstrations as a Minari dataset"),
+    "convert": (
+        "scorbot_gym.cli.convert",
+        "convert an old policy or run folder (model.zip, *.pkl) to the safe formats",
+    ),
 }
 
 

@@ -46,7 +46,10 @@ def load_policy(path: str | Path, checkpoint: str = "best") -> Any:
         from scorbot_gym.policies.pixel import PixelPolicy
 
         return PixelPolicy.load(path)
-    imitation = (path / "weights.npz").is_file() and not (path / "model.zip").is_file()
+    sb3_files = ("model.safetensors", "model.zip")  # the SB3 format, and the refused old one
+    imitation = (path / "weights.npz").is_file() and not any(
+        (path / f).is_file() for f in sb3_files
+    )
     if imitation or algo == ALGO:
         from scorbot_gym.policies.imitation import ImitationPolicy
 

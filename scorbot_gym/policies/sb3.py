@@ -3,7 +3,10 @@
 A saved policy is a directory (what ``scorbot-gym train`` exports and what ships in
 ``scorbot_gym/policies/data/``):
 
-- ``model.zip``: the SB3 model (``SAC``/``TQC``/``PPO``.save);
+- ``model.safetensors``: the SB3 model's weights, with what rebuilds it (algorithm, policy,
+  hyperparameters, spaces) as JSON in the header (:mod:`scorbot_gym.policies.sb3_files`): a
+  format that cannot run code, unlike SB3's pickle-based ``model.zip``, which older versions
+  wrote and which is refused (``scorbot-gym convert DIR --trust-pickle`` converts it);
 - ``policy.json``: what the model needs around it: algorithm, action type, the classes of the
   ``object_class`` one-hot, the observation entries and shapes, the residual base controller's
   settings (if the policy is residual), and what it saw in training;
@@ -17,7 +20,6 @@ The policy acts on the same observations as the scripted controller, so it runs 
 from __future__ import annotations
 
 import json
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -152,34 +154,41 @@ class SB3Policy:
     # --- loading ---------------------------------------------------------------------------
     @classmethod
     def load(cls, path: str | Path) -> SB3Policy:
-        """A policy directory (or its ``model.zip``); clear one-line errors for bad files."""
+        """A policy directory (or its ``model.safetensors``); one-line errors for bad files.
+        Loading runs no code from the folder (see :mod:`scorbot_gym.policies.sb3_files`)."""
+        from scorbot_gym.policies.sb3_files import (
+            MODEL_FILE,
+            OLD_MODEL_FILE,
+            load_model,
+            old_format_message,
+        )
+
         path = Path(path)
-        if path.is_file() and path.name == "model.zip":
+        if path.is_file() and path.name in (MODEL_FILE, OLD_MODEL_FILE):
             path = path.parent
         if not path.is_dir():
             raise FileNotFoundError(
-                f"no policy directory at {path} (expected model.zip and "
+                f"no policy directory at {path} (expected {MODEL_FILE} and "
                 "policy.json from `scorbot-gym train`)"
             )
-        meta_path, model_path = path / "policy.json", path / "model.zip"
+        meta_path, model_path = path / "policy.json", path / MODEL_FILE
+        if not model_path.is_file() and (path / OLD_MODEL_FILE).is_file():
+            raise ValueError(old_format_message(path))
         for p in (meta_path, model_path):
             if not p.is_file():
                 raise FileNotFoundError(f"policy {path} is missing {p.name}")
         meta = read_policy_json(meta_path)
         algos = _algorithms()
-        if meta.get("algo") not in algos:
+        if not isinstance(meta.get("algo"), str) or meta["algo"] not in algos:
             raise ValueError(
                 f"{meta_path}: algo must be one of {sorted(algos)}, got {meta.get('algo')!r}"
             )
-        if not zipfile.is_zipfile(model_path):
-            raise ValueError(f"{model_path} is not a stable-baselines3 model (not a zip file)")
-        try:
-            model = algos[meta["algo"]].load(model_path, device="cpu")
-        except Exception as exc:  # SB3 raises many kinds on a damaged archive
+        model = load_model(model_path)
+        if not isinstance(model, algos[meta["algo"]]):
             raise ValueError(
-                f"{model_path} could not be loaded as a {meta['algo']} model: "
-                f"{type(exc).__name__}: {exc}"
-            ) from None
+                f"{model_path} holds a {type(model).__name__} model, policy.json says "
+                f"{meta['algo']!r}"
+            )
         norm_path = path / "normalize.npz"
         normalizer = None
         if norm_path.is_file():

@@ -5,8 +5,9 @@ A run folder (``scorbot-gym train --out DIR``)::
     config.json        the TrainConfig, hyperparameters resolved
     hyperparams.yml    the resolved hyperparameters and how they map onto SB3 (read-only record)
     monitor/           SB3 Monitor CSVs, one per env (env_0.monitor.csv, ...)
-    checkpoint/        model.zip, replay_buffer.pkl, vecnormalize.pkl, state.json
-    policy/            the last exported policy (model.zip, policy.json, normalize.npz)
+    checkpoint/        model.safetensors, replay_buffer.npz, vecnormalize.json, state.json
+                       (formats that cannot run code: see scorbot_gym.rl.checkpoint)
+    policy/            the last exported policy (model.safetensors, policy.json, normalize.npz)
     best/              the policy of the best evaluation so far (latest among equals)
     tb/                TensorBoard logs
 

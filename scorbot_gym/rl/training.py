@@ -24,7 +24,6 @@ import functools
 import math
 import re
 import warnings
-import zipfile
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,8 +37,9 @@ from pose.fileio import atomic_write_bytes, atomic_write_json
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.policies.sb3 import FORMAT, VERSION, ObservationNormalizer, SB3Policy
+from scorbot_gym.policies.sb3_files import MODEL_FILE, old_format_message, save_model
+from scorbot_gym.rl import checkpoint, runs
 from scorbot_gym.rl import hyperparams as hparams
-from scorbot_gym.rl import runs
 from scorbot_gym.rl.callbacks import (
     CheckpointCallback,
     SuccessEvalCallback,
@@ -523,11 +523,14 @@ class _Run:
     def save(self, model) -> None:
         ck = self.out / runs.CHECKPOINT
         ck.mkdir(parents=True, exist_ok=True)
-        atomic_save(ck / "model.zip", model.save)
-        if hasattr(model, "replay_buffer") and model.replay_buffer is not None:
-            atomic_save(ck / "replay_buffer.pkl", model.save_replay_buffer)
+        atomic_save(ck / checkpoint.MODEL, lambda p: save_model(model, p, training=True))
+        if getattr(model, "replay_buffer", None) is not None:
+            atomic_save(
+                ck / checkpoint.REPLAY_BUFFER,
+                lambda p: checkpoint.save_replay_buffer(model.replay_buffer, p),
+            )
         if self.config.normalize:
-            atomic_save(ck / "vecnormalize.pkl", self.venv.save)
+            checkpoint.save_vec_normalize(self.venv, ck / checkpoint.VEC_NORMALIZE)
         self.export(model, self.out / runs.POLICY)
         self.state.update(timesteps=int(model.num_timesteps), wall_s=round(self.clock.seconds, 2))
         atomic_write_json(ck / runs.STATE, self.state)
@@ -561,7 +564,7 @@ class _Run:
             self._finetuned(model).save(path)
             return
         path.mkdir(parents=True, exist_ok=True)
-        atomic_save(path / "model.zip", model.save)
+        atomic_save(path / MODEL_FILE, lambda p: save_model(model, p))
         meta = policy_meta(self.config, self.meta_env, model.num_timesteps)
         atomic_write_json(path / "policy.json", meta)
         norm = self.normalizer()
@@ -860,15 +863,32 @@ def _remove_orphaned_writes(out: Path) -> int:
     return removed
 
 
-def _load_checkpoint_file(path: Path, what: str, load):
-    """``load(path)`` with any failure turned into a one-line error naming the file."""
+def _refuse_old_format(out: Path) -> None:
+    """A checkpoint in SB3's pickle-based format is refused before anything of it is read."""
+    ck = out / runs.CHECKPOINT
+    old = checkpoint.OLD_FILES.items()
+    if any((ck / before).is_file() and not (ck / now).is_file() for now, before in old):
+        raise ValueError(f"cannot resume: {old_format_message(out, 'training run')}")
+
+
+def _load_checkpoint(config: TrainConfig, out: Path, venv):
+    """The run's model, built from its configuration as :func:`train` builds it, then set to
+    the checkpoint: VecNormalize statistics, weights, optimisers, counters, replay buffer. No
+    file is unpickled (see :mod:`scorbot_gym.rl.checkpoint`)."""
+    from scorbot_gym.policies.sb3_files import restore_training_state
+
+    ck = out / runs.CHECKPOINT
+    if config.normalize:
+        checkpoint.load_vec_normalize(venv, ck / checkpoint.VEC_NORMALIZE)
+    model = build_model(config, venv, out / runs.TENSORBOARD if config.tensorboard else None)
     try:
-        return load(path)
-    except Exception as exc:  # pickle, zip, torch and SB3 raise many kinds on damaged files
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        raise ValueError(
-            f"cannot resume: {path} is damaged or not {what} ({type(exc).__name__}: {msg})"
-        ) from None
+        restore_training_state(model, ck / checkpoint.MODEL)
+    except ValueError as exc:
+        raise ValueError(f"cannot resume: {exc}") from None
+    buffer = getattr(model, "replay_buffer", None)
+    if buffer is not None and (ck / checkpoint.REPLAY_BUFFER).is_file():
+        checkpoint.load_replay_buffer(buffer, ck / checkpoint.REPLAY_BUFFER)
+    return model
 
 
 def resume(
@@ -890,14 +910,13 @@ def resume(
 def _resume(
     out: Path, timesteps: int | None, progress_bar: bool | None, device: str | None, processes: int
 ) -> dict[str, Any]:
-    from stable_baselines3.common.vec_env import VecNormalize
-
     if (out / runs.SEEDS).is_file():
         return _resume_seeds(out, timesteps, progress_bar, device, processes)
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
-    for p in (ck / "model.zip", ck / runs.STATE):
+    _refuse_old_format(out)
+    for p in (ck / checkpoint.MODEL, ck / runs.STATE):
         if not p.is_file():
             raise FileNotFoundError(
                 f"cannot resume {out}: {p.name} is missing (the run stopped before its first "
@@ -924,34 +943,16 @@ def _resume(
         raise ValueError(f"cannot resume: {config_path}: {exc}") from None
     _warn_filled_defaults(config, raw, config_path)
     check_pose_model(config)
-    if not zipfile.is_zipfile(ck / "model.zip"):
-        raise ValueError(f"cannot resume: {ck / 'model.zip'} is damaged (not a zip file)")
-    if config.normalize and not (ck / "vecnormalize.pkl").is_file():
+    if config.normalize and not (ck / checkpoint.VEC_NORMALIZE).is_file():
         raise FileNotFoundError(
-            f"cannot resume {out}: vecnormalize.pkl is missing (the run normalises observations)"
+            f"cannot resume {out}: {checkpoint.VEC_NORMALIZE} is missing (the run normalises "
+            "observations)"
         )
     _remove_orphaned_writes(out)
     _limit_threads(config.torch_threads)
     venv = make_vec_env(config, out / runs.MONITOR)
     try:
-        if config.normalize:
-            venv = _load_checkpoint_file(
-                ck / "vecnormalize.pkl",
-                "VecNormalize statistics",
-                lambda p: VecNormalize.load(str(p), venv.venv),
-            )
-        tb = str(out / runs.TENSORBOARD) if config.tensorboard else None
-        model = _load_checkpoint_file(
-            ck / "model.zip",
-            f"a {config.algo} model",
-            lambda p: _model_class(config).load(
-                p, env=venv, device=config.device, tensorboard_log=tb
-            ),
-        )
-        if (ck / "replay_buffer.pkl").is_file() and hasattr(model, "replay_buffer"):
-            _load_checkpoint_file(
-                ck / "replay_buffer.pkl", "a replay buffer", model.load_replay_buffer
-            )
+        model = _load_checkpoint(config, out, venv)
     except BaseException:
         venv.close()
         raise
