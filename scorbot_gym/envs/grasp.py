@@ -21,7 +21,7 @@ from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
-from scorbot_gym.tasks.clutter import MAX_TILT_DEG, ClutterTask
+from scorbot_gym.tasks.clutter import ClutterTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 from scorbot_gym.tasks.grasp import REWARD_TERMS
 
@@ -149,7 +149,7 @@ class ScorbotGraspEnv(gym.Env):
         self.distractors = args.distractors(distractors, self.object_names, explicit)
         if isinstance(self.distractors, tuple):  # named distractors are never targets
             self.object_names = tuple(n for n in self.object_names if n not in self.distractors)
-        self.tilt_deg = args.tilt_deg(tilt_deg, MAX_TILT_DEG)
+        self.tilt_deg = args.tilt_deg(tilt_deg)
         #: the classes a target can be, in the order of the ``target_class`` one-hot
         self.target_classes = self.object_names
         self._cluttered = bool(self.distractors) or self.tilt_deg > 0
@@ -292,7 +292,7 @@ class ScorbotGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         options = args.reset_options(options)
-        name = options.get("target", options.get("object_name"))
+        name = args.reset_target(options, self.target_classes)
         if name is None:
             name = self.object_names[int(self.np_random.integers(len(self.object_names)))]
         spec = get_object(name)

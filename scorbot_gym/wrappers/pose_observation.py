@@ -31,7 +31,6 @@ adds them to ``info["perception"]`` as well.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -46,6 +45,7 @@ from scorbot_gym.envs.arguments import name_list
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.neighbours import MAX_NEIGHBOUR_POINTS, pack_points
+from scorbot_gym.perception.references import spec_kwargs
 from scorbot_gym.perception.registry import make_pose_source
 from scorbot_gym.sim.simulation import quat_to_mat
 
@@ -81,6 +81,12 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     neighbours
         Add ``neighbour_points`` and ``neighbour_valid``: the source must answer
         ``neighbours(frame)`` (the oracle family and the clutter sources do).
+    source_not_recorded
+        Set by the env's spec only, where the source's arguments could not be recorded (an
+        object other than a model set): re-making from that spec raises this reason.
+
+    The env's spec names the source and its arguments as plain data, a model set by its file
+    (:mod:`scorbot_gym.perception.references`), so ``gym.make(env.spec)`` rebuilds the env.
     """
 
     def __init__(
@@ -96,17 +102,21 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         keep_images: bool = False,
         timings_in_info: bool = False,
         neighbours: bool = False,
+        source_not_recorded: str | None = None,
         **source_kwargs: Any,
     ) -> None:
-        # The spec records how to rebuild the wrapper: the registered name and the plain
-        # arguments a source was made with (by us or by make_pose_source: a model file's path,
-        # say); an object argument (a loaded model set) is left out, as deep-copying the spec
-        # would copy the model.
-        if not isinstance(source, str):
-            name, made_with = getattr(source, "made_from", (getattr(source, "name", None), {}))
-            source_kwargs_recorded = {k: v for k, v in made_with.items() if _is_plain(v)}
-        else:
-            name, source_kwargs_recorded = source, {}
+        # The spec records how to rebuild the wrapper (gym.make(env.spec), check_env): the
+        # registered name and the arguments a source was made with, as plain data (a model set
+        # by its file: scorbot_gym.perception.references). A source that cannot be recorded
+        # leaves the reason, and re-making from the spec refuses with it.
+        if source_not_recorded is not None:
+            raise ValueError(
+                f"this env spec cannot rebuild its pose source: {source_not_recorded}; make "
+                "the env again with make_env(pose=NAME, pose_kwargs=...) of plain values, "
+                "model sets or model-file paths"
+            )
+        name, recorded, not_recorded = _recordable_source(source, source_kwargs)
+        extra = {"source_not_recorded": not_recorded} if not_recorded else {}
         gym.utils.RecordConstructorArgs.__init__(
             self,
             source=name,
@@ -118,8 +128,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             keep_images=keep_images,
             timings_in_info=timings_in_info,
             neighbours=neighbours,
-            **source_kwargs_recorded,
-            **{k: v for k, v in source_kwargs.items() if _is_plain(v)},
+            **recorded,
+            **extra,
         )
         gym.Wrapper.__init__(self, env)
         if isinstance(estimate_every, bool) or not isinstance(estimate_every, (int, np.integer)):
@@ -367,11 +377,22 @@ def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[
     return out
 
 
-def _is_plain(value: Any) -> bool:
-    """Whether a constructor argument is plain data (safe and cheap to deep-copy)."""
-    if isinstance(value, (str, int, float, bool, type(None), os.PathLike)):
-        return True
-    return isinstance(value, (list, tuple)) and all(_is_plain(v) for v in value)
+def _recordable_source(
+    source: str | PoseSource, source_kwargs: dict[str, Any]
+) -> tuple[str, dict[str, Any], str | None]:
+    """The source's registered name, its arguments as spec data, and why it cannot be
+    recorded (``None`` where it can)."""
+    if isinstance(source, str):
+        name, made_with = source, source_kwargs
+    elif getattr(source, "made_from", None) is None:  # built by hand, not by make_pose_source
+        name = getattr(source, "name", None) or type(source).__name__
+        return name, {}, f"it is a {type(source).__name__} object built outside make_pose_source"
+    else:
+        name, made_with = source.made_from
+    recorded, left_out = spec_kwargs(made_with)
+    if left_out:
+        return name, recorded, f"{name!r} was made with objects as {', '.join(left_out)}"
+    return name, recorded, None
 
 
 # Stages a pose source reports at top level, and the wrapper's "neighbours" (the other objects,
