@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
 CAMERAS = (*FIXED_CAMERAS, *MOVING_CAMERAS)
+IDENTITIES = ("recognize", "given")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,9 +68,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="oracle",
         help="where the object pose in the observation comes from: oracle (ground truth), "
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
-        "estimator on camera images); with --distractors: manifold_clutter (every blob "
-        "recognised, the target's estimated), largest_blob / random_blob (a blob taken without "
-        "recognition: the baselines)",
+        "estimator on camera images; with --distractors it runs manifold_clutter); with "
+        "--distractors: manifold_clutter (every blob recognised, the target's estimated), "
+        "largest_blob / random_blob (a blob taken without recognition: the baselines)",
     )
     p.add_argument(
         "--pose-model",
@@ -85,7 +86,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=CAMERAS,
         default=None,
         help="camera for --pose manifold, repeatable: the pose comes from the first, recognition "
-        "uses all (default: top, plus side with --recognize)",
+        "uses all (default: top, plus side when recognising)",
     )
     p.add_argument(
         "--fallback-camera",
@@ -150,9 +151,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "many times an episode (default 0)",
     )
     p.add_argument(
+        "--identity",
+        choices=IDENTITIES,
+        default=None,
+        help="--pose manifold only: recognize (default: the object is recognised from the "
+        "images, as the main job must) or given (privileged: the estimator is told the true "
+        "class, for ablations; the summary says so)",
+    )
+    p.add_argument(
         "--recognize",
         action="store_true",
-        help="recognise the object from its silhouette instead of being told its identity",
+        help="--identity recognize (the default for --pose manifold; kept for older commands)",
     )
     p.add_argument(
         "--estimate-every",
@@ -234,6 +243,26 @@ def _policy(text: str) -> str:
     )
 
 
+def _recognize(args: argparse.Namespace) -> bool:
+    """Whether the pose source recognises the object: by default for ``--pose manifold``, so
+    the main job reads no ground truth; ``--identity given`` is the privileged opt-out."""
+    if args.identity is None:
+        return args.recognize or (args.pose == "manifold" and not args.distractors)
+    if args.pose != "manifold":
+        raise ValueError(
+            f"--identity applies to --pose manifold, not {args.pose} (the clutter sources "
+            "recognise every blob; the oracle sources read the ground truth)"
+        )
+    if args.identity == "given" and args.recognize:
+        raise ValueError("--recognize and --identity given contradict each other: give one")
+    if args.identity == "given" and args.distractors:
+        raise ValueError(
+            "--identity given does not apply with --distractors: the clutter pipeline is told "
+            "the target (the task command) and recognises every blob; drop --identity"
+        )
+    return args.identity == "recognize"
+
+
 def config_from_args(args: argparse.Namespace) -> RolloutConfig:
     """Every check happens here, before any episode runs."""
     from scorbot_gym.evaluation.rollout import RolloutConfig
@@ -263,7 +292,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         motion=args.motion,
         segmenter=args.segmenter,
         recognizer=args.recognizer,
-        recognize=args.recognize,
+        recognize=_recognize(args),
         splitter=args.splitter,
         support=args.support,
         estimator=args.estimator,
@@ -290,6 +319,11 @@ def run(args: argparse.Namespace) -> int:
     from scorbot_gym.evaluation.video import record_episodes
 
     config = config_from_args(args)
+    if config.pose != POSE_ALIASES.get(args.pose, args.pose):
+        print(
+            f"--pose {args.pose} with --distractors {args.distractors}: the clutter pipeline "
+            f"(--pose {config.pose}: blobs split, each recognised, the target's pose estimated)"
+        )
     summary, _ = run_rollout(config, progress=not args.no_progress)
     print(format_summary(summary))
     if args.json:

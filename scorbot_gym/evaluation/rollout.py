@@ -47,7 +47,8 @@ class RolloutConfig:
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
     pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
     ``objects``) share the table with the target, which is ``target`` in every episode or
-    drawn; ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
+    drawn (``pose="manifold"`` then runs ``"manifold_clutter"``, the clutter pipeline);
+    ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
     the stage of the clutter sources that splits blobs several objects share
     (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole). ``regrasps`` is
     the scripted controller's retries after its fingers close on nothing
@@ -89,6 +90,8 @@ class RolloutConfig:
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
+        if self.pose == "manifold" and self.distractors:
+            self._to_clutter_pipeline()
         if self.perturbation is not None:
             Perturbation.parse(self.perturbation)  # a bad one fails here, before any episode
         if self.policy not in POLICIES and not Path(self.policy).is_dir():
@@ -177,6 +180,32 @@ class RolloutConfig:
             raise ValueError(
                 f"fallback_cameras must differ from the pose camera {self.pose_cameras[0]!r}"
             )
+
+    def _to_clutter_pipeline(self) -> None:
+        """``manifold`` on a cluttered table is ``manifold_clutter``: the single-object source
+        estimates on whichever blob it sees first (issue 50 found it picking distractors in
+        most failed episodes), so the natural request gets the pipeline that splits the table into
+        blobs, recognises each and estimates the target's. Settings that only the
+        single-object source has are refused rather than dropped."""
+        single_only = [
+            name
+            for name, value, default in (
+                ("fallback_cameras", tuple(self.fallback_cameras), ()),
+                ("motion", self.motion, None),
+                ("segmenter", self.segmenter, "background"),
+                ("estimator", self.estimator, "manifold"),
+            )
+            if value != default
+        ]
+        if self.pose_cameras is not None and len(self.pose_cameras) > 1:
+            single_only.append("pose_cameras (one camera)")
+        if single_only:
+            raise ValueError(
+                f"pose 'manifold' with distractors runs the clutter pipeline 'manifold_clutter', "
+                f"which has no {', '.join(single_only)}: drop them, or use distractors=0"
+            )
+        self.pose = "manifold_clutter"
+        self.recognize = False  # it recognises every blob itself, told only the target
 
     @property
     def env_id(self) -> str:
