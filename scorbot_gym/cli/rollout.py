@@ -18,6 +18,7 @@ from scorbot_gym.cli._args import (
     positive_int,
     probability,
 )
+from scorbot_gym.envs.arguments import MAX_TILT_DEG
 from scorbot_gym.names import (
     DISTURBANCES,
     FIXED_CAMERAS,
@@ -204,9 +205,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--tilt-deg",
-        type=non_negative_float,
+        type=_tilt_deg,
         default=0.0,
-        help="prop the target on a stand, tilted this many degrees out of its resting pose",
+        help="prop the target on a stand, tilted this many degrees out of its resting pose "
+        f"(0 to {MAX_TILT_DEG:g})",
     )
     p.add_argument("--episodes", type=positive_int, default=20)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
@@ -232,6 +234,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", type=Path, default=None, help="write the summary as JSON")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=run)
+
+
+def _tilt_deg(text: str) -> float:
+    value = non_negative_float(text)
+    if value > MAX_TILT_DEG:
+        raise argparse.ArgumentTypeError(f"must be in [0, {MAX_TILT_DEG:g}] degrees, got {text}")
+    return value
 
 
 def _policy(text: str) -> str:

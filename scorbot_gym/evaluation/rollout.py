@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from scorbot_gym.data.perturbations import Perturbation
+from scorbot_gym.envs.arguments import tilt_deg
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
@@ -108,6 +109,7 @@ class RolloutConfig:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.distractors < 0:
             raise ValueError(f"distractors must be >= 0, got {self.distractors}")
+        tilt_deg(self.tilt_deg)  # the env's own check, before any model is trained
         if self.target is not None:
             from scorbot_gym.objects import get_object
 

@@ -27,7 +27,7 @@ from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
-from scorbot_gym.perception.recognizers import make_recognizer
+from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.perception.support import TableSupport, hull_points, make_support
 from scorbot_gym.sim.simulation import mat_to_quat
@@ -75,6 +75,12 @@ class ModelSetPoseSource:
         ``"table"`` (default: a :class:`~scorbot_gym.perception.support.TableSupport`, estimates
         within a few degrees of a resting pose are put on the table), ``"none"`` (estimates as
         the models answer them) or a support object with ``refine(pose, camera)``.
+    recognition_models
+        Where ``models`` hold a baseline (the image-blind ``chance`` arm): the trained model
+        set (or file) whose ``recognizer`` names the object, its pose estimates dropped
+        (:class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`), so that only
+        the estimator differs between the arms. By file or set, never as a built recogniser,
+        so the env's spec can rebuild the source.
     """
 
     def __init__(
@@ -88,8 +94,17 @@ class ModelSetPoseSource:
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
         motion: str | SilhouetteMotion | None = None,
         support: TableSupport | str | None = "table",
+        recognition_models: PoseModelSet | str | os.PathLike | None = None,
     ) -> None:
         self.models = _load(models)
+        self.recognition_models = None
+        if recognition_models is not None:
+            self.recognition_models = _load(recognition_models)
+            if self.recognition_models.object_names != self.models.object_names:
+                raise ValueError(
+                    f"recognition_models must hold the objects of models "
+                    f"{self.models.object_names}, got {self.recognition_models.object_names}"
+                )
         self.support = make_support(support)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
@@ -146,9 +161,12 @@ class ModelSetPoseSource:
         self.memory.reset()
         if frame.object_name is None and len(self.models.object_names) > 1:
             if self._recognizer is None:
+                recognising = self.recognition_models or self.models
                 self._recognizer = make_recognizer(
-                    self.recognizer, self.models, self.cameras, self.width, self.height
+                    self.recognizer, recognising, self.cameras, self.width, self.height
                 )
+                if self.recognition_models is not None:  # its label, not its pose estimates
+                    self._recognizer = IdentityOnlyRecognizer(self._recognizer)
 
     def _clear(self, mask: np.ndarray | None, cam: str) -> bool:
         excluded = getattr(self.segmenter, "excluded", lambda c: None)(cam)
