@@ -144,3 +144,134 @@ def test_a_source_that_cannot_be_recorded_refuses_to_be_remade_in_one_line(model
     with pytest.raises(ValueError, match=r"'manifold' was made with objects as segmenter \(Seg"):
         gym.make(env.spec)
     env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "variant",
+    [
+        {"segmenter": "privileged"},
+        {"motion": "silhouette", "support": "none"},
+        {"recognizer": "flr", "cameras": ["top", "side"]},
+        "chance",
+    ],
+    ids=["privileged", "motion-no-support", "flr-two-cameras", "chance-arm"],
+)
+def test_the_manifold_sources_settings_are_rebuilt_too(variant, models_file):
+    models = _loaded(models_file)
+    if variant == "chance":  # the image-blind arm: a baseline's set, the trained recognition
+        from scorbot_gym.perception.baseline_models import baseline_source_kwargs
+
+        variant = baseline_source_kwargs("chance", models, "appearance", ["top"])
+    env = make_env(pose="manifold", pose_kwargs={"models": models, **variant}, objects=OBJECTS,
+                   identity="recognize")  # fmt: skip
+    recorded = env.spec.additional_wrappers[-1].kwargs
+    assert "source_not_recorded" not in recorded
+    assert all(isinstance(v, (str, int, float, bool, list, tuple, type(None)))
+               for v in recorded.values())  # fmt: skip
+    again = gym.make(env.spec)
+    a, b = env.reset(seed=1)[1]["perception"], again.reset(seed=1)[1]["perception"]
+    assert a == b and a["recognised"] is not None
+    again.close()
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+# --- the command line: the main job reads no ground truth, clutter gets the clutter pipeline --
+def _rollout_config(*argv: str):
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.rollout import config_from_args
+
+    return config_from_args(build_parser().parse_args(["rollout", *argv]))
+
+
+def test_rollout_pose_manifold_recognises_by_default():
+    config = _rollout_config("--pose", "manifold")
+    assert config.recognize and config.pose_cameras == ("top", "side")
+    assert _rollout_config("--pose", "manifold", "--recognize").recognize
+    assert _rollout_config("--pose", "manifold", "--identity", "recognize").recognize
+    given = _rollout_config("--pose", "manifold", "--identity", "given")
+    assert not given.recognize and given.pose_cameras == ("top",)
+
+
+def test_the_privileged_identity_is_labelled_in_the_summary():
+    from scorbot_gym.evaluation import format_summary
+    from scorbot_gym.evaluation.rollout import RolloutConfig, rollout_summary
+
+    given = RolloutConfig(pose="manifold", recognize=False)
+    recognised = RolloutConfig(pose="manifold", recognize=True)
+    rows = format_summary(rollout_summary(given, [])).splitlines()
+    assert "identity given: privileged, the estimator is told the true class" in [
+        " ".join(row.split()) for row in rows
+    ]
+    assert "privileged" not in format_summary(rollout_summary(recognised, []))
+
+
+@pytest.mark.parametrize(
+    "argv", [(), ("--recognize",), ("--identity", "recognize")], ids=["plain", "recognize", "id"]
+)
+def test_rollout_pose_manifold_with_distractors_runs_the_clutter_pipeline(argv):
+    config = _rollout_config("--pose", "manifold", "--distractors", "2", *argv)
+    assert config.pose == "manifold_clutter" and not config.recognize
+    assert config.pose_cameras == ("top",)
+
+
+def test_the_cli_says_which_pipeline_runs(monkeypatch, capsys):
+    import scorbot_gym.evaluation.rollout as rollout
+    from scorbot_gym.cli import main
+
+    def stop(config, progress):
+        raise ValueError(f"stopped before any episode, pose {config.pose}")
+
+    monkeypatch.setattr(rollout, "run_rollout", stop)
+    assert main(["rollout", "--pose", "manifold", "--distractors", "2"]) == 2
+    out, err = capsys.readouterr()
+    assert out.strip() == (
+        "--pose manifold with --distractors 2: the clutter pipeline (--pose manifold_clutter: "
+        "blobs split, each recognised, the target's pose estimated)"
+    )
+    assert "pose manifold_clutter" in err
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--pose", "manifold", "--recognize", "--identity", "given"], "contradict each other"),
+        (
+            ["--pose", "manifold", "--identity", "given", "--distractors", "2"],
+            "--identity given does not apply with --distractors",
+        ),
+        (["--pose", "oracle", "--identity", "given"], "--identity applies to --pose manifold, n"),
+        (
+            ["--pose", "manifold_clutter", "--identity", "recognize", "--distractors", "1"],
+            "--identity applies to --pose manifold, not manifold_clutter",
+        ),
+        (
+            ["--pose", "manifold", "--distractors", "2", "--motion", "silhouette"],
+            "runs the clutter pipeline 'manifold_clutter', which has no motion: drop them",
+        ),
+        (
+            [
+                "--pose",
+                "manifold",
+                "--distractors",
+                "1",
+                "--pose-camera",
+                "top",
+                "--pose-camera",
+                "side",
+            ],
+            "which has no pose_cameras (one camera)",
+        ),
+        (
+            ["--pose", "manifold", "--distractors", "1", "--segmenter", "privileged"],
+            "which has no segmenter",
+        ),
+    ],  # fmt: skip
+)
+def test_contradicting_identity_or_clutter_options_are_one_line_errors(argv, message, capsys):
+    from scorbot_gym.cli import main
+
+    assert main(["rollout", *argv, "--episodes", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and message in err
