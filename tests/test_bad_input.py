@@ -274,3 +274,74 @@ def test_a_damaged_policy_names_the_file_and_field_in_one_line(tmp_path, shipped
     with pytest.raises(ValueError, match=message) as err:
         load_policy(folder)
     assert "\n" not in str(err.value) and folder in str(err.value)
+
+
+@pytest.fixture(scope="module")
+def box_models_file(tmp_path_factory) -> str:
+    from scorbot_gym.perception.training import train_models
+
+    path = tmp_path_factory.mktemp("models") / "box.npz"
+    train_models(["box"], n_views=72, progress=False)[0].save(path)
+    return str(path)
+
+
+M = "MODELS"  # stands for the module's model file in the cases below
+CLUTTER = {"objects": ["box", "banana"], "distractors": 1}
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (
+            {"pose": "manifold", "pose_kwargs": {"models": 7}},
+            "models must be a PoseModelSet or the path of a model file .* got int 7",
+        ),
+        ({"pose": "manifold"}, "pose source 'manifold' was given the wrong arguments: .* 'models'"),
+        (
+            {"pose": "manifold", "pose_kwargs": {"models": M, "modle": 1}},
+            "pose source 'manifold' was given the wrong arguments: .* keyword argument 'modle'",
+        ),
+        (
+            {"pose": "noisy_oracle", "pose_kwargs": {"sigma": 1}},
+            "pose source 'noisy_oracle' was given the wrong arguments: .* argument 'sigma'",
+        ),
+        (
+            {"pose": "noisy_oracle", "pose_kwargs": {"pos_sigma_m": "x"}},
+            "pos_sigma_m must be a finite number >= 0, got 'x'",
+        ),
+        (
+            {"pose": "noisy_oracle", "pose_kwargs": {"dropout": True}},
+            r"dropout must be a probability in \[0, 1\], got True",
+        ),
+        (
+            {"pose": "manifold", "pose_kwargs": {"models": M, "recognizer": "nope"}},
+            "unknown recognizer 'nope'; valid: flr, appearance, flr",
+        ),
+        (
+            {"pose": "manifold", "pose_kwargs": {"models": M, "clear_min_area": "x"}},
+            "clear_min_area must be a finite number >= 0, got 'x'",
+        ),
+        (
+            {
+                "pose": "manifold_clutter",
+                "pose_kwargs": {"models": M, "track_gate_px": "x"},
+                **CLUTTER,
+            },
+            "track_gate_px must be a finite number >= 0, got 'x'",
+        ),
+        (
+            {"pose": "largest_blob", "pose_kwargs": {"models": M, "choice": "random"}, **CLUTTER},
+            "the largest_blob source always takes the largest blob: drop choice=",
+        ),
+        ({"keep_images": "yes"}, "keep_images must be True or False, got 'yes'"),
+        ({"include_class": 1}, "include_class must be True or False, got 1"),
+    ],  # fmt: skip
+)
+def test_a_bad_pose_source_argument_is_a_one_line_error(kwargs, message, box_models_file):
+    kwargs = dict(kwargs)
+    pose_kwargs = {k: box_models_file if v == M else v
+                   for k, v in kwargs.pop("pose_kwargs", {}).items()}  # fmt: skip
+    kwargs.setdefault("objects", ["box"])
+    with pytest.raises(ValueError, match=message) as err:
+        make_env(pose_kwargs=pose_kwargs, **kwargs)
+    assert "\n" not in str(err.value)

@@ -18,6 +18,7 @@ import dataclasses
 import os
 import time
 from collections.abc import Sequence
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -25,6 +26,7 @@ import numpy as np
 from pose.model_set import PoseModelSet
 from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
+from scorbot_gym.names import RECOGNIZERS
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
@@ -124,9 +126,10 @@ class ModelSetPoseSource:
         extra = [c for c in (cameras or ()) if c != self.camera]
         extra += [str(fb.meta["camera"]) for fb in self.fallback_models]
         self.cameras = (self.camera, *dict.fromkeys(extra))
+        check_recognizer(recognizer)
         self.recognizer = recognizer
         self.memory = memory if memory is not None else RecognitionMemory()
-        self.clear_min_area = int(clear_min_area)
+        self.clear_min_area = int(non_negative("clear_min_area", clear_min_area))
         self._recognizer: Any = None
         self.motion = make_motion(motion)
         self._last: WorldPose | None = None  # the last valid answer, for ``motion``
@@ -323,7 +326,28 @@ class ModelSetPoseSource:
 
 
 def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:
-    return models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
+    if isinstance(models, PoseModelSet):
+        return models
+    if not isinstance(models, (str, os.PathLike)):
+        raise ValueError(
+            f"models must be a PoseModelSet or the path of a model file from `scorbot-gym pose "
+            f"train`, got {type(models).__name__} {models!r}"
+        )
+    return PoseModelSet.load(models)
+
+
+def check_recognizer(recognizer: Any) -> None:
+    """A recogniser name must be one of :data:`RECOGNIZERS` (checked when the source is made,
+    not at the first reset that recognises), or an object with ``recognize``."""
+    if isinstance(recognizer, str) and recognizer not in RECOGNIZERS:
+        raise ValueError(f"unknown recognizer {recognizer!r}; valid: {', '.join(RECOGNIZERS)}")
+
+
+def non_negative(name: str, value: Any) -> float:
+    """A number >= 0 (a pixel count, a distance), or a one-line error naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0 <= value < float("inf"):
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    return value
 
 
 def _world_pose(est: Any, cam: Any, name: str, timings: dict, cam_name: str) -> WorldPose:

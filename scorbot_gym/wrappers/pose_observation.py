@@ -142,11 +142,15 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
         if identity not in ("given", "recognize"):
             raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
-        if not isinstance(timings_in_info, bool):
-            raise ValueError(f"timings_in_info must be True or False, got {timings_in_info!r}")
+        for name, value in (
+            ("timings_in_info", timings_in_info),
+            ("neighbours", neighbours),
+            ("include_class", include_class),
+            ("keep_images", keep_images),
+        ):
+            if not isinstance(value, bool):
+                raise ValueError(f"{name} must be True or False, got {value!r}")
         self.timings_in_info = timings_in_info
-        if not isinstance(neighbours, bool):
-            raise ValueError(f"neighbours must be True or False, got {neighbours!r}")
         #: the last step's wall-clock timings: ``{"total_ms", "timings_ms"}``, or ``None``
         self.perception_timings: dict[str, Any] | None = None
         self.source = make_pose_source(source, **source_kwargs)
