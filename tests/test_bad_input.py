@@ -345,3 +345,19 @@ def test_a_bad_pose_source_argument_is_a_one_line_error(kwargs, message, box_mod
     with pytest.raises(ValueError, match=message) as err:
         make_env(pose_kwargs=pose_kwargs, **kwargs)
     assert "\n" not in str(err.value)
+
+
+def test_a_spec_whose_model_file_is_gone_fails_in_the_worker_with_its_error(
+    box_models_file, tmp_path
+):
+    if "fork" not in multiprocessing.get_all_start_methods():
+        pytest.skip("needs fork")
+    moved = tmp_path / "moved.npz"
+    shutil.copy(box_models_file, moved)
+    env = make_env(pose="manifold", pose_kwargs={"models": str(moved)}, objects=["box"])
+    spec = env.spec
+    env.close()
+    moved.unlink()
+    with pytest.raises(FileNotFoundError, match=f"no model file at {moved}"):
+        vec = gym.vector.AsyncVectorEnv([GOOD, functools.partial(gym.make, spec)], context="fork")
+        vec.reset(seed=0)

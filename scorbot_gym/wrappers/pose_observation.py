@@ -31,6 +31,7 @@ adds them to ``info["perception"]`` as well.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -38,10 +39,12 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
 
 from pose.camera import CameraModel
 from pose.metrics import add_s, rotation_error_deg
 from scorbot_gym.envs.arguments import name_list
+from scorbot_gym.envs.worker import built_or_failed
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.neighbours import MAX_NEIGHBOUR_POINTS, pack_points
@@ -205,6 +208,18 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._age, self._last_valid, self._t = MAX_AGE, False, 0
         self._cameras: dict = {}
         self._backgrounds: dict = {}
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """Gymnasium's spec of the wrapped env, this wrapper made by
+        :func:`remake_pose_observation` (in a vector-env worker its error reaches the main
+        process: a model file deleted since, say)."""
+        spec = super().spec
+        if spec is None or spec.additional_wrappers[-1].entry_point == _REMAKE:
+            return spec
+        last = dataclasses.replace(spec.additional_wrappers[-1], entry_point=_REMAKE)
+        spec.additional_wrappers = (*spec.additional_wrappers[:-1], last)
+        return spec
 
     # --- gym API -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -379,6 +394,24 @@ def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[
     if chosen is not None:
         out["target_recognised"] = out["objects"][chosen]["true_class"] == info["object_name"]
     return out
+
+
+_REMAKE = f"{__name__}:remake_pose_observation"
+
+
+def remake_pose_observation(env: gym.Env, **kwargs: Any) -> gym.Env:
+    """``PoseEstimateObservation(env, **kwargs)``: how ``gym.make(spec)`` rebuilds the wrapper.
+    In a Gymnasium vector-env worker a failure is handed back as a stand-in env that raises it
+    in the main process (:mod:`scorbot_gym.envs.worker`), not as a broken pipe."""
+
+    def build() -> gym.Env:
+        try:
+            return PoseEstimateObservation(env, **kwargs)
+        except BaseException:
+            env.close()
+            raise
+
+    return built_or_failed(build)
 
 
 def _recordable_source(
