@@ -98,16 +98,19 @@ def test_a_model_set_in_memory_is_recorded_by_its_content_in_the_cache(
     models = _loaded(models_file)
     models.path = None  # as train_models returns it: never saved
     env = make_env(pose="manifold", pose_kwargs={"models": models}, objects=OBJECTS)
-    recorded = Path(env.spec.additional_wrappers[-1].kwargs["models"])
     content = tmp_path.joinpath("cache", *CONTENT_FOLDER)
+    assert not content.exists()  # written when the spec is first asked for, not before
+    recorded = Path(env.spec.additional_wrappers[-1].kwargs["models"])
     assert recorded.parent == content and recorded.name == f"{models.content_digest()}.npz"
     again = gym.make(env.spec)
     assert again.unwrapped.spec == env.unwrapped.spec
     assert again.get_wrapper_attr("source").models.content_digest() == recorded.stem
     twin = _loaded(models_file)
     twin.path = None
-    make_env(pose="manifold", pose_kwargs={"models": twin}, objects=OBJECTS).close()
+    other = make_env(pose="manifold", pose_kwargs={"models": twin}, objects=OBJECTS)
+    assert other.spec.additional_wrappers[-1].kwargs["models"] == str(recorded)
     assert sorted(content.iterdir()) == [recorded]  # the same content: no second copy
+    other.close()
     for e in (again, env):
         e.close()
 

@@ -108,21 +108,17 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         source_not_recorded: str | None = None,
         **source_kwargs: Any,
     ) -> None:
-        # The spec records how to rebuild the wrapper (gym.make(env.spec), check_env): the
-        # registered name and the arguments a source was made with, as plain data (a model set
-        # by its file: scorbot_gym.perception.references). A source that cannot be recorded
-        # leaves the reason, and re-making from the spec refuses with it.
+        # The spec records how to rebuild the wrapper (gym.make(env.spec), check_env): these
+        # arguments, and the source's name and arguments as plain data, added when the spec is
+        # first asked for (a model set by its file: see the spec property).
         if source_not_recorded is not None:
             raise ValueError(
                 f"this env spec cannot rebuild its pose source: {source_not_recorded}; make "
                 "the env again with make_env(pose=NAME, pose_kwargs=...) of plain values, "
                 "model sets or model-file paths"
             )
-        name, recorded, not_recorded = _recordable_source(source, source_kwargs)
-        extra = {"source_not_recorded": not_recorded} if not_recorded else {}
         gym.utils.RecordConstructorArgs.__init__(
             self,
-            source=name,
             estimate_every=estimate_every,
             rotation=rotation,
             include_class=include_class,
@@ -131,9 +127,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             keep_images=keep_images,
             timings_in_info=timings_in_info,
             neighbours=neighbours,
-            **recorded,
-            **extra,
         )
+        self._made_with = (source, source_kwargs)
         gym.Wrapper.__init__(self, env)
         if isinstance(estimate_every, bool) or not isinstance(estimate_every, (int, np.integer)):
             raise ValueError(f"estimate_every must be an int >= 0, got {estimate_every!r}")
@@ -145,14 +140,14 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
         if identity not in ("given", "recognize"):
             raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
-        for name, value in (
+        for flag, value in (
             ("timings_in_info", timings_in_info),
             ("neighbours", neighbours),
             ("include_class", include_class),
             ("keep_images", keep_images),
         ):
             if not isinstance(value, bool):
-                raise ValueError(f"{name} must be True or False, got {value!r}")
+                raise ValueError(f"{flag} must be True or False, got {value!r}")
         self.timings_in_info = timings_in_info
         #: the last step's wall-clock timings: ``{"total_ms", "timings_ms"}``, or ``None``
         self.perception_timings: dict[str, Any] | None = None
@@ -211,13 +206,20 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
 
     @property
     def spec(self) -> EnvSpec | None:
-        """Gymnasium's spec of the wrapped env, this wrapper made by
+        """Gymnasium's spec of the wrapped env with this wrapper: its arguments and the pose
+        source's, as plain data (a model set by its file; one that lives only in memory is
+        written to the cache, by content, when the spec is first asked for), remade by
         :func:`remake_pose_observation` (in a vector-env worker its error reaches the main
         process: a model file deleted since, say)."""
         spec = super().spec
         if spec is None or spec.additional_wrappers[-1].entry_point == _REMAKE:
             return spec
-        last = dataclasses.replace(spec.additional_wrappers[-1], entry_point=_REMAKE)
+        name, recorded, not_recorded = _recordable_source(*self._made_with)
+        last = spec.additional_wrappers[-1]
+        kwargs = {"source": name, **last.kwargs, **recorded}
+        if not_recorded:
+            kwargs["source_not_recorded"] = not_recorded
+        last = dataclasses.replace(last, entry_point=_REMAKE, kwargs=kwargs)
         spec.additional_wrappers = (*spec.additional_wrappers[:-1], last)
         return spec
 
