@@ -15,7 +15,7 @@ from gymnasium.utils.env_checker import check_env
 from scorbot_gym import make_env
 from scorbot_gym.perception import pose_source_names
 from scorbot_gym.perception.oracle import OraclePoseSource
-from scorbot_gym.perception.references import CONTENT_FOLDER
+from scorbot_gym.perception.references import CONTENT_FOLDER, content_digest, load_model_set
 from scorbot_gym.wrappers import PoseEstimateObservation
 
 OBJECTS = ["box", "tomato_soup_can"]
@@ -33,6 +33,7 @@ def models_file(tmp_path_factory) -> Path:
 
 
 def _loaded(path: Path):
+    """The model set in ``path``, read as a user reads it (so nothing remembers the file)."""
     from pose.model_set import PoseModelSet
 
     return PoseModelSet.load(path)
@@ -46,7 +47,7 @@ def _env_kwargs(source: str, models_file: Path) -> dict:
     if source == "noisy_oracle":
         noise = {"pos_sigma_m": 0.02, "yaw_sigma_deg": 7.0, "dropout": 0.1}
         return {"pose_kwargs": noise, "objects": OBJECTS, "distractors": 1}
-    models = {"models": _loaded(models_file)}
+    models = {"models": load_model_set(models_file)}  # as the sources read a path
     if source == "manifold":
         return {"pose_kwargs": {**models, "recognizer": "appearance"}, "objects": OBJECTS,
                 "identity": "recognize", "pose_cameras": ["top"]}  # fmt: skip
@@ -82,7 +83,7 @@ def test_gym_make_of_the_spec_rebuilds_the_env_and_check_env_passes(source, mode
 
 
 def test_the_spec_is_plain_data_and_survives_json(models_file):
-    env = make_env(pose="manifold", pose_kwargs={"models": _loaded(models_file)}, objects=OBJECTS)
+    env = make_env(pose="manifold", pose_kwargs={"models": str(models_file)}, objects=OBJECTS)
     spec = gym.envs.registration.EnvSpec.from_json(env.spec.to_json())
     assert spec.additional_wrappers[-1].kwargs["models"] == str(models_file.resolve())
     again = gym.make(spec)
@@ -95,18 +96,16 @@ def test_a_model_set_in_memory_is_recorded_by_its_content_in_the_cache(
     models_file, tmp_path, monkeypatch
 ):
     monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path / "cache"))
-    models = _loaded(models_file)
-    models.path = None  # as train_models returns it: never saved
+    models = _loaded(models_file)  # as train_models returns it: no file known
     env = make_env(pose="manifold", pose_kwargs={"models": models}, objects=OBJECTS)
     content = tmp_path.joinpath("cache", *CONTENT_FOLDER)
     assert not content.exists()  # written when the spec is first asked for, not before
     recorded = Path(env.spec.additional_wrappers[-1].kwargs["models"])
-    assert recorded.parent == content and recorded.name == f"{models.content_digest()}.npz"
+    assert recorded.parent == content and recorded.name == f"{content_digest(models)}.npz"
     again = gym.make(env.spec)
     assert again.unwrapped.spec == env.unwrapped.spec
-    assert again.get_wrapper_attr("source").models.content_digest() == recorded.stem
+    assert content_digest(again.get_wrapper_attr("source").models) == recorded.stem
     twin = _loaded(models_file)
-    twin.path = None
     other = make_env(pose="manifold", pose_kwargs={"models": twin}, objects=OBJECTS)
     assert other.spec.additional_wrappers[-1].kwargs["models"] == str(recorded)
     assert sorted(content.iterdir()) == [recorded]  # the same content: no second copy
@@ -115,16 +114,41 @@ def test_a_model_set_in_memory_is_recorded_by_its_content_in_the_cache(
         e.close()
 
 
+def test_the_default_models_are_named_by_their_cache_file(models_file, tmp_path, monkeypatch):
+    from scorbot_gym.perception import training
+    from scorbot_gym.perception.references import default_models
+
+    cache = tmp_path / "cache"
+    path = training.default_models_path("top", 320, 240, OBJECTS, cache_dir=cache)
+    path.parent.mkdir(parents=True)
+    path.write_bytes(models_file.read_bytes())
+    monkeypatch.setattr(training, "default_pose_models", lambda *a, **k: _loaded(path))
+    models = default_models("top", 320, 240, objects=OBJECTS, cache_dir=cache)
+    env = make_env(pose="manifold", pose_kwargs={"models": models}, objects=OBJECTS)
+    assert env.spec.additional_wrappers[-1].kwargs["models"] == str(path.resolve())
+    env.close()
+    # a set that is not that file's (the header's objects differ) is not named by it
+    monkeypatch.setenv("SCORBOT_GYM_CACHE", str(cache))
+    one = _loaded(models_file)
+    one.estimators.pop("box")
+    monkeypatch.setattr(training, "default_pose_models", lambda *a, **k: one)
+    other = default_models("top", 320, 240, objects=OBJECTS, cache_dir=cache)
+    env = make_env(pose="manifold", pose_kwargs={"models": other}, objects=["tomato_soup_can"])
+    assert Path(env.spec.additional_wrappers[-1].kwargs["models"]).parent.name == "content"
+    env.close()
+
+
 def test_an_overwritten_model_file_is_not_what_the_spec_names(models_file, tmp_path, monkeypatch):
     monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path / "cache"))
     copy = tmp_path / "mine.npz"
     copy.write_bytes(models_file.read_bytes())
-    models = _loaded(copy)
+    models = load_model_set(copy)
+    assert make_env(pose="manifold", pose_kwargs={"models": models}, objects=OBJECTS).spec
     copy.write_bytes(b"something else now")
     os.utime(copy, ns=(1, 1))
     env = make_env(pose="manifold", pose_kwargs={"models": models}, objects=OBJECTS)
     recorded = Path(env.spec.additional_wrappers[-1].kwargs["models"])
-    assert recorded != copy and recorded.stem == models.content_digest()
+    assert recorded != copy and recorded.stem == content_digest(models)
     env.close()
 
 
@@ -161,7 +185,7 @@ def test_a_source_that_cannot_be_recorded_refuses_to_be_remade_in_one_line(model
     ids=["privileged", "motion-no-support", "flr-two-cameras", "chance-arm"],
 )
 def test_the_manifold_sources_settings_are_rebuilt_too(variant, models_file):
-    models = _loaded(models_file)
+    models = load_model_set(models_file)
     if variant == "chance":  # the image-blind arm: a baseline's set, the trained recognition
         from scorbot_gym.perception.baseline_models import baseline_source_kwargs
 

@@ -231,13 +231,13 @@ class RolloutConfig:
             }
         if self.pose != "manifold":
             return {}
-        from scorbot_gym.perception.training import default_pose_models
+        from scorbot_gym.perception.references import default_models
 
         w, h = self.pose_size
         if self.pose_model is not None:
             models: Any = self.pose_model
         else:
-            models = default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+            models = default_models(self.pose_cameras[0], w, h, progress=progress)
         kwargs = {
             "models": models,
             "segmenter": self.segmenter,
@@ -257,7 +257,7 @@ class RolloutConfig:
             )
         if self.fallback_cameras:
             kwargs["fallback_models"] = [
-                default_pose_models(c, w, h, progress=progress) for c in self.fallback_cameras
+                default_models(c, w, h, progress=progress) for c in self.fallback_cameras
             ]
         return kwargs
 
@@ -265,10 +265,10 @@ class RolloutConfig:
         """The pose model file, or the default models for the first pose camera."""
         if self.pose_model is not None:
             return self.pose_model
-        from scorbot_gym.perception.training import default_pose_models
+        from scorbot_gym.perception.references import default_models
 
         w, h = self.pose_size
-        return default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+        return default_models(self.pose_cameras[0], w, h, progress=progress)
 
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""

@@ -179,8 +179,10 @@ def baseline_source_kwargs(
     alone. With a single object, or ``recognizer=None`` (the identity is given), nothing is
     recognised. ``cameras`` is not read (the source builds the recogniser on its own cameras,
     at its first reset); it stays for the callers."""
+    from scorbot_gym.perception.references import load_model_set
+
     kw: dict[str, Any] = {
-        "models": PoseModelSet.load(baseline_models_like(spec, models, jobs, progress))
+        "models": load_model_set(baseline_models_like(spec, models, jobs, progress))
     }
     if recognizer is not None and len(models.object_names) > 1:
         kw.update(recognizer=recognizer, recognition_models=models)

@@ -30,6 +30,7 @@ from scorbot_gym.names import RECOGNIZERS
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+from scorbot_gym.perception.references import load_model_set
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.perception.support import TableSupport, hull_points, make_support
 from scorbot_gym.sim.simulation import mat_to_quat
@@ -333,7 +334,7 @@ def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:
             f"models must be a PoseModelSet or the path of a model file from `scorbot-gym pose "
             f"train`, got {type(models).__name__} {models!r}"
         )
-    return PoseModelSet.load(models)
+    return load_model_set(models)  # remembered as that file's: the env's spec names it
 
 
 def check_recognizer(recognizer: Any) -> None:
