@@ -96,8 +96,9 @@ class ScorbotGraspEnv(gym.Env):
     from ``objects`` (the target excluded), or a list of names on the table in every episode
     (then not targets). ``tilt_deg`` props the target on a stand so that it rests that many
     degrees out of its resting pose. The target is drawn from ``objects`` at reset, or named by
-    ``options={"target": name}``; with either option on, the observation gains
-    ``target_class`` (one-hot over :attr:`target_classes`, the task command), ``info`` gains
+    ``options={"target": name}`` (one of them; option keys other than ``target``,
+    ``object_name`` and ``resting_index`` are refused); with either option on, the observation
+    gains ``target_class`` (one-hot over :attr:`target_classes`, the task command), ``info`` gains
     ``target_name``, ``objects`` (every object's ground truth: role, pose, tilt, knocked over),
     ``distractors_knocked_over`` and ``wrong_object``, and ``failure_cause`` can be
     ``wrong_object`` (a distractor lifted between the fingers). Objects are placed seeded and

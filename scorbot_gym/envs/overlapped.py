@@ -65,6 +65,7 @@ class OverlappedVectorEnv(gym.vector.VectorEnv):
             autoreset_mode=self.autoreset_mode,
             **worker_kwargs,
         )
+        self.workers.env_index_offset = 1  # its env i is our env i + 1
         try:
             self.local = SyncVectorEnv(env_fns[:1], copy=False, autoreset_mode=self.autoreset_mode)
         except BaseException:

@@ -138,6 +138,9 @@ class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
     """
 
     _died: str | None = None
+    #: added to a worker's index in messages (an env of a larger vector env, as in
+    #: OverlappedVectorEnv, whose env 0 runs in the main process)
+    env_index_offset = 0
 
     def _assert_is_running(self) -> None:
         super()._assert_is_running()
@@ -163,8 +166,8 @@ class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
                 else f"exited with code {code}"
             )
             self._died = (
-                f"vector-env worker {i} (pid {process.pid}) died, {how}; its env is gone: close "
-                "this vector env and make a new one"
+                f"the vector-env worker of env {i + self.env_index_offset} (pid {process.pid}) "
+                f"died, {how}; its env is gone: close this vector env and make a new one"
             )
         self._state = AsyncState.DEFAULT
         return RuntimeError(self._died)
