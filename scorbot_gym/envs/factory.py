@@ -107,19 +107,23 @@ def _make_env(
                 f"{needs[key]}-pixel images"
             )
     env = gym.make(env_id, **{**env_kwargs, **needs})
-    if neighbours is None:
-        neighbours = bool(env.get_wrapper_attr("distractors")) and callable(
-            getattr(source, "neighbours", None)
+    try:
+        if neighbours is None:
+            neighbours = bool(env.get_wrapper_attr("distractors")) and callable(
+                getattr(source, "neighbours", None)
+            )
+        return PoseEstimateObservation(
+            env,
+            source,
+            estimate_every=estimate_every,
+            rotation=rotation,
+            include_class=include_class,
+            classes=classes,
+            identity=identity,
+            keep_images=keep_images,
+            timings_in_info=timings_in_info,
+            neighbours=neighbours,
         )
-    return PoseEstimateObservation(
-        env,
-        source,
-        estimate_every=estimate_every,
-        rotation=rotation,
-        include_class=include_class,
-        classes=classes,
-        identity=identity,
-        keep_images=keep_images,
-        timings_in_info=timings_in_info,
-        neighbours=neighbours,
-    )
+    except BaseException:
+        env.close()  # its renderer's GL context goes with it
+        raise
