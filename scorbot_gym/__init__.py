@@ -27,12 +27,14 @@ if TYPE_CHECKING:
     from scorbot_gym.envs.grasp import ScorbotGraspEnv
     from scorbot_gym.envs.overlapped import OverlappedVectorEnv
     from scorbot_gym.envs.vector import pin_env_fns
+    from scorbot_gym.envs.worker import WatchedAsyncVectorEnv
 
 __version__ = "0.1.0"
 __all__ = [
     "ENV_IDS",
     "OverlappedVectorEnv",
     "ScorbotGraspEnv",
+    "WatchedAsyncVectorEnv",
     "make_env",
     "pin_env_fns",
     "register_envs",
@@ -44,6 +46,7 @@ _LAZY = {
     "make_env": "scorbot_gym.envs.factory",
     "OverlappedVectorEnv": "scorbot_gym.envs.overlapped",
     "pin_env_fns": "scorbot_gym.envs.vector",
+    "WatchedAsyncVectorEnv": "scorbot_gym.envs.worker",
 }
 
 

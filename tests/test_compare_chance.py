@@ -16,7 +16,9 @@ from pose.model_set import PoseModelSet
 from pose.recognition import AppearanceRecognizer, ShortlistRecognizer
 from scorbot_gym.cli import main
 from scorbot_gym.evaluation import compare as cmp
+from scorbot_gym.perception.base import PerceptionFrame
 from scorbot_gym.perception.baseline_models import baseline_models, baseline_models_path
+from scorbot_gym.perception.model_set import ModelSetPoseSource
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer
 from scorbot_gym.perception.training import TrainingSet, train_models
 
@@ -84,7 +86,12 @@ def test_chance_runs_the_chance_set_and_the_default_models_recognition(default_m
     assert {k: blind.meta[k] for k in ("camera", "width", "height", "seed")} == {
         k: two.meta[k] for k in ("camera", "width", "height", "seed")
     }
-    rec = chance.kwargs["recognizer"]
+    # recognised by the default models, named, so that the env's spec can rebuild the source
+    assert chance.kwargs["recognizer"] == cmp.MANIFOLD_RECOGNIZER
+    assert chance.kwargs["recognition_models"] is two
+    source = ModelSetPoseSource(**{**chance.kwargs, "segmenter": "privileged"})
+    source.reset(PerceptionFrame(), None)  # no identity: recognition is set up
+    rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)
     assert isinstance(rec.recognizer, ShortlistRecognizer) and rec.reads == "silhouettes+view"
     assert set(rec.recognizer.appearance.estimators) == set(OBJECTS)  # the trained models'

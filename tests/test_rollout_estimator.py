@@ -10,6 +10,7 @@ from pose.baselines import ChanceEstimator
 from pose.model_set import PoseModelSet
 from pose.recognition import ShortlistRecognizer
 from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
+from scorbot_gym.perception.model_set import ModelSetPoseSource
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer
 from scorbot_gym.perception.training import TrainingSet, train_models
 
@@ -63,20 +64,33 @@ def test_the_default_estimator_keeps_the_trained_models(defaults):
 def test_chance_swaps_the_models_and_keeps_recognition_without_its_estimates(defaults):
     manifold = RolloutConfig(pose="manifold", recognize=True).pose_kwargs()
     chance = RolloutConfig(pose="manifold", recognize=True, estimator="chance").pose_kwargs()
-    assert {k: v for k, v in chance.items() if k not in ("models", "recognizer")} == {
-        k: v for k, v in manifold.items() if k not in ("models", "recognizer")
+    swapped = ("models", "recognizer", "recognition_models")
+    assert {k: v for k, v in chance.items() if k not in swapped} == {
+        k: v for k, v in manifold.items() if k not in swapped
     }  # same masks, cameras, prior
     blind = chance["models"]
     assert blind.object_names == defaults.object_names
     assert all(isinstance(blind[n], ChanceEstimator) for n in OBJECTS)
     assert blind.meta["views_of"] == COARSE.to_dict()  # fitted on the trained models' views
-    rec = chance["recognizer"]
+    # recognition by the trained models, named (so the env's spec can rebuild the source)
+    assert chance["recognizer"] == "flr+appearance" and chance["recognition_models"] is defaults
+    source = ModelSetPoseSource(**{**chance, "segmenter": "privileged"})  # reads no images
+    source.reset(_frame_without_identity(), None)
+    rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)
     assert isinstance(rec.recognizer, ShortlistRecognizer)
+    assert set(rec.recognizer.appearance.estimators) == set(OBJECTS)  # the trained models'
     # the identity given: nothing to recognise, the recogniser stays the manifold arm's name
     given = RolloutConfig(pose="manifold", estimator="chance").pose_kwargs()
-    assert given["recognizer"] == "flr+appearance"
+    assert given["recognizer"] == "flr+appearance" and "recognition_models" not in given
     assert isinstance(given["models"]["box"], ChanceEstimator)
+
+
+def _frame_without_identity():
+    """A reset's frame whose object the source must recognise."""
+    from scorbot_gym.perception.base import PerceptionFrame
+
+    return PerceptionFrame(observation={}, cameras={}, object_name=None)
 
 
 @pytest.mark.slow

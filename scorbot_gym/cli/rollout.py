@@ -18,6 +18,7 @@ from scorbot_gym.cli._args import (
     positive_int,
     probability,
 )
+from scorbot_gym.envs.arguments import MAX_TILT_DEG
 from scorbot_gym.names import (
     DISTURBANCES,
     FIXED_CAMERAS,
@@ -37,6 +38,7 @@ if TYPE_CHECKING:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
 CAMERAS = (*FIXED_CAMERAS, *MOVING_CAMERAS)
+IDENTITIES = ("recognize", "given")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,9 +69,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="oracle",
         help="where the object pose in the observation comes from: oracle (ground truth), "
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
-        "estimator on camera images); with --distractors: manifold_clutter (every blob "
-        "recognised, the target's estimated), largest_blob / random_blob (a blob taken without "
-        "recognition: the baselines)",
+        "estimator on camera images; with --distractors it runs manifold_clutter); with "
+        "--distractors: manifold_clutter (every blob recognised, the target's estimated), "
+        "largest_blob / random_blob (a blob taken without recognition: the baselines)",
     )
     p.add_argument(
         "--pose-model",
@@ -85,7 +87,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=CAMERAS,
         default=None,
         help="camera for --pose manifold, repeatable: the pose comes from the first, recognition "
-        "uses all (default: top, plus side with --recognize)",
+        "uses all (default: top, plus side when recognising)",
     )
     p.add_argument(
         "--fallback-camera",
@@ -150,9 +152,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "many times an episode (default 0)",
     )
     p.add_argument(
+        "--identity",
+        choices=IDENTITIES,
+        default=None,
+        help="--pose manifold only: recognize (default: the object is recognised from the "
+        "images, as the main job must) or given (privileged: the estimator is told the true "
+        "class, for ablations; the summary says so)",
+    )
+    p.add_argument(
         "--recognize",
         action="store_true",
-        help="recognise the object from its silhouette instead of being told its identity",
+        help="--identity recognize (the default for --pose manifold; kept for older commands)",
     )
     p.add_argument(
         "--estimate-every",
@@ -195,9 +205,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--tilt-deg",
-        type=non_negative_float,
+        type=_tilt_deg,
         default=0.0,
-        help="prop the target on a stand, tilted this many degrees out of its resting pose",
+        help="prop the target on a stand, tilted this many degrees out of its resting pose "
+        f"(0 to {MAX_TILT_DEG:g})",
     )
     p.add_argument("--episodes", type=positive_int, default=20)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
@@ -227,6 +238,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _tilt_deg(text: str) -> float:
+    value = non_negative_float(text)
+    if value > MAX_TILT_DEG:
+        raise argparse.ArgumentTypeError(f"must be in [0, {MAX_TILT_DEG:g}] degrees, got {text}")
+    return value
+
+
 def _policy(text: str) -> str:
     if text in POLICIES or Path(text).is_dir():
         return text
@@ -245,6 +263,26 @@ def check_outputs(args: argparse.Namespace) -> None:
         check_output_file(args.json, "--json", (".json", ".json.gz"))
     if args.video is not None:
         check_output_file(args.video, "--video", VIDEO_SUFFIXES)
+
+
+def _recognize(args: argparse.Namespace) -> bool:
+    """Whether the pose source recognises the object: by default for ``--pose manifold``, so
+    the main job reads no ground truth; ``--identity given`` is the privileged opt-out."""
+    if args.identity is None:
+        return args.recognize or (args.pose == "manifold" and not args.distractors)
+    if args.pose != "manifold":
+        raise ValueError(
+            f"--identity applies to --pose manifold, not {args.pose} (the clutter sources "
+            "recognise every blob; the oracle sources read the ground truth)"
+        )
+    if args.identity == "given" and args.recognize:
+        raise ValueError("--recognize and --identity given contradict each other: give one")
+    if args.identity == "given" and args.distractors:
+        raise ValueError(
+            "--identity given does not apply with --distractors: the clutter pipeline is told "
+            "the target (the task command) and recognises every blob; drop --identity"
+        )
+    return args.identity == "recognize"
 
 
 def config_from_args(args: argparse.Namespace) -> RolloutConfig:
@@ -277,7 +315,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         motion=args.motion,
         segmenter=args.segmenter,
         recognizer=args.recognizer,
-        recognize=args.recognize,
+        recognize=_recognize(args),
         splitter=args.splitter,
         support=args.support,
         estimator=args.estimator,
@@ -304,6 +342,11 @@ def run(args: argparse.Namespace) -> int:
     from scorbot_gym.evaluation.video import record_episodes
 
     config = config_from_args(args)
+    if config.pose != POSE_ALIASES.get(args.pose, args.pose):
+        print(
+            f"--pose {args.pose} with --distractors {args.distractors}: the clutter pipeline "
+            f"(--pose {config.pose}: blobs split, each recognised, the target's pose estimated)"
+        )
     summary, _ = run_rollout(config, progress=not args.no_progress)
     print(format_summary(summary))
     if args.json:

@@ -63,18 +63,50 @@ def name_list(name: str, value: Any, example: str) -> tuple[str, ...]:
     return tuple(value)
 
 
+#: the steepest stand (``tilt_deg``): the default pose models are trained on views tilted up
+#: to 30 degrees (``perception.training.IN_LOOP_TRAINING``), so the env offers no steeper scene
+MAX_TILT_DEG = 30.0
+
 RESET_OPTIONS = ("object_name", "target", "resting_index")
+_TARGET_KEYS = ("target", "object_name")  # two names for the object to grasp
 
 
 def reset_options(options: Any) -> dict:
-    """``reset``'s ``options`` as a dict (``None``: no options); anything else is refused."""
+    """``reset``'s ``options`` as a dict (``None``: no options); anything else, and a key that
+    is not one of :data:`RESET_OPTIONS`, is refused (a typo would be silently ignored)."""
     if options is None:
         return {}
     if not isinstance(options, Mapping):
         raise ValueError(
             f"options must be a dict or None (keys: {', '.join(RESET_OPTIONS)}), got {options!r}"
         )
+    unknown = [k for k in options if k not in RESET_OPTIONS]
+    if unknown:
+        raise ValueError(
+            f"unknown reset option{'s' if len(unknown) > 1 else ''} "
+            f"{', '.join(map(repr, unknown))}; valid keys: {', '.join(RESET_OPTIONS)}"
+        )
     return dict(options)
+
+
+def reset_target(options: Mapping[str, Any], targets: Sequence[str]) -> str | None:
+    """The object named by ``options["target"]`` (or its synonym ``"object_name"``), which must
+    be one of the env's ``targets``; ``None`` where neither is given (the env draws one)."""
+    given = {k: options[k] for k in _TARGET_KEYS if options.get(k) is not None}
+    if len(given) == 2 and given["target"] != given["object_name"]:
+        raise ValueError(
+            "options['target'] and options['object_name'] both name the object to grasp; give "
+            f"one, got {given['target']!r} and {given['object_name']!r}"
+        )
+    if not given:
+        return None
+    key, name = next(iter(given.items()))
+    if not isinstance(name, str) or name not in targets:
+        raise ValueError(
+            f"options[{key!r}]: target {name!r} is not one of this env's targets "
+            f"{list(targets)} (make the env with objects=[...] to grasp others)"
+        )
+    return name
 
 
 def resting_index(value: Any, spec: ObjectSpec) -> int:
@@ -135,7 +167,7 @@ def distractors(value: Any, objects: Sequence[str], explicit: bool) -> int | tup
     return names
 
 
-def tilt_deg(value: Any, high: float) -> float:
+def tilt_deg(value: Any, high: float = MAX_TILT_DEG) -> float:
     """``tilt_deg``: the target's tilt on the stand, degrees in [0, high]."""
     if isinstance(value, bool) or not isinstance(value, Real) or not 0.0 <= value <= high:
         raise ValueError(f"tilt_deg must be a number of degrees in [0, {high:g}], got {value!r}")

@@ -12,6 +12,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from scorbot_gym.envs.worker import built_or_failed
 from scorbot_gym.perception.base import PoseSource
 from scorbot_gym.perception.registry import make_pose_source
 from scorbot_gym.wrappers.pose_observation import PoseEstimateObservation
@@ -45,7 +46,43 @@ def make_env(
     :class:`PoseEstimateObservation`); ``None``: where the env has distractors and the source
     reports them. Examples: ``pose_kwargs={"models": path, "segmenter": "background",
     "recognizer": "appearance"}``.
+
+    In a Gymnasium vector-env worker, an error here (a bad model path, say) reaches the main
+    process as itself (:mod:`scorbot_gym.envs.worker`). The env's spec records the pose source
+    and its arguments, a model set by its file, so ``gym.make(env.spec)`` rebuilds the env.
     """
+    settings = dict(
+        pose=pose,
+        pose_kwargs=pose_kwargs,
+        estimate_every=estimate_every,
+        rotation=rotation,
+        include_class=include_class,
+        classes=classes,
+        identity=identity,
+        keep_images=keep_images,
+        timings_in_info=timings_in_info,
+        pose_cameras=pose_cameras,
+        neighbours=neighbours,
+    )
+    return built_or_failed(lambda: _make_env(env_id, **settings, **env_kwargs))
+
+
+def _make_env(
+    env_id: str,
+    *,
+    pose: str | PoseSource,
+    pose_kwargs: dict[str, Any] | None,
+    estimate_every: int,
+    rotation: str,
+    include_class: bool,
+    classes: list[str] | None,
+    identity: str,
+    keep_images: bool,
+    timings_in_info: bool,
+    pose_cameras: Sequence[str] | None,
+    neighbours: bool | None,
+    **env_kwargs: Any,
+) -> gym.Env:
     pose_kwargs = dict(pose_kwargs or {})
     if pose_cameras is not None:
         if not isinstance(pose, str):
@@ -70,19 +107,23 @@ def make_env(
                 f"{needs[key]}-pixel images"
             )
     env = gym.make(env_id, **{**env_kwargs, **needs})
-    if neighbours is None:
-        neighbours = bool(env.get_wrapper_attr("distractors")) and callable(
-            getattr(source, "neighbours", None)
+    try:
+        if neighbours is None:
+            neighbours = bool(env.get_wrapper_attr("distractors")) and callable(
+                getattr(source, "neighbours", None)
+            )
+        return PoseEstimateObservation(
+            env,
+            source,
+            estimate_every=estimate_every,
+            rotation=rotation,
+            include_class=include_class,
+            classes=classes,
+            identity=identity,
+            keep_images=keep_images,
+            timings_in_info=timings_in_info,
+            neighbours=neighbours,
         )
-    return PoseEstimateObservation(
-        env,
-        source,
-        estimate_every=estimate_every,
-        rotation=rotation,
-        include_class=include_class,
-        classes=classes,
-        identity=identity,
-        keep_images=keep_images,
-        timings_in_info=timings_in_info,
-        neighbours=neighbours,
-    )
+    except BaseException:
+        env.close()  # its renderer's GL context goes with it
+        raise

@@ -21,7 +21,7 @@ from scorbot_gym.sim.arm import GRIPPER_MAX_OPENING
 from scorbot_gym.sim.rendering import SceneRenderer
 from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_size
 from scorbot_gym.tasks import GraspTask
-from scorbot_gym.tasks.clutter import MAX_TILT_DEG, ClutterTask
+from scorbot_gym.tasks.clutter import ClutterTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
 
 ACTION_TYPES = ("joint", "cartesian")
@@ -103,8 +103,9 @@ class ScorbotGraspEnv(gym.Env):
     from ``objects`` (the target excluded), or a list of names on the table in every episode
     (then not targets). ``tilt_deg`` props the target on a stand so that it rests that many
     degrees out of its resting pose. The target is drawn from ``objects`` at reset, or named by
-    ``options={"target": name}``; with either option on, the observation gains
-    ``target_class`` (one-hot over :attr:`target_classes`, the task command), ``info`` gains
+    ``options={"target": name}`` (one of them; option keys other than ``target``,
+    ``object_name`` and ``resting_index`` are refused); with either option on, the observation
+    gains ``target_class`` (one-hot over :attr:`target_classes`, the task command), ``info`` gains
     ``target_name``, ``objects`` (every object's ground truth: role, pose, tilt, knocked over),
     ``distractors_knocked_over`` and ``wrong_object``, and ``failure_cause`` can be
     ``wrong_object`` (a distractor lifted between the fingers). Objects are placed seeded and
@@ -156,7 +157,7 @@ class ScorbotGraspEnv(gym.Env):
         self.distractors = args.distractors(distractors, self.object_names, explicit)
         if isinstance(self.distractors, tuple):  # named distractors are never targets
             self.object_names = tuple(n for n in self.object_names if n not in self.distractors)
-        self.tilt_deg = args.tilt_deg(tilt_deg, MAX_TILT_DEG)
+        self.tilt_deg = args.tilt_deg(tilt_deg)
         #: the classes a target can be, in the order of the ``target_class`` one-hot
         self.target_classes = self.object_names
         self._cluttered = bool(self.distractors) or self.tilt_deg > 0
@@ -299,7 +300,7 @@ class ScorbotGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         options = args.reset_options(options)
-        name = options.get("target", options.get("object_name"))
+        name = args.reset_target(options, self.target_classes)
         if name is None:
             name = self.object_names[int(self.np_random.integers(len(self.object_names)))]
         spec = get_object(name)

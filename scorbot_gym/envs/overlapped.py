@@ -23,14 +23,15 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
+from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from gymnasium.vector.utils import batch_space, create_empty_array
 
-from scorbot_gym.envs.worker import WorkerEnvFn
+from scorbot_gym.envs.worker import WatchedAsyncVectorEnv, WorkerEnvFn
 
 
 class OverlappedVectorEnv(gym.vector.VectorEnv):
-    """``env_fns[0]`` runs in this process, ``env_fns[1:]`` in an ``AsyncVectorEnv``.
+    """``env_fns[0]`` runs in this process, ``env_fns[1:]`` in an ``AsyncVectorEnv`` (one that
+    names a worker that died: :class:`~scorbot_gym.envs.worker.WatchedAsyncVectorEnv`).
 
     ``worker_kwargs`` go to that ``AsyncVectorEnv`` (``shared_memory``, ``context``,
     ``daemon``, ``max_concurrency``); ``autoreset_mode`` applies to every env. Observations
@@ -58,12 +59,13 @@ class OverlappedVectorEnv(gym.vector.VectorEnv):
         self.autoreset_mode = AutoresetMode(autoreset_mode)
         # Workers first: a forked worker then inherits no env (and no GL context) from here.
         # Our concatenation copies the workers' observations out of shared memory.
-        self.workers = AsyncVectorEnv(
+        self.workers = WatchedAsyncVectorEnv(  # a dead worker is named, not a broken pipe
             [WorkerEnvFn(fn) for fn in env_fns[1:]],  # their errors reach us as themselves
             copy=False,
             autoreset_mode=self.autoreset_mode,
             **worker_kwargs,
         )
+        self.workers.env_index_offset = 1  # its env i is our env i + 1
         try:
             self.local = SyncVectorEnv(env_fns[:1], copy=False, autoreset_mode=self.autoreset_mode)
         except BaseException:

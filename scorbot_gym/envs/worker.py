@@ -11,14 +11,19 @@ at all, so there, as in any other process, the env function raises as it would.
 - :class:`WorkerEnvFn` wraps any env function (``pin_env_fns`` and
   :class:`~scorbot_gym.envs.overlapped.OverlappedVectorEnv` use it):
   ``gymnasium.vector.AsyncVectorEnv([WorkerEnvFn(fn) for fn in env_fns])``;
-- :func:`make_grasp_env`, the entry point of the registered ids, does the same, so
-  ``AsyncVectorEnv([lambda: gym.make("scorbot_gym:ScorbotGrasp-v0", ...), ...])`` reports it
-  too.
+- :func:`make_grasp_env`, the entry point of the registered ids, and
+  :func:`~scorbot_gym.envs.factory.make_env` do the same, so
+  ``AsyncVectorEnv([lambda: gym.make("scorbot_gym:ScorbotGrasp-v0", ...), ...])`` and
+  ``AsyncVectorEnv([partial(make_env, pose="manifold", pose_kwargs={"models": path}), ...])``
+  report it too (a bad model path, say).
 """
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
+import signal
+import time
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -26,6 +31,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from gymnasium.vector.async_vector_env import AsyncState
 
 # How Gymnasium's AsyncVectorEnv names its worker processes ("Worker<AsyncVectorEnv>-0").
 _GYMNASIUM_WORKER = "Worker<"
@@ -97,16 +103,92 @@ class WorkerEnvFn:
             return _FailedEnv(error)
 
 
+def built_or_failed(build: Callable[[], gym.Env]) -> gym.Env:
+    """``build()``; in a Gymnasium vector-env worker, a failure is handed back as a stand-in
+    env that raises it (module docstring), with the action space every scorbot-gym env has
+    (``gym.make``'s checker reads it)."""
+    if not _in_gymnasium_worker():
+        return build()
+    try:
+        return build()
+    except Exception as error:  # noqa: BLE001 - raised again in the main process
+        traceback.print_exc()
+        return _FailedEnv(error, gym.spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32))
+
+
 def make_grasp_env(**kwargs: Any) -> gym.Env:
     """``ScorbotGraspEnv(**kwargs)``, the registered ids' entry point; in a Gymnasium vector-env
     worker, a failure is handed back as a stand-in env that raises it (module docstring)."""
     from scorbot_gym.envs.grasp import ScorbotGraspEnv
 
-    if not _in_gymnasium_worker():
-        return ScorbotGraspEnv(**kwargs)
-    try:
-        return ScorbotGraspEnv(**kwargs)
-    except Exception as error:  # noqa: BLE001 - raised again in the main process
-        traceback.print_exc()
-        # the action space every scorbot-gym env has, which gym.make's checker reads
-        return _FailedEnv(error, gym.spaces.Box(-1.0, 1.0, shape=(6,), dtype=np.float32))
+    return built_or_failed(lambda: ScorbotGraspEnv(**kwargs))
+
+
+# What the main process's end of a pipe raises once the worker at the other end is gone.
+_DEAD_PIPE = (BrokenPipeError, ConnectionResetError, EOFError)
+
+
+class WatchedAsyncVectorEnv(gym.vector.AsyncVectorEnv):
+    """Gymnasium's ``AsyncVectorEnv``, with a worker that died (killed, out of memory, a crash
+    in C) reported in one line naming it and how it ended, instead of ``BrokenPipeError`` /
+    ``ConnectionResetError`` from the pipe; every later call raises the same, and ``close``
+    ends the other workers. A worker's Python errors reach the main process as themselves, as
+    in ``AsyncVectorEnv`` (wrap env functions in :class:`WorkerEnvFn` for errors in building
+    the env). :class:`~scorbot_gym.envs.overlapped.OverlappedVectorEnv` runs its workers in one.
+    """
+
+    _died: str | None = None
+    #: added to a worker's index in messages (an env of a larger vector env, as in
+    #: OverlappedVectorEnv, whose env 0 runs in the main process)
+    env_index_offset = 0
+
+    def _assert_is_running(self) -> None:
+        super()._assert_is_running()
+        if self._died is not None:
+            raise RuntimeError(self._died)
+
+    def _worker_died(self) -> RuntimeError:
+        """The one-line error for a worker whose pipe broke (waits up to 2 s for it to end)."""
+        deadline = time.monotonic() + 2.0
+        while time.monotonic() < deadline:
+            dead = [(i, p) for i, p in enumerate(self.processes) if not p.is_alive()]
+            if dead:
+                break
+            time.sleep(0.02)
+        if not dead:
+            self._died = "a vector-env worker closed its pipe (it is still running)"
+        else:
+            i, process = dead[0]
+            code = process.exitcode
+            how = (
+                f"killed by {signal.Signals(-code).name}"
+                if code is not None and code < 0
+                else f"exited with code {code}"
+            )
+            self._died = (
+                f"the vector-env worker of env {i + self.env_index_offset} (pid {process.pid}) "
+                f"died, {how}; its env is gone: close this vector env and make a new one"
+            )
+        self._state = AsyncState.DEFAULT
+        return RuntimeError(self._died)
+
+    def close_extras(self, timeout: float | None = None, terminate: bool = False) -> None:
+        super().close_extras(timeout, terminate or self._died is not None)
+
+
+def _reporting_dead_workers(name: str) -> Callable:
+    method = getattr(gym.vector.AsyncVectorEnv, name)
+
+    @functools.wraps(method)
+    def watched(self: WatchedAsyncVectorEnv, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return method(self, *args, **kwargs)
+        except _DEAD_PIPE:
+            raise self._worker_died() from None
+
+    return watched
+
+
+for _name in ("reset_async", "reset_wait", "step_async", "step_wait", "call_async", "call_wait",
+              "set_attr"):  # fmt: skip
+    setattr(WatchedAsyncVectorEnv, _name, _reporting_dead_workers(_name))

@@ -487,9 +487,10 @@ def with_models(
     differs."""
     if not any(c.source == "manifold" and "models" not in c.kwargs for c in conds):
         return list(conds)
-    from scorbot_gym.perception.training import IN_LOOP_TRAINING, default_pose_models
+    from scorbot_gym.perception.references import default_models
+    from scorbot_gym.perception.training import IN_LOOP_TRAINING
 
-    models = default_pose_models(progress=progress, training=IN_LOOP_TRAINING)
+    models = default_models(progress=progress, training=IN_LOOP_TRAINING)
     out = []
     for c in conds:
         if c.source != "manifold" or "models" in c.kwargs:

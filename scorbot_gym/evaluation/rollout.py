@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from scorbot_gym.data.perturbations import Perturbation
+from scorbot_gym.envs.arguments import tilt_deg
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
@@ -47,7 +48,8 @@ class RolloutConfig:
     :meth:`~scorbot_gym.data.perturbations.Perturbation.parse`), redrawn every episode; the
     pose models stay the unperturbed ones. ``distractors`` other objects (drawn per episode from
     ``objects``) share the table with the target, which is ``target`` in every episode or
-    drawn; ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
+    drawn (``pose="manifold"`` then runs ``"manifold_clutter"``, the clutter pipeline);
+    ``tilt_deg`` props the target on a stand, tilted that much. ``splitter`` names
     the stage of the clutter sources that splits blobs several objects share
     (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole). ``regrasps`` is
     the scripted controller's retries after its fingers close on nothing
@@ -89,6 +91,8 @@ class RolloutConfig:
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
+        if self.pose == "manifold" and self.distractors:
+            self._to_clutter_pipeline()
         if self.perturbation is not None:
             Perturbation.parse(self.perturbation)  # a bad one fails here, before any episode
         if self.policy not in POLICIES and not Path(self.policy).is_dir():
@@ -105,6 +109,7 @@ class RolloutConfig:
             raise ValueError(f"episodes must be >= 1, got {self.episodes}")
         if self.distractors < 0:
             raise ValueError(f"distractors must be >= 0, got {self.distractors}")
+        tilt_deg(self.tilt_deg)  # the env's own check, before any model is trained
         if self.target is not None:
             from scorbot_gym.objects import get_object
 
@@ -178,6 +183,32 @@ class RolloutConfig:
                 f"fallback_cameras must differ from the pose camera {self.pose_cameras[0]!r}"
             )
 
+    def _to_clutter_pipeline(self) -> None:
+        """``manifold`` on a cluttered table is ``manifold_clutter``: the single-object source
+        estimates on whichever blob it sees first (issue 50 found it picking distractors in
+        most failed episodes), so the natural request gets the pipeline that splits the table into
+        blobs, recognises each and estimates the target's. Settings that only the
+        single-object source has are refused rather than dropped."""
+        single_only = [
+            name
+            for name, value, default in (
+                ("fallback_cameras", tuple(self.fallback_cameras), ()),
+                ("motion", self.motion, None),
+                ("segmenter", self.segmenter, "background"),
+                ("estimator", self.estimator, "manifold"),
+            )
+            if value != default
+        ]
+        if self.pose_cameras is not None and len(self.pose_cameras) > 1:
+            single_only.append("pose_cameras (one camera)")
+        if single_only:
+            raise ValueError(
+                f"pose 'manifold' with distractors runs the clutter pipeline 'manifold_clutter', "
+                f"which has no {', '.join(single_only)}: drop them, or use distractors=0"
+            )
+        self.pose = "manifold_clutter"
+        self.recognize = False  # it recognises every blob itself, told only the target
+
     @property
     def env_id(self) -> str:
         return "ScorbotGraspCartesian-v0" if self.action_type == "cartesian" else "ScorbotGrasp-v0"
@@ -200,13 +231,13 @@ class RolloutConfig:
             }
         if self.pose != "manifold":
             return {}
-        from scorbot_gym.perception.training import default_pose_models
+        from scorbot_gym.perception.references import default_models
 
         w, h = self.pose_size
         if self.pose_model is not None:
             models: Any = self.pose_model
         else:
-            models = default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+            models = default_models(self.pose_cameras[0], w, h, progress=progress)
         kwargs = {
             "models": models,
             "segmenter": self.segmenter,
@@ -226,7 +257,7 @@ class RolloutConfig:
             )
         if self.fallback_cameras:
             kwargs["fallback_models"] = [
-                default_pose_models(c, w, h, progress=progress) for c in self.fallback_cameras
+                default_models(c, w, h, progress=progress) for c in self.fallback_cameras
             ]
         return kwargs
 
@@ -234,10 +265,10 @@ class RolloutConfig:
         """The pose model file, or the default models for the first pose camera."""
         if self.pose_model is not None:
             return self.pose_model
-        from scorbot_gym.perception.training import default_pose_models
+        from scorbot_gym.perception.references import default_models
 
         w, h = self.pose_size
-        return default_pose_models(self.pose_cameras[0], w, h, progress=progress)
+        return default_models(self.pose_cameras[0], w, h, progress=progress)
 
     def make_env(self, progress: bool = False, **env_kwargs: Any):
         """The wrapped env of this configuration (``env_kwargs`` e.g. for rendering)."""

@@ -165,6 +165,9 @@ def format_summary(summary: dict) -> str:
         ]
         if p["privileged"]:
             rows.append(("pose source", "privileged (reads the ground truth)"))
+    config = summary.get("config") or {}
+    if config.get("pose") == "manifold" and config.get("recognize") is False:
+        rows.append(("identity", "given: privileged, the estimator is told the true class"))
     rows += [
         (f"  {name}", f"{o['successes']}/{o['episodes']}")
         for name, o in sorted(summary["per_object"].items())

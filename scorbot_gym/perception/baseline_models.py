@@ -172,21 +172,18 @@ def baseline_source_kwargs(
     jobs: int = 1,
     progress: bool = False,
 ) -> dict[str, Any]:
-    """The ``manifold`` pose source's ``models`` and ``recognizer`` for a baseline arm: the
+    """The ``manifold`` pose source's ``models`` and recognition for a baseline arm: the
     ``spec`` set fitted on ``models``'s objects and training views (:func:`baseline_models`),
-    and ``models``'s own ``recognizer`` (built here, once) wrapped in
-    :class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`, so the arm differs
-    from the trained one in the estimator alone. With a single object, or ``recognizer=None``
-    (the identity is given), no recogniser is returned. ``cameras`` are the source's."""
-    from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+    and ``models`` as ``recognition_models`` (with ``recognizer``: ``models``'s own recogniser,
+    its pose estimates dropped), so the arm differs from the trained one in the estimator
+    alone. With a single object, or ``recognizer=None`` (the identity is given), nothing is
+    recognised. ``cameras`` is not read (the source builds the recogniser on its own cameras,
+    at its first reset); it stays for the callers."""
+    from scorbot_gym.perception.references import load_model_set
 
     kw: dict[str, Any] = {
-        "models": PoseModelSet.load(baseline_models_like(spec, models, jobs, progress))
+        "models": load_model_set(baseline_models_like(spec, models, jobs, progress))
     }
-    meta = models.meta
-    camera, width, height = str(meta["camera"]), int(meta["width"]), int(meta["height"])
     if recognizer is not None and len(models.object_names) > 1:
-        ordered = [camera, *(c for c in cameras if c != camera)]
-        built = make_recognizer(recognizer, models, ordered, width, height)
-        kw["recognizer"] = IdentityOnlyRecognizer(built)
+        kw.update(recognizer=recognizer, recognition_models=models)
     return kw

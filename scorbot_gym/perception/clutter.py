@@ -38,7 +38,7 @@ from pose.model_set import PoseModelSet
 from pose.segmentation import BackgroundSubtractionSegmenter, components
 from pose.view import View
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
-from scorbot_gym.perception.model_set import _load, _world_pose
+from scorbot_gym.perception.model_set import _load, _world_pose, check_recognizer, non_negative
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import BackgroundSegmenter
 from scorbot_gym.perception.splitters import make_splitter
@@ -125,10 +125,12 @@ class ClutterPoseSource:
                 f"cameras={list(cameras)}"
             )
         self.segmenter = segmenter if segmenter is not None else BlobSegmenter()
+        if recognizer is not None:  # None: the blob-choice baselines recognise nothing
+            check_recognizer(recognizer)
         self.recognizer = recognizer
         self.splitter = splitter
         self._splitter: Any = None  # built on first use (the keypoint one indexes the models)
-        self.track_gate_px = float(track_gate_px)
+        self.track_gate_px = float(non_negative("track_gate_px", track_gate_px))
         self._recognizer: Any = None
         self._last: WorldPose | None = None
         self._known: list[tuple[dict, str]] = []  # (blob record, label) recognised this episode

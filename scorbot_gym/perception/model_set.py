@@ -18,6 +18,7 @@ import dataclasses
 import os
 import time
 from collections.abc import Sequence
+from numbers import Real
 from typing import Any
 
 import numpy as np
@@ -25,9 +26,11 @@ import numpy as np
 from pose.model_set import PoseModelSet
 from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
+from scorbot_gym.names import RECOGNIZERS
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
-from scorbot_gym.perception.recognizers import make_recognizer
+from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+from scorbot_gym.perception.references import load_model_set
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.perception.support import TableSupport, hull_points, make_support
 from scorbot_gym.sim.simulation import mat_to_quat
@@ -75,6 +78,12 @@ class ModelSetPoseSource:
         ``"table"`` (default: a :class:`~scorbot_gym.perception.support.TableSupport`, estimates
         within a few degrees of a resting pose are put on the table), ``"none"`` (estimates as
         the models answer them) or a support object with ``refine(pose, camera)``.
+    recognition_models
+        Where ``models`` hold a baseline (the image-blind ``chance`` arm): the trained model
+        set (or file) whose ``recognizer`` names the object, its pose estimates dropped
+        (:class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`), so that only
+        the estimator differs between the arms. By file or set, never as a built recogniser,
+        so the env's spec can rebuild the source.
     """
 
     def __init__(
@@ -88,8 +97,17 @@ class ModelSetPoseSource:
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
         motion: str | SilhouetteMotion | None = None,
         support: TableSupport | str | None = "table",
+        recognition_models: PoseModelSet | str | os.PathLike | None = None,
     ) -> None:
         self.models = _load(models)
+        self.recognition_models = None
+        if recognition_models is not None:
+            self.recognition_models = _load(recognition_models)
+            if self.recognition_models.object_names != self.models.object_names:
+                raise ValueError(
+                    f"recognition_models must hold the objects of models "
+                    f"{self.models.object_names}, got {self.recognition_models.object_names}"
+                )
         self.support = make_support(support)
         meta = self.models.meta
         self.camera = str(meta.get("camera", "top"))
@@ -109,9 +127,10 @@ class ModelSetPoseSource:
         extra = [c for c in (cameras or ()) if c != self.camera]
         extra += [str(fb.meta["camera"]) for fb in self.fallback_models]
         self.cameras = (self.camera, *dict.fromkeys(extra))
+        check_recognizer(recognizer)
         self.recognizer = recognizer
         self.memory = memory if memory is not None else RecognitionMemory()
-        self.clear_min_area = int(clear_min_area)
+        self.clear_min_area = int(non_negative("clear_min_area", clear_min_area))
         self._recognizer: Any = None
         self.motion = make_motion(motion)
         self._last: WorldPose | None = None  # the last valid answer, for ``motion``
@@ -146,9 +165,12 @@ class ModelSetPoseSource:
         self.memory.reset()
         if frame.object_name is None and len(self.models.object_names) > 1:
             if self._recognizer is None:
+                recognising = self.recognition_models or self.models
                 self._recognizer = make_recognizer(
-                    self.recognizer, self.models, self.cameras, self.width, self.height
+                    self.recognizer, recognising, self.cameras, self.width, self.height
                 )
+                if self.recognition_models is not None:  # its label, not its pose estimates
+                    self._recognizer = IdentityOnlyRecognizer(self._recognizer)
 
     def _clear(self, mask: np.ndarray | None, cam: str) -> bool:
         excluded = getattr(self.segmenter, "excluded", lambda c: None)(cam)
@@ -305,7 +327,28 @@ class ModelSetPoseSource:
 
 
 def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:
-    return models if isinstance(models, PoseModelSet) else PoseModelSet.load(models)
+    if isinstance(models, PoseModelSet):
+        return models
+    if not isinstance(models, (str, os.PathLike)):
+        raise ValueError(
+            f"models must be a PoseModelSet or the path of a model file from `scorbot-gym pose "
+            f"train`, got {type(models).__name__} {models!r}"
+        )
+    return load_model_set(models)  # remembered as that file's: the env's spec names it
+
+
+def check_recognizer(recognizer: Any) -> None:
+    """A recogniser name must be one of :data:`RECOGNIZERS` (checked when the source is made,
+    not at the first reset that recognises), or an object with ``recognize``."""
+    if isinstance(recognizer, str) and recognizer not in RECOGNIZERS:
+        raise ValueError(f"unknown recognizer {recognizer!r}; valid: {', '.join(RECOGNIZERS)}")
+
+
+def non_negative(name: str, value: Any) -> float:
+    """A number >= 0 (a pixel count, a distance), or a one-line error naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, Real) or not 0 <= value < float("inf"):
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+    return value
 
 
 def _world_pose(est: Any, cam: Any, name: str, timings: dict, cam_name: str) -> WorldPose:

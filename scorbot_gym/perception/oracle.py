@@ -7,6 +7,8 @@ against one knob at a time instead of against a whole estimator's error profile.
 
 from __future__ import annotations
 
+from numbers import Real
+
 import numpy as np
 
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
@@ -60,10 +62,10 @@ class NoisyOraclePoseSource(OraclePoseSource):
         self, pos_sigma_m: float = 0.01, yaw_sigma_deg: float = 5.0, dropout: float = 0.0
     ) -> None:
         for name, v in (("pos_sigma_m", pos_sigma_m), ("yaw_sigma_deg", yaw_sigma_deg)):
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {v}")
-        if not (np.isfinite(dropout) and 0.0 <= dropout <= 1.0):
-            raise ValueError(f"dropout must be a probability in [0, 1], got {dropout}")
+            if not (_is_real(v) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {v!r}")
+        if not (_is_real(dropout) and 0.0 <= dropout <= 1.0):
+            raise ValueError(f"dropout must be a probability in [0, 1], got {dropout!r}")
         self.pos_sigma_m, self.yaw_sigma_deg, self.dropout = pos_sigma_m, yaw_sigma_deg, dropout
         self._rng = np.random.default_rng(0)
 
@@ -81,3 +83,7 @@ class NoisyOraclePoseSource(OraclePoseSource):
         true.position[:2] += dxy
         true.quaternion = quat_mul(quat_from_yaw(dyaw), true.quaternion)
         return true
+
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, Real) and not isinstance(value, bool)

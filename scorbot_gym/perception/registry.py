@@ -59,6 +59,11 @@ def _blob_choice_source(choice: str) -> Callable[..., PoseSource]:
     def make(**kwargs: Any) -> PoseSource:
         from scorbot_gym.perception.blob_choice import BlobChoicePoseSource
 
+        if "choice" in kwargs:
+            raise ValueError(
+                f"the {choice}_blob source always takes the {choice} blob: drop choice= "
+                "(largest_blob and random_blob are the two choices)"
+            )
         return BlobChoicePoseSource(choice=choice, **kwargs)
 
     return make
@@ -109,7 +114,12 @@ def make_pose_source(source: str | PoseSource, **kwargs: Any) -> PoseSource:
         raise ValueError(
             f"unknown pose source {source!r}; registered: {', '.join(pose_source_names())}"
         )
-    made = _REGISTRY[source](**kwargs)
+    try:
+        made = _REGISTRY[source](**kwargs)
+    except TypeError as exc:
+        if not _raised_by_the_call(exc):  # a TypeError from inside the source: as it is
+            raise
+        raise ValueError(f"pose source {source!r} was given the wrong arguments: {exc}") from None
     if not isinstance(made, PoseSource):
         if not callable(made):
             raise TypeError(f"pose source {source!r} is neither a PoseSource nor a callable")
@@ -119,3 +129,13 @@ def make_pose_source(source: str | PoseSource, **kwargs: Any) -> PoseSource:
     with contextlib.suppress(AttributeError):  # how an env's spec records it (see the wrapper)
         made.made_from = (source, dict(kwargs))
     return made
+
+
+def _raised_by_the_call(exc: TypeError) -> bool:
+    """Whether ``exc`` came from calling a factory with arguments it does not take (an unknown
+    or missing keyword): Python raises that in the calling frame, which is in this module
+    (``make_pose_source``, or a lazy factory here calling its class), before the callee runs."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and tb.tb_frame.f_code.co_filename == __file__

@@ -308,7 +308,55 @@ def open_policy_folder(path: str | Path, algo: str) -> tuple[Path, Path, dict[st
     meta = read_policy_json(meta_path)
     if meta.get("algo") != algo:
         raise ValueError(f"{meta_path}: algo must be {algo!r}, got {meta.get('algo')!r}")
+    check_numpy_policy_fields(meta_path, meta)
     return meta_path, weights_path, meta
+
+
+def check_numpy_policy_fields(meta_path: Path, meta: dict[str, Any]) -> None:
+    """The fields of a numpy policy's ``policy.json`` that loading and acting read, checked for
+    type: a damaged field is a one-line error naming it and what it must hold, instead of
+    numpy's "could not convert string to float" or "operands could not be broadcast" later."""
+
+    def bad(field: str, what: str, value: Any) -> ValueError:
+        shown = repr(value)
+        shown = shown if len(shown) <= 60 else shown[:57] + "..."
+        return ValueError(f"{meta_path}: {field} must be {what}, got {shown}")
+
+    norm = meta.get("normalization")
+    if not isinstance(norm, dict):
+        raise bad("normalization", 'an object {"mean": [...], "std": [...]}', norm)
+    for key in ("mean", "std"):
+        v = norm.get(key)
+        if not (isinstance(v, list) and v and all(_is_number(x) for x in v)):
+            raise bad(f"normalization.{key}", "a non-empty list of finite numbers", v)
+    mean, std = norm["mean"], norm["std"]
+    if len(mean) != len(std):
+        raise ValueError(
+            f"{meta_path}: normalization.mean has {len(mean)} numbers and normalization.std "
+            f"{len(std)}: they must have one per feature each"
+        )
+    if min(std) < 0:
+        raise bad("normalization.std", "numbers >= 0", min(std))
+    if not isinstance(meta.get("history"), dict):
+        raise bad("history", 'an object such as {"previous_actions": 2, ...}', meta.get("history"))
+    classes = meta.get("classes")
+    if not (isinstance(classes, list) and all(isinstance(c, str) for c in classes)):
+        raise bad("classes", "a list of object names", classes)
+    if meta.get("action_type") not in ("joint", "cartesian"):
+        raise bad("action_type", "'joint' or 'cartesian'", meta.get("action_type"))
+    shapes = meta.get("observation_shapes", {})
+    if not (
+        isinstance(shapes, dict)
+        and all(
+            isinstance(v, list) and all(isinstance(n, int) and n >= 0 for n in v)
+            for v in shapes.values()
+        )
+    ):
+        raise bad("observation_shapes", "an object of entry name -> list of sizes", shapes)
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and np.isfinite(x)
 
 
 class ImitationPolicy:

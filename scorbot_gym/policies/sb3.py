@@ -55,6 +55,11 @@ def read_policy_json(meta_path: Path) -> dict[str, Any]:
             f"{meta_path} has format version {meta.get('version')}, this scorbot-gym reads "
             f"version {VERSION}"
         )
+    if not isinstance(meta.get("algo"), str):
+        raise ValueError(
+            f"{meta_path}: algo must be a name (sac, tqc, ppo, imitation, pixel_imitation), "
+            f"got {meta.get('algo')!r}"
+        )
     return meta
 
 
@@ -85,6 +90,7 @@ class ObservationNormalizer:
         self, mean: dict[str, np.ndarray], var: dict[str, np.ndarray], clip: float, eps: float
     ) -> None:
         self.mean, self.var, self.clip, self.eps = mean, var, float(clip), float(eps)
+        self.source = "normalize.npz"  # the file, where loaded from one (for error messages)
 
     @property
     def constant(self) -> dict[str, np.ndarray]:
@@ -98,6 +104,24 @@ class ObservationNormalizer:
             x = np.where(np.asarray(self.var[k]) < self.CONSTANT_VAR, 0.0, x)
             out[k] = np.clip(x, -self.clip, self.clip).astype(np.float32)
         return out
+
+    def check_shapes(self, shapes: dict[str, tuple[int, ...]]) -> None:
+        """Every entry's statistics must be finite arrays of that entry's shape in ``shapes``
+        (a damaged ``normalize.npz`` would fail at the first action, deep inside numpy)."""
+        for what, stats in (("mean", self.mean), ("var", self.var)):
+            for key, value in stats.items():
+                v = np.asarray(value)
+                if key not in shapes or v.shape != tuple(shapes[key]) or v.dtype.kind not in "fiu":
+                    raise ValueError(
+                        f"{self.source}: {what}/{key} must be numbers of shape "
+                        f"{shapes.get(key, 'an observation entry of policy.json')}, got "
+                        f"{v.dtype} {v.shape}"
+                    )
+                if not np.isfinite(v).all() or (what == "var" and (v < 0).any()):
+                    need = "finite and >= 0" if what == "var" else "finite"
+                    raise ValueError(f"{self.source}: {what}/{key} must be {need} numbers")
+        if set(self.mean) != set(self.var):
+            raise ValueError(f"{self.source}: mean/ and var/ must name the same entries")
 
     @classmethod
     def from_vec_normalize(cls, venv) -> ObservationNormalizer:
@@ -119,7 +143,9 @@ class ObservationNormalizer:
         with np.load(path, allow_pickle=False) as z:
             mean = {k[5:]: z[k] for k in z.files if k.startswith("mean/")}
             var = {k[4:]: z[k] for k in z.files if k.startswith("var/")}
-            return cls(mean, var, float(z["clip"]), float(z["eps"]))
+            normalizer = cls(mean, var, float(z["clip"]), float(z["eps"]))
+        normalizer.source = str(path)
+        return normalizer
 
 
 def residual_action(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
@@ -206,7 +232,8 @@ class SB3Policy:
         return policy
 
     def _check_model(self) -> None:
-        """The model's observation space must be the one ``policy.json`` describes."""
+        """The model's observation space must be the one ``policy.json`` describes, and the
+        normalisation statistics must have its entries' shapes."""
         space = self.model.observation_space
         want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
         have = {k: tuple(s.shape) for k, s in getattr(space, "spaces", {}).items()}
@@ -214,6 +241,8 @@ class SB3Policy:
             raise ValueError(
                 f"incompatible policy: the model observes {have}, policy.json says {want}"
             )
+        if self.normalizer is not None:
+            self.normalizer.check_shapes(want)
 
     def bind(self, env) -> SB3Policy:
         """Check that ``env`` gives the observations the model was trained on and remember the

@@ -29,7 +29,6 @@ CLEARANCE = 0.004  # m between footprints
 GAP_RANGE = (0.03, 0.15)  # distance (m) of a distractor's centre from the target's
 SETTLE_TIME = 0.3  # s of physics after placement, arm at home
 PENETRATION_TOL = 0.002  # m; deeper contacts between two objects after settling: drawn again
-MAX_TILT_DEG = 45.0
 _RES = 0.001  # m per pixel of the footprint raster
 _LAYOUT_TRIES = 20
 _TRIES_PER_RING = 5  # failed layouts before the ring of distractors widens

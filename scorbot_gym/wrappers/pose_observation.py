@@ -31,7 +31,7 @@ adds them to ``info["perception"]`` as well.
 
 from __future__ import annotations
 
-import os
+import dataclasses
 import time
 from collections.abc import Sequence
 from typing import Any
@@ -39,13 +39,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
 
 from pose.camera import CameraModel
 from pose.metrics import add_s, rotation_error_deg
 from scorbot_gym.envs.arguments import name_list
+from scorbot_gym.envs.worker import built_or_failed
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.neighbours import MAX_NEIGHBOUR_POINTS, pack_points
+from scorbot_gym.perception.references import spec_kwargs
 from scorbot_gym.perception.registry import make_pose_source
 from scorbot_gym.sim.simulation import quat_to_mat
 
@@ -81,6 +84,12 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
     neighbours
         Add ``neighbour_points`` and ``neighbour_valid``: the source must answer
         ``neighbours(frame)`` (the oracle family and the clutter sources do).
+    source_not_recorded
+        Set by the env's spec only, where the source's arguments could not be recorded (an
+        object other than a model set): re-making from that spec raises this reason.
+
+    The env's spec names the source and its arguments as plain data, a model set by its file
+    (:mod:`scorbot_gym.perception.references`), so ``gym.make(env.spec)`` rebuilds the env.
     """
 
     def __init__(
@@ -96,20 +105,20 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         keep_images: bool = False,
         timings_in_info: bool = False,
         neighbours: bool = False,
+        source_not_recorded: str | None = None,
         **source_kwargs: Any,
     ) -> None:
-        # The spec records how to rebuild the wrapper: the registered name and the plain
-        # arguments a source was made with (by us or by make_pose_source: a model file's path,
-        # say); an object argument (a loaded model set) is left out, as deep-copying the spec
-        # would copy the model.
-        if not isinstance(source, str):
-            name, made_with = getattr(source, "made_from", (getattr(source, "name", None), {}))
-            source_kwargs_recorded = {k: v for k, v in made_with.items() if _is_plain(v)}
-        else:
-            name, source_kwargs_recorded = source, {}
+        # The spec records how to rebuild the wrapper (gym.make(env.spec), check_env): these
+        # arguments, and the source's name and arguments as plain data, added when the spec is
+        # first asked for (a model set by its file: see the spec property).
+        if source_not_recorded is not None:
+            raise ValueError(
+                f"this env spec cannot rebuild its pose source: {source_not_recorded}; make "
+                "the env again with make_env(pose=NAME, pose_kwargs=...) of plain values, "
+                "model sets or model-file paths"
+            )
         gym.utils.RecordConstructorArgs.__init__(
             self,
-            source=name,
             estimate_every=estimate_every,
             rotation=rotation,
             include_class=include_class,
@@ -118,9 +127,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             keep_images=keep_images,
             timings_in_info=timings_in_info,
             neighbours=neighbours,
-            **source_kwargs_recorded,
-            **{k: v for k, v in source_kwargs.items() if _is_plain(v)},
         )
+        self._made_with = (source, source_kwargs)
         gym.Wrapper.__init__(self, env)
         if isinstance(estimate_every, bool) or not isinstance(estimate_every, (int, np.integer)):
             raise ValueError(f"estimate_every must be an int >= 0, got {estimate_every!r}")
@@ -132,11 +140,15 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
         if identity not in ("given", "recognize"):
             raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
-        if not isinstance(timings_in_info, bool):
-            raise ValueError(f"timings_in_info must be True or False, got {timings_in_info!r}")
+        for flag, value in (
+            ("timings_in_info", timings_in_info),
+            ("neighbours", neighbours),
+            ("include_class", include_class),
+            ("keep_images", keep_images),
+        ):
+            if not isinstance(value, bool):
+                raise ValueError(f"{flag} must be True or False, got {value!r}")
         self.timings_in_info = timings_in_info
-        if not isinstance(neighbours, bool):
-            raise ValueError(f"neighbours must be True or False, got {neighbours!r}")
         #: the last step's wall-clock timings: ``{"total_ms", "timings_ms"}``, or ``None``
         self.perception_timings: dict[str, Any] | None = None
         self.source = make_pose_source(source, **source_kwargs)
@@ -191,6 +203,25 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
         self._age, self._last_valid, self._t = MAX_AGE, False, 0
         self._cameras: dict = {}
         self._backgrounds: dict = {}
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """Gymnasium's spec of the wrapped env with this wrapper: its arguments and the pose
+        source's, as plain data (a model set by its file; one that lives only in memory is
+        written to the cache, by content, when the spec is first asked for), remade by
+        :func:`remake_pose_observation` (in a vector-env worker its error reaches the main
+        process: a model file deleted since, say)."""
+        spec = super().spec
+        if spec is None or spec.additional_wrappers[-1].entry_point == _REMAKE:
+            return spec
+        name, recorded, not_recorded = _recordable_source(*self._made_with)
+        last = spec.additional_wrappers[-1]
+        kwargs = {"source": name, **last.kwargs, **recorded}
+        if not_recorded:
+            kwargs["source_not_recorded"] = not_recorded
+        last = dataclasses.replace(last, entry_point=_REMAKE, kwargs=kwargs)
+        spec.additional_wrappers = (*spec.additional_wrappers[:-1], last)
+        return spec
 
     # --- gym API -----------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -367,11 +398,40 @@ def _score_blobs(details: dict, info: dict, camera: CameraModel | None) -> dict[
     return out
 
 
-def _is_plain(value: Any) -> bool:
-    """Whether a constructor argument is plain data (safe and cheap to deep-copy)."""
-    if isinstance(value, (str, int, float, bool, type(None), os.PathLike)):
-        return True
-    return isinstance(value, (list, tuple)) and all(_is_plain(v) for v in value)
+_REMAKE = f"{__name__}:remake_pose_observation"
+
+
+def remake_pose_observation(env: gym.Env, **kwargs: Any) -> gym.Env:
+    """``PoseEstimateObservation(env, **kwargs)``: how ``gym.make(spec)`` rebuilds the wrapper.
+    In a Gymnasium vector-env worker a failure is handed back as a stand-in env that raises it
+    in the main process (:mod:`scorbot_gym.envs.worker`), not as a broken pipe."""
+
+    def build() -> gym.Env:
+        try:
+            return PoseEstimateObservation(env, **kwargs)
+        except BaseException:
+            env.close()
+            raise
+
+    return built_or_failed(build)
+
+
+def _recordable_source(
+    source: str | PoseSource, source_kwargs: dict[str, Any]
+) -> tuple[str, dict[str, Any], str | None]:
+    """The source's registered name, its arguments as spec data, and why it cannot be
+    recorded (``None`` where it can)."""
+    if isinstance(source, str):
+        name, made_with = source, source_kwargs
+    elif getattr(source, "made_from", None) is None:  # built by hand, not by make_pose_source
+        name = getattr(source, "name", None) or type(source).__name__
+        return name, {}, f"it is a {type(source).__name__} object built outside make_pose_source"
+    else:
+        name, made_with = source.made_from
+    recorded, left_out = spec_kwargs(made_with)
+    if left_out:
+        return name, recorded, f"{name!r} was made with objects as {', '.join(left_out)}"
+    return name, recorded, None
 
 
 # Stages a pose source reports at top level, and the wrapper's "neighbours" (the other objects,
