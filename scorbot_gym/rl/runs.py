@@ -4,7 +4,9 @@ A run folder (``scorbot-gym train --out DIR``)::
 
     config.json        the TrainConfig, hyperparameters resolved
     hyperparams.yml    the resolved hyperparameters and how they map onto SB3 (read-only record)
-    monitor/           SB3 Monitor CSVs, one per env (env_0.monitor.csv, ...)
+    monitor/           SB3 Monitor CSVs, one per env and segment (env_0.monitor.csv, ...;
+                       a resumed run adds env_0.resume1.monitor.csv, ...), and
+                       evaluations.npz (the evaluations, as SB3's EvalCallback writes them)
     checkpoint/        model.zip, replay_buffer.pkl, vecnormalize.pkl, state.json
     policy/            the last exported policy (model.zip, policy.json, normalize.npz)
     best/              the policy of the best evaluation so far (latest among equals)
@@ -28,6 +30,7 @@ STATE = "state.json"
 POLICY = "policy"
 BEST = "best"
 MONITOR = "monitor"
+EVALUATIONS = "evaluations.npz"  # in MONITOR, beside the CSVs
 TENSORBOARD = "tb"
 #: what a run writes besides config.json (removed when a run that never checkpointed restarts)
 ARTEFACTS = (HYPERPARAMS, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
@@ -88,6 +91,7 @@ __all__ = [
     "BEST",
     "CHECKPOINT",
     "CONFIG",
+    "EVALUATIONS",
     "HYPERPARAMS",
     "MONITOR",
     "POLICY",
