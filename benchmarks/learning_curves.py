@@ -45,6 +45,8 @@ def _positive(text: str) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--arm", type=_arm, action="append", required=True, help="LABEL=DIR[,DIR...]"
@@ -59,8 +61,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--timesteps", type=_positive, default=3000, help="with --train")
     parser.add_argument("--eval-every", type=_positive, default=1000, help="with --train")
     parser.add_argument("--eval-episodes", type=_positive, default=10, help="with --train")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/learning_curves.json"))
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON, the PNG beside it (default: runs/learning_curves-<time>/)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("learning_curves", args.overwrite).path(
+            args.out, "learning_curves.json", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     arms = dict(args.arm)
     if args.train:
         unknown = sorted(set(arms) - set(PRESETS))
@@ -115,6 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             "scorbot_gym": scorbot_gym.__version__,
         },
     }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out, report)
     plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
     for label, arm in report["arms"].items():

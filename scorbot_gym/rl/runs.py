@@ -4,6 +4,7 @@ A run folder (``scorbot-gym train --out DIR``)::
 
     config.json        the TrainConfig, hyperparameters resolved
     hyperparams.yml    the resolved hyperparameters and how they map onto SB3 (read-only record)
+    conf.yml           the user's --conf hyperparameter file, as given (if one was)
     monitor/           SB3 Monitor CSVs, one per env and segment (env_0.monitor.csv, ...;
                        a resumed run adds env_0.resume1.monitor.csv, ...), and
                        evaluations.npz (the evaluations, as SB3's EvalCallback writes them)
@@ -24,6 +25,7 @@ from typing import Any
 
 CONFIG = "config.json"
 HYPERPARAMS = "hyperparams.yml"
+CONF = "conf.yml"
 SEEDS = "seeds.json"
 CHECKPOINT = "checkpoint"
 STATE = "state.json"
@@ -33,7 +35,7 @@ MONITOR = "monitor"
 EVALUATIONS = "evaluations.npz"  # in MONITOR, beside the CSVs
 TENSORBOARD = "tb"
 #: what a run writes besides config.json (removed when a run that never checkpointed restarts)
-ARTEFACTS = (HYPERPARAMS, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
+ARTEFACTS = (HYPERPARAMS, CONF, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
 CHECKPOINTS = ("best", "last")
 
 
@@ -90,6 +92,7 @@ __all__ = [
     "ARTEFACTS",
     "BEST",
     "CHECKPOINT",
+    "CONF",
     "CONFIG",
     "EVALUATIONS",
     "HYPERPARAMS",

@@ -720,16 +720,39 @@ def _limit_threads(n: int) -> None:
         th.set_num_threads(n)
 
 
-def _hyperparams_record(config: TrainConfig) -> bytes:
-    """``hyperparams.yml``: the resolved set, where it came from, and SB3's schedule."""
+def _hyperparams_record(config: TrainConfig, conf: dict[str, Any] | None = None) -> bytes:
+    """``hyperparams.yml``: the resolved set, where it came from (the user's ``--conf`` file,
+    copied beside it, if any), and SB3's schedule."""
     record = {
         "algo": config.algo,
         "setting": hparams.setting_for(config.residual, config.finetune),
+        **({"conf": conf} if conf else {}),
         "n_envs": config.n_envs,
         "hyperparams": config.hyperparams,
         "sb3": config.schedule(),
     }
     return yaml.safe_dump(record, sort_keys=False).encode()
+
+
+def _read_conf(path: str | Path | None, config: TrainConfig) -> tuple[bytes, dict] | None:
+    """The user's hyperparameter file as given (bytes, to copy into the run folder) and its
+    record, read before anything is written; ``config`` must already hold its values."""
+    if path is None:
+        return None
+    from scorbot_gym.rl.provenance import file_sha256
+
+    setting = hparams.setting_for(config.residual, config.finetune)
+    entry = hparams.load_user_file(path, config.algo, setting)  # one-line errors
+    differ = sorted(k for k, v in entry.items() if config.hyperparams.get(k) != v)
+    overridden = {k: config.hyperparams.get(k) for k in differ}
+    record = {
+        "file": str(path),
+        "copy": runs.CONF,
+        "sha256": file_sha256(path),
+        "entry": setting,
+        **({"overridden_by_hyperparams": overridden} if overridden else {}),
+    }
+    return Path(path).read_bytes(), record
 
 
 def _prepare_fresh(out: Path) -> None:
@@ -749,14 +772,19 @@ def _prepare_fresh(out: Path) -> None:
         (out / runs.CONFIG).unlink()
 
 
-def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
+def train(
+    config: TrainConfig, out: str | Path, hyperparams_file: str | Path | None = None
+) -> dict[str, Any]:
     """Train from scratch into ``out``; returns the state.
 
     Every setting is checked and the envs and model are built before ``config.json`` is
-    written, so a refused run leaves no half-made run folder behind.
+    written, so a refused run leaves no half-made run folder behind. ``hyperparams_file``:
+    the user's ``--conf`` file whose values ``config.hyperparams`` holds, copied into the run
+    folder (``conf.yml``) and recorded in ``hyperparams.yml``.
     """
     config = config.validate().resolved()
     check_pose_model(config)
+    conf = _read_conf(hyperparams_file, config)
     out = Path(out)
     _prepare_fresh(out)
     _limit_threads(config.torch_threads)
@@ -772,7 +800,9 @@ def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
     run = _Run(config, out, model, venv, state)
     try:
         atomic_write_json(out / runs.CONFIG, config.to_json())
-        atomic_write_bytes(out / runs.HYPERPARAMS, _hyperparams_record(config))
+        if conf is not None:
+            atomic_write_bytes(out / runs.CONF, conf[0])
+        atomic_write_bytes(out / runs.HYPERPARAMS, _hyperparams_record(config, conf and conf[1]))
         if config.bc_demos:
             run.state["demos"] = _seed_with_demos(run)
         run.save(model)  # resumable from here on
@@ -782,9 +812,15 @@ def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
     return run.state
 
 
-def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[str, Any]:
+def train_seeds(
+    config: TrainConfig,
+    out: str | Path,
+    seeds: list[int],
+    hyperparams_file: str | Path | None = None,
+) -> dict[str, Any]:
     """Train ``config`` once per seed, one after another, into ``out/seed_<s>/``; ``seeds.json``
     records the seeds and the configuration, so :func:`resume` continues all of them.
+    ``hyperparams_file`` as for :func:`train` (copied into every seed's folder).
     Returns ``{"seeds": {seed: state}}``."""
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
@@ -798,12 +834,17 @@ def train_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> dict[
     if (out / runs.SEEDS).is_file() or (out / runs.CONFIG).is_file() or runs.seed_runs(out):
         raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
+    _read_conf(hyperparams_file, config)  # a bad file fails before seeds.json is written
     atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-    return {"seeds": _train_seeds(config, out, seeds)}
+    return {"seeds": _train_seeds(config, out, seeds, hyperparams_file=hyperparams_file)}
 
 
 def _train_seeds(
-    config: TrainConfig, out: Path, seeds: list[int], progress_bar: bool | None = None
+    config: TrainConfig,
+    out: Path,
+    seeds: list[int],
+    progress_bar: bool | None = None,
+    hyperparams_file: str | Path | None = None,
 ) -> dict[int, dict]:
     states = {}
     for seed in seeds:
@@ -811,7 +852,7 @@ def _train_seeds(
         if runs.has_checkpoint(run):
             states[seed] = resume(run, timesteps=config.timesteps, progress_bar=progress_bar)
         else:
-            states[seed] = train(dataclasses.replace(config, seed=seed), run)
+            states[seed] = train(dataclasses.replace(config, seed=seed), run, hyperparams_file)
     return states
 
 
