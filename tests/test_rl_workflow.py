@@ -159,8 +159,12 @@ def test_the_learning_curves_benchmark_reads_run_folders(two_seeds, tmp_path, ca
     assert report["arms"]["sac"]["seeds"] == [0, 1]
     assert out.with_suffix(".png").is_file()
     with pytest.raises(SystemExit) as exc:
-        bench(["--arm", f"sac={tmp_path / 'none'}", "--out", str(out)])
+        bench(["--arm", f"sac={tmp_path / 'none'}", "--out", str(tmp_path / "other.json")])
     assert exc.value.code == 2 and "no run folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # a result that exists is replaced only if asked
+        bench(["--arm", f"sac={two_seeds}", "--out", str(out)])
+    assert exc.value.code == 2 and "add --overwrite" in capsys.readouterr().err
+    assert bench(["--arm", f"sac={two_seeds}", "--out", str(out), "--overwrite"]) == 0
 
 
 def test_updates_per_env_step_do_not_depend_on_n_envs():
