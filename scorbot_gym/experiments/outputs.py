@@ -92,4 +92,11 @@ def companion(path: Path, suffix: str) -> Path:
     return Path(path).with_suffix(suffix)
 
 
-__all__ = ["RUNS_ROOT", "Outputs", "add_overwrite_option", "companion", "fresh_run_folder"]
+__all__ = [
+    "RUNS_ROOT",
+    "Outputs",
+    "add_overwrite_option",
+    "companion",
+    "fresh_run_folder",
+    "refuse_existing",
+]
