@@ -561,8 +561,8 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=Path,
         default=None,
-        help="where to write (default: runs/tilted_in_loop-<time>/tilted_in_loop.json; an existing "
-        "file is refused without --overwrite)",
+        help="where to write (default: runs/tilted_in_loop-<time>/tilted_in_loop.json); an "
+        "existing file is updated (its other sections and arms kept) only with --overwrite",
     )
     add_overwrite_option(ap)
     ap.add_argument("--section", default=None, help="key of the JSON to write (default: part)")
