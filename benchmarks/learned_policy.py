@@ -141,7 +141,18 @@ def main(argv: list[str] | None = None) -> None:
         else:
             args.out = outputs.path(args.out, "policy", "--out")
         args.json = outputs.path(args.json, "learned_policy.json", "--json")
-    except ValueError as exc:
+        demos = None
+        if args.dataset and not args.skip_training:
+            from scorbot_gym.rl.datasets import read_dataset
+
+            demos = read_dataset(args.dataset)
+            have = demos.settings.get("action_type", "cartesian")
+            if have != "cartesian":
+                raise ValueError(
+                    f"--dataset {args.dataset} holds {have} actions; this benchmark trains "
+                    "the cartesian env (record it with scorbot-gym demos --action-type cartesian)"
+                )
+    except (ValueError, FileNotFoundError) as exc:
         p.error(str(exc))
 
     from pose.fileio import atomic_write_json
@@ -167,11 +178,6 @@ def main(argv: list[str] | None = None) -> None:
                 stall_steps=args.stall_steps,
             ),
         )
-        demos = None
-        if args.dataset:
-            from scorbot_gym.rl.datasets import read_dataset
-
-            demos = read_dataset(args.dataset)
         envs = make_learner_envs(config)
         try:
             policy, _ = train_imitation(envs, config, demos, progress=print)

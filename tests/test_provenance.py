@@ -295,3 +295,19 @@ def test_learned_policy_benchmark_never_replaces_the_shipped_policy(tmp_path, mo
     meta = json.loads((run / "policy" / "policy.json").read_text())
     assert meta["provenance"]["command"] == sys.argv
     assert provenance.folder_sha256(SHIPPED_LEARNED_POLICY) == before
+
+
+def test_learned_policy_benchmark_refuses_a_joint_dataset_while_parsing(
+    tmp_path, monkeypatch, capsys
+):
+    from scorbot_gym.rl.datasets import record_demonstrations
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    monkeypatch.chdir(tmp_path)
+    record_demonstrations("scorbot/joint-v0", episodes=1, env_id="ScorbotGrasp-v0", objects=["box"])
+    bench = runpy.run_path(str(ROOT / "benchmarks" / "learned_policy.py"), run_name="t")["main"]
+    with pytest.raises(SystemExit) as exc:
+        bench(["--dataset", "scorbot/joint-v0"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exc.value.code == 2 and "holds joint actions" in err
+    assert not (tmp_path / "runs").exists(), "refused before anything was written"
