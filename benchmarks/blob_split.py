@@ -36,7 +36,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import numpy as np  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 MIN_VISIBLE = 100  # px of an object inside a component for it to count as held by it
 GOOD_IOU = 0.7
 
@@ -79,8 +78,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--scenes", type=int, default=200, help="seeded tables (one per seed)")
     ap.add_argument("--seed", type=int, default=7000, help="first table's seed")
     ap.add_argument("--distractors", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=RESULTS / "blob_split.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/blob_split-<time>/blob_split.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("blob_split", args.overwrite).path(
+            args.out, "blob_split.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.scenes < 1 or args.distractors < 1:
         ap.error("--scenes and --distractors must be >= 1")
 

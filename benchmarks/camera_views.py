@@ -17,8 +17,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--object", default="tomato_soup_can")
     parser.add_argument("--seed", type=int, default=4)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/cameras.png"))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/camera_views-<time>/cameras.png; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("camera_views", args.overwrite).path(args.out, "cameras.png", "--out")
+    except ValueError as exc:
+        parser.error(str(exc))
 
     import cv2
     import numpy as np

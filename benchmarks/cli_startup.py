@@ -126,7 +126,16 @@ def time_preload(runs: int) -> dict:
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=5, help="fresh processes per command (median)")
-    ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/cli_startup.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/cli_startup-<time>/cli_startup.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     ap.add_argument(
         "--baseline",
         type=Path,
@@ -140,6 +149,12 @@ def main(argv: list[str] | None = None) -> dict:
         help="time the GL preload only (e.g. in a venv with the CUDA build of torch and triton)",
     )
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("cli_startup", args.overwrite).path(
+            args.out, "cli_startup.json", "--out"
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     commands = []
     # the baseline interleaved, command by command: both see the same machine load
     for command in () if args.preload_only else COMMANDS:

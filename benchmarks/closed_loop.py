@@ -121,6 +121,16 @@ def _plot(report: dict, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def _out(parser: argparse.ArgumentParser, args: argparse.Namespace, name: str) -> Path:
+    """``--out``, or ``name`` in a new runs/ folder; an existing file needs --overwrite."""
+    from scorbot_gym.experiments.outputs import Outputs
+
+    try:
+        return Outputs("closed_loop", args.overwrite).path(args.out, name, companions=[".png"])
+    except ValueError as exc:
+        parser.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--episodes", type=int, default=220, help="episodes per main arm")
@@ -134,7 +144,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--quick", action="store_true", help="a few episodes, to check it runs")
     parser.add_argument(
-        "--out", type=Path, default=None, help="default: benchmarks/results/closed_loop.json"
+        "--out",
+        type=Path,
+        default=None,
+        help="default: runs/closed_loop-<time>/closed_loop.json (or "
+        "closed_loop_perturbations.json); an existing file is refused without --overwrite",
+    )
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace --out (and its PNG) if it exists"
     )
     parser.add_argument("--progress", action="store_true")
     parser.add_argument(
@@ -165,9 +182,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge is not None:
         return _merge(parser, args)
     labels = _perturbation_labels(parser, args)
-    if args.out is None:
-        stem = "closed_loop_perturbations" if labels else "closed_loop"
-        args.out = Path("benchmarks/results") / f"{stem}.json"
+    stem = "closed_loop_perturbations" if labels else "closed_loop"
+    args.out = _out(parser, args, f"{stem}.json")
     if args.quick:
         args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
         args.eye_in_hand_episodes = 2
@@ -336,7 +352,7 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
     twice = sorted({k for k in labels if labels.count(k) > 1})
     if twice:
         parser.error(f"--merge: arms in more than one part: {twice}")
-    out = args.out or Path("benchmarks/results") / f"{kind}.json"
+    out = args.out = _out(parser, args, f"{kind}.json")
     report = {k: v for k, v in parts[0].items() if k in ("benchmark", *same)}
     report["pose_model_ready_s"] = max(p["pose_model_ready_s"] for p in parts)
     if kind == "closed_loop_perturbations":

@@ -35,7 +35,6 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-RESULTS = Path(__file__).resolve().parent / "results"
 CONTROLLERS = ("blind", "aware")
 CHUNK = 10
 HIDDEN = ("neighbour_points", "neighbour_valid")
@@ -138,8 +137,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=5000, help="first episode's seed")
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "clutter_approach.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/clutter_approach-<time>/clutter_approach.json; an "
+        "existing file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("clutter_approach", args.overwrite).path(
+            args.out, "clutter_approach.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.episodes < 1 or args.jobs < 1 or args.distractors < 1:
         ap.error("--episodes, --jobs and --distractors must be >= 1")
     from pose.fileio import atomic_write_json

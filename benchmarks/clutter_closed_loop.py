@@ -48,7 +48,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # one core per worker: the per-estimate times are 1-core
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-RESULTS = Path(__file__).resolve().parent / "results"
 ARMS = ("oracle", "manifold_clutter", "largest_blob", "random_blob")
 CHUNK = 10  # episodes per task
 # (distractors, arm, figure, bound, "min"|"max"): the targets (2 distractors)
@@ -201,7 +200,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=5000, help="first episode's seed")
     ap.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
     ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
-    ap.add_argument("--out", type=Path, default=None, help="JSON path (the PNG goes beside it)")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="JSON path, the PNG beside it (default: runs/clutter_closed_loop-<time>/"
+        "clutter_closed_loop.json); an existing file is refused without --overwrite",
+    )
+    ap.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
     ap.add_argument(
         "--splitter",
@@ -224,6 +230,15 @@ def main(argv: list[str] | None = None) -> int:
         "many times an episode (default 0)",
     )
     args = ap.parse_args(argv)
+    from scorbot_gym.experiments.outputs import Outputs
+
+    name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
+    try:  # before any work: an existing file is not replaced unless asked
+        out = Outputs("clutter_closed_loop", args.overwrite).path(
+            args.out, name, companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.episodes < 1 or args.jobs < 1 or any(k < 0 for k in args.distractors):
         ap.error("--episodes and --jobs must be >= 1, --distractors >= 0")
     if args.regrasps < 0:
@@ -289,8 +304,6 @@ def main(argv: list[str] | None = None) -> int:
     for t in report["targets"]:
         print(f"target {t['figure']} {t['kind']} {t['bound']}: {t['value']} "
               f"({'met' if t['met'] else 'NOT met'})")  # fmt: skip
-    name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
-    out = args.out or RESULTS / name
     atomic_write_json(out, report)
     plot(report, out.with_suffix(".png"))
     print(f"written {out} and {out.with_suffix('.png')}")

@@ -29,13 +29,16 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-#: the first evaluation seed: the shipped imitation policy's demonstrations were seeds 0-199, its
-#: DAgger and every training run's evaluations start at 1,000,000; 50000-50199 are also the
+#: the first evaluation seed: the start of the test range (scorbot_gym.seeds.TEST), which no
+#: training seed range overlaps (the shipped imitation policies, trained before those ranges,
+#: used demonstration seeds 0-199 and DAgger seeds from 1,000,000); 50000-50199 are also the
 #: seeds of benchmarks/finetune.py, so the two reports agree arm for arm
-EVAL_SEED = 50_000
+EVAL_SEED = 50_000  # scorbot_gym.seeds.TEST.start (not imported: --help stays fast)
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--policies",
@@ -54,11 +57,23 @@ def main(argv: list[str] | None = None) -> int:
         "--poses", default="oracle", help="oracle, manifold and/or chance (besides --noise)"
     )
     parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/compare.json"))
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON, the PNG beside it (default: runs/compare-<time>/compare.json)",
+    )
+    add_overwrite_option(parser)
     parser.add_argument(
         "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
     )
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("compare", args.overwrite).path(
+            args.out, "compare.json", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
@@ -83,6 +98,7 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs,
         "scorbot_gym": scorbot_gym.__version__,
     }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out, report)
     plot_comparison(report, args.out.with_suffix(".png"))
     print(format_report(report))

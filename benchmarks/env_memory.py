@@ -139,10 +139,23 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--resets", type=int, default=300, help="steady-state resets per config")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path(__file__).parent / "results/env_memory.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/env_memory-<time>/env_memory.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(p)
     p.add_argument("--label", default="", help="what code was measured (stored in the JSON)")
     p.add_argument("--worker", choices=sorted(CONFIGS), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("env_memory", args.overwrite).path(args.out, "env_memory.json", "--out")
+    except ValueError as exc:
+        p.error(str(exc))
     if args.resets < 1:
         p.error(f"--resets must be >= 1, got {args.resets}")
     if args.worker:

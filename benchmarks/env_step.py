@@ -257,8 +257,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--image-steps", type=int, default=200, help="timed steps with images")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--cpu", type=int, default=0, help="core to pin to")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/env_step.json"))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/env_step-<time>/env_step.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("env_step", args.overwrite).path(
+            args.out, "env_step.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.steps < 1 or args.image_steps < 1 or args.repeats < 1:
         parser.error("--steps, --image-steps and --repeats must be >= 1")
     if hasattr(os, "sched_setaffinity"):

@@ -15,7 +15,9 @@ stage's from its policy.json) and the fine-tune's evaluation curve.
     python benchmarks/finetune.py --timesteps 50000 --seeds 0,1,2 --jobs 16   # a big machine
     python benchmarks/finetune.py --skip-training --runs runs/finetune   # evaluate runs again
 
-Writes ``benchmarks/results/<--name>.json`` and ``.png`` (default ``finetune``).
+Writes ``--out`` (JSON) and the ``.png`` beside it, by default ``finetune.json`` in a new
+``runs/finetune-<UTC time>/``; a named file that exists is refused unless ``--overwrite``
+(the committed record: ``--out benchmarks/results/finetune.json --overwrite``).
 """
 
 from __future__ import annotations
@@ -28,7 +30,6 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-RESULTS = Path(__file__).parent / "results"
 ARM_IMITATION, ARM_SCRIPTED = "learned", "scripted"
 
 
@@ -165,7 +166,9 @@ def _plot(report: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym import seeds
     from scorbot_gym.cli._args import non_negative_float, positive_int, seed_list
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option, companion
     from scorbot_gym.rl import hyperparams as hparams
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -188,7 +191,7 @@ def main(argv: list[str] | None = None) -> None:
         "can keep as best)",
     )
     p.add_argument("--episodes", type=positive_int, default=200, help="test episodes per arm")
-    p.add_argument("--eval-seed", type=int, default=50_000)
+    p.add_argument("--eval-seed", type=int, default=seeds.TEST.start)
     p.add_argument(
         "--noise", nargs="*", default=["0:20", "0.02:0"], help="pose-noise levels S:Y tested"
     )
@@ -200,7 +203,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--jobs", type=positive_int, default=1)
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"))
     p.add_argument("--skip-training", action="store_true", help="evaluate the runs in --runs")
-    p.add_argument("--name", default="finetune", help="results file stem")
+    p.add_argument("--out", type=Path, default=None, help="results JSON (the PNG goes beside it)")
+    add_overwrite_option(p)
     args = p.parse_args(argv)
 
     from pose.fileio import atomic_write_json
@@ -215,6 +219,9 @@ def main(argv: list[str] | None = None) -> None:
         for arm in arms:
             resolve_arm(arm)
         configs = _configs(args, hparams.parse_overrides(args.hyperparams))
+        out_json = Outputs("finetune", args.overwrite).path(
+            args.out, "finetune.json", companions=[".png"]
+        )
     except (ValueError, FileNotFoundError) as exc:
         p.error(str(exc))
     t0 = time.perf_counter()
@@ -263,9 +270,9 @@ def main(argv: list[str] | None = None) -> None:
         "evaluation_wall_s": round(report["wall_s"], 1),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
-    RESULTS.mkdir(exist_ok=True)
-    atomic_write_json(RESULTS / f"{args.name}.json", out)
-    _plot(out, RESULTS / f"{args.name}.png")
+    out_json.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out_json, out)
+    _plot(out, companion(out_json, ".png"))
     for d in diffs:
         print(
             f"{d['pose']:>14} {d['a']} - imitation: {100 * d['diff']:+.1f} points "
@@ -275,7 +282,7 @@ def main(argv: list[str] | None = None) -> None:
     for r in out["evaluation"]["results"]:
         lo, hi = r["ci95"]
         print(f"{r['pose']:>14} {r['policy']:>14}: {r['success_rate']:.1%} [{lo:.1%}, {hi:.1%}]")
-    print(f"results written to {RESULTS / args.name}.json / .png")
+    print(f"results written to {out_json} / {companion(out_json, '.png').name}")
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ The learned policy uses no scripted controller at test time (``policy.json`` say
 Records the training cost (wall time, demonstrations, env steps) next to the success rates.
 
     nice -n 5 python benchmarks/learned_policy.py [--demos 200] [--dagger-rounds 8]
-        [--dagger-episodes 80] [--episodes 110] [--out scorbot_gym/policies/data/...]
+        [--dagger-episodes 80] [--episodes 110] [--out DIR] [--json FILE] [--overwrite]
         [--dataset NAME]   # start from a Minari dataset from `scorbot-gym demos`
         [--poses oracle,noisy@0:20,noisy@0.02:0,manifold]   # what the learner observes
         [--init-policy learned]   # fine-tune the shipped policy instead of starting afresh
@@ -19,10 +19,14 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
 the policy learns to act on estimates (default: ``oracle``).
 
-Writes ``benchmarks/results/learned_policy.json`` and saves the policy folder (``--out``,
-default: the shipped ``imitation_dagger_estimates``, trained with
+Writes the policy folder (``--out``) and ``learned_policy.json`` (``--json``), by default both
+into a new ``runs/learned_policy-<UTC time>/``; a path named that exists is refused unless
+``--overwrite`` is given (the shipped ``imitation_dagger_estimates`` was trained with
 ``--poses oracle,manifold --pose-window 8 --dagger-rounds 4 --stall-steps 50
---expert-keeps-close``).
+--expert-keeps-close``; to replace it: ``--out scorbot_gym/policies/data/imitation_dagger_estimates
+--json benchmarks/results/learned_policy.json --overwrite``). ``--dataset NAME`` trains on a
+Minari dataset's demonstrations (its action type must be the env's, cartesian; the policy
+records the dataset's settings).
 """
 
 from __future__ import annotations
@@ -34,8 +38,6 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
-
-RESULTS = Path(__file__).parent / "results"
 
 
 def _evaluate(label: str, policy: str, episodes: int, seed: int) -> dict:
@@ -59,8 +61,9 @@ def _evaluate(label: str, policy: str, episodes: int, seed: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym import seeds
     from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
-    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--demos", type=positive_int, default=200)
@@ -77,7 +80,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--episodes", type=positive_int, default=110, help="evaluation episodes per policy"
     )
-    p.add_argument("--eval-seed", type=int, default=50_000)
+    p.add_argument("--eval-seed", type=int, default=seeds.TEST.start, help="first evaluation seed")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--dataset", default=None, help="Minari dataset of demonstrations")
     p.add_argument("--beta", type=non_negative_float, default=0.5, help="DAgger's first beta")
@@ -117,10 +120,40 @@ def main(argv: list[str] | None = None) -> None:
         default="oracle",
         help="comma-separated learner pose conditions: oracle, noisy@S[:Y[:D]], manifold",
     )
-    p.add_argument("--out", type=Path, default=SHIPPED_LEARNED_POLICY)
-    p.add_argument("--json", type=Path, default=RESULTS / "learned_policy.json")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="policy folder to write (default: runs/learned_policy-<time>/policy; with "
+        "--skip-training, the folder to evaluate)",
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="results (default: beside the policy folder)"
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
+    add_overwrite_option(p)
     args = p.parse_args(argv)
+    outputs = Outputs("learned_policy", args.overwrite)
+    try:  # before any work: a usage error, not a file replaced
+        if args.skip_training:
+            if args.out is None or not (Path(args.out) / "policy.json").is_file():
+                raise ValueError("--skip-training evaluates --out: name a policy folder")
+        else:
+            args.out = outputs.path(args.out, "policy", "--out")
+        args.json = outputs.path(args.json, "learned_policy.json", "--json")
+        demos = None
+        if args.dataset and not args.skip_training:
+            from scorbot_gym.rl.datasets import read_dataset
+
+            demos = read_dataset(args.dataset)
+            have = demos.settings.get("action_type", "cartesian")
+            if have != "cartesian":
+                raise ValueError(
+                    f"--dataset {args.dataset} holds {have} actions; this benchmark trains "
+                    "the cartesian env (record it with scorbot-gym demos --action-type cartesian)"
+                )
+    except (ValueError, FileNotFoundError) as exc:
+        p.error(str(exc))
 
     from pose.fileio import atomic_write_json
     from scorbot_gym.policies.imitation import HistorySpec, ImitationPolicy
@@ -145,11 +178,6 @@ def main(argv: list[str] | None = None) -> None:
                 stall_steps=args.stall_steps,
             ),
         )
-        demos = None
-        if args.dataset:
-            from scorbot_gym.rl.datasets import load_demonstrations
-
-            demos = load_demonstrations(args.dataset)
         envs = make_learner_envs(config)
         try:
             policy, _ = train_imitation(envs, config, demos, progress=print)
@@ -185,8 +213,12 @@ def main(argv: list[str] | None = None) -> None:
             )
         },
         "policy_size_kb": round(size_kb, 1),
+        "policy": str(args.out),
+        "trained_by": policy.meta.get("trained_by", "not recorded"),
+        "provenance": policy.meta.get("provenance", "not recorded"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.json, out)
     print(f"results written to {args.json}")
 

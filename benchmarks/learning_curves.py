@@ -76,6 +76,8 @@ def _gpu_name() -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--arm", type=_arm, action="append", required=True, help="LABEL=DIR[,DIR...]"
@@ -113,8 +115,20 @@ def main(argv: list[str] | None = None) -> int:
         metavar="KEY=VALUE",
         help="with --train: overrides on top of each preset's entry, e.g. buffer_size=100000",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/learning_curves.json"))
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON, the PNG beside it (default: runs/learning_curves-<time>/)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("learning_curves", args.overwrite).path(
+            args.out, "learning_curves.json", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     arms = dict(args.arm)
     if args.train:
         unknown = sorted(set(arms) - set(PRESETS))
@@ -191,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
             "scorbot_gym": scorbot_gym.__version__,
         },
     }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out, report)
     plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
     for label, arm in report["arms"].items():

@@ -13,11 +13,12 @@ pixel - state on the same episodes is what the explicit pose estimate buys.
     nice -n 5 python benchmarks/pixel_policy.py [--demos 400] [--dagger-rounds 3]
         [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--encoder nature|spatial_softmax]
         [--keypoints 32] [--episodes 200] [--eval-seed 50000]
-        [--jobs 3] [--out runs/pixel_policy] [--skip-training]
+        [--jobs 3] [--out DIR] [--json FILE] [--overwrite] [--skip-training]
 
 Training uses CUDA when available; ``--jobs`` also collects the training episodes in that many
-processes (the same episodes for any number). Writes ``benchmarks/results/pixel_policy.json`` (the
-policy folder goes to ``--out``, not into the package: its weights are ~4 MB).
+processes (the same episodes for any number). Writes the policy folder (``--out``, not into the
+package: its weights are ~4 MB) and ``pixel_policy.json`` (``--json``), by default both into a
+new ``runs/pixel_policy-<UTC time>/``; a named path that exists is refused without ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -31,7 +32,6 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-RESULTS = Path(__file__).parent / "results"
 CHUNK = 25  # episodes per evaluation job: the pixel arm renders, so it is split across jobs
 
 
@@ -129,7 +129,9 @@ def arm_record(name: str, results: list) -> dict:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from scorbot_gym import seeds
     from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
     from scorbot_gym.policies.pixel import ENCODERS
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -163,7 +165,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=positive_int, default=1, help="torch CPU threads")
     p.add_argument("--episodes", type=positive_int, default=200, help="evaluation episodes")
-    p.add_argument("--eval-seed", type=int, default=50_000)
+    p.add_argument("--eval-seed", type=int, default=seeds.TEST.start)
     p.add_argument(
         "--jobs",
         type=positive_int,
@@ -171,10 +173,29 @@ def main(argv: list[str] | None = None) -> None:
         help=f"processes for the training episodes and the evaluation ({CHUNK} episodes each)",
     )
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path("runs") / "pixel_policy")
-    p.add_argument("--json", type=Path, default=RESULTS / "pixel_policy.json")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="policy folder to write (default: runs/pixel_policy-<time>/policy; with "
+        "--skip-training, the folder to evaluate)",
+    )
+    p.add_argument(
+        "--json", type=Path, default=None, help="results (default: beside the policy folder)"
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
+    add_overwrite_option(p)
     args = p.parse_args(argv)
+    outputs = Outputs("pixel_policy", args.overwrite)
+    try:  # before any work: a usage error, not a file replaced
+        if args.skip_training:
+            if args.out is None or not (Path(args.out) / "policy.json").is_file():
+                raise ValueError("--skip-training evaluates --out: name a policy folder")
+        else:
+            args.out = outputs.path(args.out, "policy", "--out")
+        args.json = outputs.path(args.json, "pixel_policy.json", "--json")
+    except ValueError as exc:
+        p.error(str(exc))
 
     import torch
 
@@ -307,6 +328,7 @@ def main(argv: list[str] | None = None) -> None:
         },
         "command": " ".join(["python benchmarks/pixel_policy.py", *(argv or sys.argv[1:])]),
     }
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.json, out)
     print(f"results written to {args.json}")
 

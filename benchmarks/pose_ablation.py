@@ -57,7 +57,6 @@ from scorbot_gym.experiments.spec import (  # noqa: E402
     split_estimators,
 )
 
-RESULTS = Path(__file__).resolve().parent / "results"
 PROTOCOLS = ("side-turntable", "top-resting", "tilted", "sparse-headings")
 # The targets: (protocol, occlusion, figure, minimum), checked for every composition
 # of the pose-manifold estimator in the sweep (``manifold`` and its ``manifold-*`` variants).
@@ -195,7 +194,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS")
     ap.add_argument("--cache-dir", default=None)
-    ap.add_argument("--out-dir", default=str(RESULTS))
+    ap.add_argument(
+        "--out-dir",
+        default=None,
+        help="folder of the result files (default: a new runs/pose_ablation-<time>/); a result "
+        "file there that exists is refused without --overwrite",
+    )
+    ap.add_argument("--overwrite", action="store_true", help="replace existing result files")
     ap.add_argument("--suffix", default="", help="appended to the result file names")
     ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
                     help="only redraw each sweep JSON's PNG beside it (no sweep runs)")  # fmt: skip
@@ -243,6 +248,19 @@ def main(argv: list[str] | None = None) -> int:
         ]  # fmt: skip
     except ValueError as exc:
         ap.error(str(exc))
+    from scorbot_gym.experiments.outputs import Outputs, refuse_existing
+
+    if args.out_dir is None:
+        args.out_dir = str(Outputs("pose_ablation").folder)
+    elif not args.overwrite:
+        kind = "_perturbations" if labels else ""
+        stems = [Path(args.out_dir) / f"pose_ablation_{pr}{kind}{args.suffix}" for pr, _ in plan]
+        try:
+            refuse_existing(
+                [Path(f"{st}{ext}") for st in stems for ext in (".json.gz", ".png")], "--out-dir"
+            )
+        except ValueError as exc:
+            ap.error(str(exc))
     if args.ray is not None:
         runner = RayRunner(None if args.ray == "local" else args.ray, num_cpus=args.jobs)
     else:

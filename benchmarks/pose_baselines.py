@@ -42,7 +42,6 @@ from pose.registry import estimator_names, make_estimator  # noqa: E402
 from scorbot_gym.data.protocols import describe, held_out_views, train_views  # noqa: E402
 from scorbot_gym.objects import get_object  # noqa: E402
 
-RESULT = Path(__file__).resolve().parent / "results" / "pose_baselines.json"
 ESTIMATORS = (
     "chance", "least-squares", "pca-nn", "pca-rbf", "part-based", "n3m", "sift-pnp",
     "nearest-view", "manifold",
@@ -149,8 +148,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--width", type=int, default=320)
     ap.add_argument("--height", type=int, default=240)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", type=Path, default=RESULT)
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/pose_baselines-<time>/pose_baselines.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("pose_baselines", args.overwrite).path(
+            args.out, "pose_baselines.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.quick:
         args.objects, args.protocols = args.objects[:2], args.protocols[:1]
     unknown = sorted(set(args.estimators) - set(estimator_names()))

@@ -39,7 +39,6 @@ from scorbot_gym.experiments.latency import (  # noqa: E402
 )
 from scorbot_gym.experiments.trial import default_cache_dir, fitted_model  # noqa: E402
 
-RESULT = Path(__file__).resolve().parent / "results" / "pose_latency.json"
 TARGET_MS = 30.0
 L = ("manifold-pnp(keypoints__upscale=2, matcher__min_inliers=6, matcher__n_candidates=8, "
      "refiner__correspondences='ratio+global', refiner__keep_margin=0.0)")  # fmt: skip
@@ -76,8 +75,22 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2, help="processes fitting the models")
     ap.add_argument("--cache-dir", default=None,
                     help="an empty one times training from scratch, rendering too")  # fmt: skip
-    ap.add_argument("--json", default=str(RESULT))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--json",
+        default=None,
+        help="where to write (default: runs/pose_latency-<time>/pose_latency.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.json = Outputs("pose_latency", args.overwrite).path(
+            args.json, "pose_latency.json", "--json"
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     protocols = [p for p in args.protocols.split(",") if p]
     unknown = sorted(set(protocols) - set(protocol_names()))
     if unknown:

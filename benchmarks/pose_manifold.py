@@ -40,7 +40,6 @@ TARGETS = {
     "predict_ms": 30.0,
     "train_s": 600.0,
 }
-RESULT = Path(__file__).resolve().parent / "results" / "pose_manifold.json"
 
 
 def parse_params(items: list[str]) -> dict:
@@ -60,7 +59,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--occlusion", default="0,25,50,75")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--out", default=str(RESULT))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        default=None,
+        help="where to write (default: runs/pose_manifold-<time>/pose_manifold.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     ap.add_argument(
         "--params",
         nargs="*",
@@ -69,6 +76,12 @@ def main(argv: list[str] | None = None) -> int:
         help="estimator parameters for set_params, stage ones included (keypoints__upscale=2)",
     )
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("pose_manifold", args.overwrite).path(
+            args.out, "pose_manifold.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     try:
         params = parse_params(args.params)
     except ValueError as err:

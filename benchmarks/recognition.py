@@ -46,7 +46,6 @@ from scorbot_gym.perception.training import train_models
 from scorbot_gym.sim import Simulation
 from scorbot_gym.sim.scene import WORKSPACE_X, WORKSPACE_Y
 
-RESULTS = Path(__file__).resolve().parent / "results"
 LEVELS = (0.0, 0.25, 0.5, 0.75)
 MIN_PIXELS = 40
 
@@ -81,8 +80,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--objects", nargs="*", default=list(CATALOGUE))
     parser.add_argument("--per-object", type=int, default=20)
     parser.add_argument("--seed", type=int, default=1000)
-    parser.add_argument("--out", type=Path, default=RESULTS / "recognition.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/recognition-<time>/recognition.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("recognition", args.overwrite).path(
+            args.out, "recognition.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     cv2.setNumThreads(1)
     w, h = 320, 240
 

@@ -41,11 +41,25 @@ RUN_NAMES = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", type=Path, default=Path("runs"), help="run directories")
     parser.add_argument("--arms", nargs="+", choices=sorted(ARMS), default=list(ARMS))
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/rl_training.json"))
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="results JSON, the PNG beside it (default: runs/rl_training-<time>/rl_training.json)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("rl_training", args.overwrite).path(
+            args.out, "rl_training.json", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
 
     import matplotlib
 
@@ -87,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         "load_avg_1m_at_end": os.getloadavg()[0],
         "scorbot_gym": scorbot_gym.__version__,
     }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_write_json(args.out, report)
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)

@@ -58,7 +58,6 @@ from scorbot_gym.perception.segmenters import (
 from scorbot_gym.perception.training import train_models
 from scorbot_gym.policies import ScriptedGraspPolicy
 
-RESULTS = Path(__file__).resolve().parent / "results"
 CAMERAS = ("top", "side")
 
 
@@ -245,8 +244,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-timing", action="store_true", help="mask quality only (no stage timings)"
     )
-    parser.add_argument("--out", type=Path, default=RESULTS / "segmentation.json.gz")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/segmentation-<time>/segmentation.json.gz; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("segmentation", args.overwrite).path(
+            args.out, "segmentation.json.gz", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     cv2.setNumThreads(1)
     w, h = 320, 240
 

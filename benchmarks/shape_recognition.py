@@ -39,8 +39,6 @@ from pose.shape.evaluation import evaluate, plot_confusions, split_indices
 from pose.shape.flr import FLRClassifier
 from scorbot_gym.data.shapes import render_catalogue_silhouettes
 
-RESULTS = Path(__file__).resolve().parent / "results"
-
 
 def _accuracies(result: dict) -> dict[str, float]:
     return {k: v["accuracy"] for k, v in result["classifiers"].items()}
@@ -52,8 +50,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="rendering seed")
     parser.add_argument("--splits", type=int, default=3, help="split seeds for the headline")
     parser.add_argument("--scene-per-object", type=int, default=50)
-    parser.add_argument("--out", type=Path, default=RESULTS / "shape_recognition.json")
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/shape_recognition-<time>/shape_recognition.json; an "
+        "existing file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("shape_recognition", args.overwrite).path(
+            args.out, "shape_recognition.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
 
     t0 = time.perf_counter()
     data = render_catalogue_silhouettes(n_per_object=args.per_object, seed=args.seed)

@@ -24,7 +24,6 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-OUT = Path(__file__).resolve().parent / "results" / "table_support.json"
 THRESHOLDS_DEG = (3.0, 5.0, 8.0, 10.0)
 
 
@@ -109,8 +108,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tilts", type=float, nargs="+", default=[0.0, 10.0])
     ap.add_argument("--seed", type=int, default=1000, help="first seed of tilt 0 (+1000 a tilt)")
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--out", type=Path, default=OUT)
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/table_support-<time>/table_support.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(ap)
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("table_support", args.overwrite).path(
+            args.out, "table_support.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.episodes < 1 or args.jobs < 1 or any(t < 0 or t > 45 for t in args.tilts):
         ap.error("--episodes and --jobs must be >= 1, --tilts in [0, 45] degrees")
 

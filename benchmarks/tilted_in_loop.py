@@ -48,7 +48,6 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-OUT = Path(__file__).parent / "results" / "tilted_in_loop.json"
 #: what is fitted: label -> TrainingSet keyword arguments
 FITS = {
     "resting/manifold": {},  # the previous default
@@ -556,9 +555,24 @@ def main(argv: list[str] | None = None) -> int:
         "--arms", nargs="+", choices=list(LOOP_ARMS), default=list(DEFAULT_LOOP_ARMS),
         help="pose sources to run; the section's other arms of the same episodes are kept",
     )  # fmt: skip
-    ap.add_argument("--out", type=Path, default=OUT)
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/tilted_in_loop-<time>/tilted_in_loop.json); an "
+        "existing file is updated (its other sections and arms kept) only with --overwrite",
+    )
+    add_overwrite_option(ap)
     ap.add_argument("--section", default=None, help="key of the JSON to write (default: part)")
     args = ap.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("tilted_in_loop", args.overwrite).path(
+            args.out, "tilted_in_loop.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.jobs < 1 or getattr(args, "episodes", 1) < 1:
         ap.error("--jobs and --episodes must be >= 1")
     if any(not 0 <= t <= 45 for t in getattr(args, "tilts", [])):

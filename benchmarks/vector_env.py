@@ -359,8 +359,23 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="also async_cap-N for N above the cores and async_raster_thread-2",
     )
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vector_env.json"))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/vector_env-<time>/vector_env.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("vector_env", args.overwrite).path(
+            args.out, "vector_env.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.repeats < 1 or args.steps < 1 or args.image_steps < 1 or min(args.counts) < 1:
         parser.error("--repeats, --steps, --image-steps and --counts must be >= 1")
 

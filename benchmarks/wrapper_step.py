@@ -144,8 +144,23 @@ def main(argv: list[str] | None = None) -> int:
         "--train-steps", type=int, default=0, help="SAC env steps per throughput run (0: skip)"
     )
     parser.add_argument("--learning-starts", type=int, default=1000)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/wrapper_step.json"))
+    from scorbot_gym.experiments.outputs import Outputs, add_overwrite_option
+
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="where to write (default: runs/wrapper_step-<time>/wrapper_step.json; an existing "
+        "file is refused without --overwrite)",
+    )
+    add_overwrite_option(parser)
     args = parser.parse_args(argv)
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("wrapper_step", args.overwrite).path(
+            args.out, "wrapper_step.json", "--out", companions=[".png"]
+        )
+    except ValueError as exc:
+        parser.error(str(exc))
     if args.steps < 1 or args.repeats < 1 or args.train_steps < 0:
         parser.error("--steps and --repeats must be >= 1, --train-steps >= 0")
     if args.train_steps and not 0 < args.learning_starts < args.train_steps:

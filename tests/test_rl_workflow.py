@@ -165,8 +165,12 @@ def test_the_learning_curves_benchmark_reads_run_folders(two_seeds, tmp_path, ca
     assert report["arms"]["sac"]["seeds"] == [0, 1]
     assert out.with_suffix(".png").is_file()
     with pytest.raises(SystemExit) as exc:
-        bench(["--arm", f"sac={tmp_path / 'none'}", "--out", str(out)])
+        bench(["--arm", f"sac={tmp_path / 'none'}", "--out", str(tmp_path / "other.json")])
     assert exc.value.code == 2 and "no run folder" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # a result that exists is replaced only if asked
+        bench(["--arm", f"sac={two_seeds}", "--out", str(out)])
+    assert exc.value.code == 2 and "add --overwrite" in capsys.readouterr().err
+    assert bench(["--arm", f"sac={two_seeds}", "--out", str(out), "--overwrite"]) == 0
 
 
 def test_updates_per_env_step_do_not_depend_on_n_envs():
@@ -330,18 +334,21 @@ def test_resume_refuses_damaged_files_naming_them(one_run, tmp_path, damage, mes
         resume(run, timesteps=240)
 
 
-def test_resume_continues_appends_to_the_monitor_csv_and_clears_killed_writes(one_run, tmp_path):
+def test_resume_starts_a_monitor_segment_and_clears_killed_writes(one_run, tmp_path):
+    """A resumed run logs to a Monitor file of its own (its own header and t_start), so the
+    first segment's file is left as it was and SB3's ``load_results`` orders every episode by
+    time (tests/test_rl_zoo_habits.py checks the order)."""
     run = tmp_path / "run"
     shutil.copytree(one_run, run)
     csv = run / "monitor" / "env_0.monitor.csv"
-    before = csv.read_text().splitlines()
+    before = csv.read_text()
     orphan = run / "checkpoint" / ".model.tmp999.zip"  # what a write killed mid-way leaves
     orphan.write_bytes(b"half a zip")
     state = resume(run, timesteps=320)
     assert state["timesteps"] == 320 and [e["timesteps"] for e in state["eval"]][-1] == 320
-    after = csv.read_text().splitlines()
-    assert after[: len(before)] == before and len(after) > len(before)
-    assert after.count("r,l,t,is_success") == 1, "appended without a second header"
+    assert csv.read_text() == before
+    segment = (run / "monitor" / "env_0.resume1.monitor.csv").read_text().splitlines()
+    assert segment[0].startswith("#") and segment[1] == "r,l,t,is_success" and len(segment) > 2
     assert not orphan.exists()
 
 

@@ -123,7 +123,7 @@ def test_one_episode_per_arm_writes_the_documented_keys(bench, tmp_path):
     resting = PoseModelSet.load(bench["arm_models"]("resting", ("box",), 1, progress=False))
     assert isinstance(resting["box"], PoseManifoldEstimator)
     assert resting.meta["training"] == RESTING_TRAINING.to_dict()
-    assert bench["main"]([*common, "--arms", "oracle"]) == 0
+    assert bench["main"](["--overwrite", *common, "--arms", "oracle"]) == 0  # updates its file
     section = json.loads(out.read_text())["loop"]
     assert {a["label"] for a in section["arms"]} == {"chance", "resting", "oracle"}
     for arm in section["arms"]:

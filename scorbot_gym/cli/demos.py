@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scorbot_gym.cli._args import non_negative_float, positive_int
+from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +31,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="NAME",
         help="Minari dataset id, e.g. scorbot/grasp-oracle-v0",
     )
-    p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
+    p.add_argument(
+        "--seed",
+        type=non_negative_int,
+        default=None,
+        help="seed of the first episode (default: the start of the demonstration seeds, "
+        "scorbot_gym.seeds.DEMONSTRATIONS; a warning if they overlap an evaluation range)",
+    )
     p.add_argument(
         "--dart-sigma",
         type=non_negative_float,

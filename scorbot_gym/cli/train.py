@@ -36,6 +36,7 @@ _NEW_RUN_OPTIONS = (
     "bc_steps",
     "init_policy",
     "hyperparams_entry",
+    "conf",
     "hyperparams",
     "net_arch",
     "learning_starts",
@@ -84,7 +85,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Train into --out (config.json, hyperparams.yml, Monitor CSVs, checkpoints, "
         "TensorBoard logs, the last policy/ and the best/), or continue an interrupted run "
         "with --resume DIR. Hyperparameters come from the package's hyperparams/<algo>.yml "
-        "(entry 'residual' or 'default'), overridden by --hyperparams.",
+        "(entry 'residual' or 'default'), overridden by your --conf FILE.yml, then by "
+        "--hyperparams.",
     )
     p.add_argument("--algo", choices=hparams.ALGOS, default="sac")
     p.add_argument("--pose", choices=hparams.POSES, default="oracle", help="pose source")
@@ -171,6 +173,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--bc-steps", type=non_negative_int, default=2000, help="behaviour-cloning gradient steps"
     )
     p.add_argument(
+        "--conf",
+        type=_existing_file,
+        default=None,
+        metavar="FILE.yml",
+        help="your hyperparameter file, in the schema of the package's hyperparams/<algo>.yml "
+        "(an entry per setting: default, residual, finetune); the run's entry replaces the "
+        "package's values it names, --hyperparams overrides it; copied into the run folder",
+    )
+    p.add_argument(
         "--hyperparams",
         nargs="+",
         action=_Overrides,
@@ -242,6 +253,10 @@ def config_from_args(args: argparse.Namespace):
     if args.pose != "noisy" and (args.pos_sigma_m is not None or args.yaw_sigma_deg is not None):
         raise ValueError("--pos-sigma-m and --yaw-sigma-deg apply only to --pose noisy")
     noise = {"noise_pos_m": args.pos_sigma_m, "noise_yaw_deg": args.yaw_sigma_deg}
+    overrides = _overrides(args)
+    if args.conf is not None:
+        setting = hparams.setting_for(args.residual, args.init_policy is not None)
+        overrides = {**hparams.load_user_file(args.conf, args.algo, setting), **overrides}
     return TrainConfig(
         **{k: v for k, v in noise.items() if v is not None},
         algo=args.algo,
@@ -261,7 +276,7 @@ def config_from_args(args: argparse.Namespace):
         hyperparams_entry=args.hyperparams_entry,
         device=args.device or "auto",
         normalize=args.init_policy is None,  # a fine-tune uses the policy's own statistics
-        hyperparams=_overrides(args),
+        hyperparams=overrides,
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,
         checkpoint_every=args.checkpoint_every,
@@ -315,10 +330,13 @@ def run(args: argparse.Namespace) -> int:
         out, config = args.out, config_from_args(args)
         if args.parallel > 1 and not args.seeds:
             raise ValueError("--parallel runs several seeds: give --seeds S,S,...")
+        conf = args.conf
         if args.seeds:
-            state = train_seeds(config, out, args.seeds, processes=args.parallel)
+            state = train_seeds(
+                config, out, args.seeds, processes=args.parallel, hyperparams_file=conf
+            )
         else:
-            state = train(config, out)
+            state = train(config, out, hyperparams_file=conf)
     if "seeds" in state:  # a multi-seed folder
         for seed, seed_state in state["seeds"].items():
             print(f"seed {seed}: {_summary(seed_state)}")

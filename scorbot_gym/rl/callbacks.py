@@ -3,20 +3,24 @@
 Both keep their state in the run directory, so an interrupted run resumes with its learning
 curve intact (``state.json`` holds the evaluation history and the training wall time so far).
 Each evaluation is dumped to the logger (TensorBoard) at once, as SB3's ``EvalCallback`` does:
-otherwise the last ones would wait for a log dump that never comes.
+otherwise the last ones would wait for a log dump that never comes; and the whole history is
+written to ``evaluations.npz`` in the format of SB3's ``EvalCallback`` (see
+:func:`write_evaluations`), which RL Zoo's plotting scripts read.
 """
 
 from __future__ import annotations
 
+import io
 import os
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from pose.fileio import remove_orphaned_tmp
+from pose.fileio import atomic_write_bytes, remove_orphaned_tmp
 from scorbot_gym.evaluation.episodes import run_episodes
 from scorbot_gym.evaluation.summary import summarize
 
@@ -50,6 +54,8 @@ class SuccessEvalCallback(BaseCallback):
     (with the current normalisation statistics); ``env`` is a plain ``make_env`` env.
     ``on_best(model, record)`` is called after an evaluation at least as good as every earlier
     one (the latest among equals: it has trained longest), e.g. to export the best policy.
+    With ``npz_path``, the history is written there after every evaluation
+    (:func:`write_evaluations`).
     """
 
     def __init__(
@@ -62,12 +68,14 @@ class SuccessEvalCallback(BaseCallback):
         episodes: int,
         seed: int,
         on_best: Callable[[Any, dict], None] | None = None,
+        npz_path: Path | None = None,
     ) -> None:
         super().__init__()
         if every < 1 or episodes < 1:
             raise ValueError(f"every and episodes must be >= 1, got {every} and {episodes}")
         self.env, self.make_policy, self.history, self.clock = env, make_policy, history, clock
         self.every, self.episodes, self.seed, self.on_best = every, episodes, seed, on_best
+        self.npz_path = npz_path
         self._next = 0
 
     def _on_training_start(self) -> None:
@@ -98,9 +106,15 @@ class SuccessEvalCallback(BaseCallback):
             "mean_return": sum(r.total_reward for r in results) / len(results),
             "mean_steps_to_success": s["mean_steps_to_success"],
             "failure_causes": s["failure_causes"],
+            # per episode, for evaluations.npz
+            "returns": [round(float(r.total_reward), 6) for r in results],
+            "lengths": [int(r.steps) for r in results],
+            "successes": [bool(r.success) for r in results],
         }
         best = max((e["success_rate"] for e in self.history), default=-1.0)
         self.history.append(rec)
+        if self.npz_path is not None:
+            write_evaluations(self.npz_path, self.history)
         self.logger.record("eval/success_rate", rec["success_rate"])
         self.logger.record("eval/mean_reward", rec["mean_return"])  # SB3 EvalCallback's name
         self.logger.record("eval/wall_s", rec["wall_s"])
@@ -110,6 +124,36 @@ class SuccessEvalCallback(BaseCallback):
             self.on_best(self.model, rec)
         self._next = (self.num_timesteps // self.every + 1) * self.every
         return rec
+
+
+def write_evaluations(path: Path, history: list[dict]) -> None:
+    """``history`` as SB3's ``EvalCallback`` writes ``evaluations.npz`` (atomically):
+    ``timesteps`` (n,), ``results`` (n, episodes) episode returns, ``ep_lengths`` (n, episodes)
+    and ``successes`` (n, episodes). Records without per-episode data (written before this
+    file existed) are left out. When the number of episodes changed between evaluations
+    (``eval_episodes`` changed on resume) the shorter rows are padded with NaN (``results``,
+    ``ep_lengths``, ``successes`` then floats): use ``np.nanmean``."""
+    rows = [r for r in history if "returns" in r]
+    width = max((len(r["returns"]) for r in rows), default=0)
+    ragged = any(len(r["returns"]) != width for r in rows)
+
+    def table(key: str, dtype) -> np.ndarray:
+        if not ragged:
+            return np.array([r[key] for r in rows], dtype).reshape(len(rows), width)
+        out = np.full((len(rows), width), np.nan)
+        for i, r in enumerate(rows):
+            out[i, : len(r[key])] = r[key]
+        return out
+
+    buf = io.BytesIO()
+    np.savez(
+        buf,
+        timesteps=np.array([r["timesteps"] for r in rows], np.int64),
+        results=table("returns", np.float64),
+        ep_lengths=table("lengths", np.int64),
+        successes=table("successes", bool),
+    )
+    atomic_write_bytes(path, buf.getvalue())
 
 
 class CheckpointCallback(BaseCallback):

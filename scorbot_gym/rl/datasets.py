@@ -9,20 +9,31 @@ calibration ``camera_<name>_K`` / ``_world_from_camera`` / ``_size``) plus ``exp
 the scripted controller's clean action on that observation, given the oracle pose, which is
 the label :func:`scorbot_gym.rl.imitation.train_imitation` learns from.
 
+The dataset records the env it was recorded on (Minari's ``env_spec``, with the pose wrapper:
+``minari.load_dataset(NAME).recover_environment()`` rebuilds it; a pose source made from a
+loaded model set is rebuilt with its default models, whose identity the settings record) and,
+in its metadata under :data:`SETTINGS_KEY`, the action type, pose source and pose-model hash,
+seeds, DART sigma, command and code version. :func:`read_dataset` returns the episodes with
+these settings, and the imitation trainer refuses a dataset of another action type than its
+env's.
+
 Datasets live under ``MINARI_DATASETS_PATH`` (Minari's default: ``~/.minari/datasets``). The id
 is checked (well formed, not taken, the folder writable) before any episode runs, and a dataset
 appears whole or not at all: it is written under a hidden staging folder and renamed into place,
 so a killed run leaves nothing that Minari lists or that blocks a rerun.
 
-    from scorbot_gym.rl.datasets import record_demonstrations, load_demonstrations
+    from scorbot_gym.rl.datasets import record_demonstrations, read_dataset
     record_demonstrations("scorbot/grasp-oracle-v0", episodes=100, pose="oracle")
-    episodes = load_demonstrations("scorbot/grasp-oracle-v0")   # or minari.load_dataset(...)
+    demos = read_dataset("scorbot/grasp-oracle-v0")   # or minari.load_dataset(...)
+    demos.settings["action_type"], len(demos.episodes)
 """
 
 from __future__ import annotations
 
 import contextlib
+import json
 import os
+import sys
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -30,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.outputs import (
     check_dataset_id,
     datasets_root,
@@ -37,10 +49,12 @@ from scorbot_gym.outputs import (
     parse_dataset_id,
     staging_dir,
 )
-from scorbot_gym.rl.imitation import LabelledEpisode, collect_episodes
+from scorbot_gym.rl.imitation import DemonstrationSet, LabelledEpisode, collect_episodes
 
 LABEL_KEY = "expert_action"
 POSES = ("oracle", "manifold")
+#: the dataset metadata key holding how the demonstrations were recorded
+SETTINGS_KEY = "scorbot_gym_settings"
 
 
 def to_episode_buffer(episode: LabelledEpisode, index: int):
@@ -98,6 +112,18 @@ def _move_namespace_records(staging: Path, root: Path, namespace: str | None) ->
                 os.replace(record, root / level / record.name)
 
 
+def _recordable_env(env):
+    """``env`` when its spec can be written as JSON (what Minari stores as ``env_spec``),
+    else ``None`` with a warning (the dataset then cannot rebuild its env)."""
+    spec = getattr(env, "spec", None)
+    try:
+        spec.to_json()
+    except Exception as exc:  # noqa: BLE001 - gymnasium raises several kinds for odd kwargs
+        warnings.warn(f"the env's spec is not recordable ({exc}); no env_spec", stacklevel=3)
+        return None
+    return env
+
+
 def write_dataset(
     dataset_id: str,
     episodes: Sequence[LabelledEpisode],
@@ -105,23 +131,38 @@ def write_dataset(
     *,
     description: str,
     algorithm_name: str = "ScriptedGraspPolicy (oracle-pose labels) + DART noise",
+    settings: dict[str, Any] | None = None,
 ):
     """Create the Minari dataset ``dataset_id`` from episodes; returns the ``MinariDataset``.
 
     Minari writes it into a hidden staging folder beside the datasets, which is then renamed
-    into place in one step: the dataset is whole or absent, never half-written."""
+    into place in one step: the dataset is whole or absent, never half-written. The env's spec
+    is stored as Minari's ``env_spec`` and ``settings`` (default: the env's action type, the
+    episodes' seeds) under :data:`SETTINGS_KEY` in the metadata."""
     import minari
 
+    from scorbot_gym.rl.provenance import code_version
+
     target = check_dataset_id(dataset_id, "dataset")
+    recorded = {
+        "action_type": env.get_wrapper_attr("action_type"),
+        "episodes": len(episodes),
+        "seeds": [int(ep.seed) for ep in episodes],
+        "command": list(sys.argv),
+        "code": code_version(),
+        **(settings or {}),
+    }
+    json.dumps(recorded)  # a setting that is not JSON fails here, before the dataset is made
     buffers = [to_episode_buffer(ep, i) for i, ep in enumerate(episodes)]
     root = datasets_root()
     with staging_dir(root) as staging:
         with _minari_root(staging), warnings.catch_warnings():
             # author, permalink...: optional metadata Minari asks for
             warnings.simplefilter("ignore", UserWarning)
-            minari.create_dataset_from_buffers(
+            ds = minari.create_dataset_from_buffers(
                 dataset_id,
                 buffers,
+                env=_recordable_env(env),
                 action_space=env.action_space,
                 observation_space=env.observation_space,
                 algorithm_name=algorithm_name,
@@ -131,6 +172,7 @@ def write_dataset(
                 data_format="hdf5",
                 jpeg_encoding=False,  # Minari's default JPEG-compresses images: lossy
             )
+            ds.storage.update_metadata({SETTINGS_KEY: recorded})
         _move_namespace_records(staging, root, parse_dataset_id(dataset_id)[0])
         check_dataset_id(dataset_id, "dataset")  # taken meanwhile? (rename would merge into it)
         os.rename(staging / dataset_id, target)
@@ -141,22 +183,26 @@ def record_demonstrations(
     dataset_id: str,
     episodes: int,
     pose: str = "oracle",
-    seed: int = 0,
+    seed: int | None = None,
     dart_sigma: float = 0.0,
     pose_kwargs: dict[str, Any] | None = None,
     progress: Callable[[int, int], None] | None = None,
     **env_kwargs: Any,
 ):
-    """Run ``episodes`` scripted episodes (seeds ``seed, seed + 1, ...``) on the wrapped env
-    with pose source ``pose`` and store them as a Minari dataset. The controller acts on the
-    oracle pose whatever ``pose`` is (it is the demonstrator); the observations carry what the
-    pose source estimated. Returns the ``MinariDataset``."""
+    """Run ``episodes`` scripted episodes (seeds ``seed, seed + 1, ...``; default the start of
+    :data:`scorbot_gym.seeds.DEMONSTRATIONS`, and a warning if they lie in an evaluation
+    range) on the wrapped env with pose source ``pose`` and store them as a Minari dataset.
+    The controller acts on the oracle pose whatever ``pose`` is (it is the demonstrator); the
+    observations carry what the pose source estimated. Returns the ``MinariDataset``."""
     from scorbot_gym.envs.factory import make_env
+    from scorbot_gym.rl.provenance import env_pose_models, seed_span
 
     if pose not in POSES:
         raise ValueError(f"pose must be one of {POSES}, got {pose!r}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
+    seed = seed_ranges.DEMONSTRATIONS.start if seed is None else int(seed)
+    _warn_evaluation_seeds(range(seed, seed + episodes))
     with reserve_dataset_id(dataset_id):  # checked and held before any episode runs
         if pose == "manifold" and not pose_kwargs:
             from scorbot_gym.evaluation.rollout import RolloutConfig
@@ -177,14 +223,50 @@ def record_demonstrations(
                 f"pose source {pose!r}, DART sigma {dart_sigma}, success {success:.1%}; "
                 f"infos[{LABEL_KEY!r}] is the controller's clean action given the oracle pose"
             )
-            return write_dataset(dataset_id, data, env, description=description)
+            settings = {
+                "env_id": env_kwargs["env_id"],
+                "pose": pose,
+                "pose_models": env_pose_models(env),
+                "seeds": seed_span(range(seed, seed + episodes)),
+                "dart_sigma": float(dart_sigma),
+                "success_rate": success,
+            }
+            return write_dataset(dataset_id, data, env, description=description, settings=settings)
         finally:
             env.close()
 
 
+def _warn_evaluation_seeds(seeds: range) -> None:
+    """Demonstrations on evaluation seeds teach the placements a policy is judged on."""
+    for r in seed_ranges.EVALUATION_RANGES:
+        if seeds.start < r.stop and r.start < seeds.stop:
+            warnings.warn(
+                f"demonstration seeds {seeds.start}..{seeds.stop - 1} overlap the evaluation "
+                f"range {r.name!r} [{r.start}, {r.stop}) ({r.use}); a policy trained on them "
+                f"is judged on its training placements there",
+                stacklevel=3,
+            )
+
+
+def read_dataset(dataset: Any) -> DemonstrationSet:
+    """The episodes of a Minari dataset (an id or a loaded ``MinariDataset``) with the settings
+    they were recorded with (:data:`SETTINGS_KEY`; a dataset recorded before them has only
+    ``dataset_id`` and ``sha256``), the dataset's id and the SHA-256 of its files."""
+    import minari
+
+    from scorbot_gym.rl.provenance import folder_sha256
+
+    ds = minari.load_dataset(dataset) if isinstance(dataset, str) else dataset
+    settings = dict(ds.storage.metadata.get(SETTINGS_KEY) or {})
+    settings["dataset_id"] = ds.spec.dataset_id
+    settings["sha256"] = folder_sha256(ds.storage.data_path)
+    return DemonstrationSet(load_demonstrations(ds), settings)
+
+
 def load_demonstrations(dataset: Any) -> list[LabelledEpisode]:
     """The episodes of a Minari dataset (an id or a loaded ``MinariDataset``) written by
-    :func:`record_demonstrations`; a dataset without expert labels is a one-line error."""
+    :func:`record_demonstrations`; a dataset without expert labels is a one-line error.
+    :func:`read_dataset` gives them with the settings they were recorded with."""
     import minari
 
     ds = minari.load_dataset(dataset) if isinstance(dataset, str) else dataset

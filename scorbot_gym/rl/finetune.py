@@ -140,13 +140,20 @@ def actor_network(model: SAC) -> MLP:
 
 
 def to_imitation_policy(
-    model: SAC, init: ImitationPolicy, record: dict[str, Any]
+    model: SAC,
+    init: ImitationPolicy,
+    record: dict[str, Any],
+    provenance: dict[str, Any] | None = None,
 ) -> ImitationPolicy:
     """The fine-tuned actor as a stand-alone imitation-format policy. Its ``policy.json``
     keeps the initial policy's description and training record, and adds ``rl_finetune``
-    (``record``); ``training`` sums demonstrations, env steps and wall time of both stages."""
+    (``record``); ``training`` sums demonstrations, env steps and wall time of both stages.
+    It says ``"trained_by": "rl_finetune"``, with the fine-tune's ``provenance`` (the initial
+    policy's own is in its ``data.init_policy``)."""
     meta = copy.deepcopy(init.meta)
     meta.pop("normalization", None)  # written again by save()
+    meta["trained_by"] = "rl_finetune"
+    meta["provenance"] = provenance if provenance is not None else "not recorded"
     before = init.meta.get("training") or {}
     base = before.get("imitation", before)  # a fine-tune of a fine-tune keeps the first record
     first = before.get("rl_finetune_history", []) + (

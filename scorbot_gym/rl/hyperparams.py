@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterable
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -221,6 +222,38 @@ def check(
     return out
 
 
+def load_user_file(path: str | Path, algo: str, setting: str) -> dict[str, Any]:
+    """The entry ``setting`` of a user's hyperparameter file (``--conf FILE.yml``: the schema
+    of the shipped files, one mapping per setting; read with ``yaml.safe_load``), checked as
+    the shipped entries are; one-line errors naming the file and what is wrong. Its values
+    replace the shipped entry's (``--hyperparams`` overrides them in turn)."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"--conf {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"--conf {path}: cannot read it ({exc})") from None
+    try:
+        entries = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or type(exc).__name__
+        raise ValueError(f"--conf {path}: not valid YAML{where} ({problem})") from None
+    if not isinstance(entries, dict) or not all(isinstance(k, str) for k in entries):
+        raise ValueError(
+            f"--conf {path} must map setting names ({', '.join((*SETTINGS, FINETUNE))}) to "
+            "hyperparameters, as the package's hyperparams/<algo>.yml do"
+        )
+    if setting not in entries:
+        raise ValueError(
+            f"--conf {path} has no entry {setting!r} (the setting of this run); it has "
+            f"{sorted(entries) or 'none'}"
+        )
+    return check(algo, entries[setting] or {}, source=f"{path}[{setting}]", setting=setting)
+
+
 def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
     """``["gamma=0.98", "net_arch=[256,256]"]`` -> values parsed as YAML (names not checked
     yet: that needs the algorithm, see :func:`resolve`)."""
@@ -285,6 +318,7 @@ __all__ = [
     "SETTINGS",
     "check",
     "load_defaults",
+    "load_user_file",
     "parse_overrides",
     "resolve",
     "sb3_schedule",

@@ -48,6 +48,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.policies.imitation import (
     AGE_FEATURE,
@@ -85,6 +86,23 @@ class LabelledEpisode:
     @property
     def success(self) -> bool:
         return bool(self.infos["is_success"][-1])
+
+
+@dataclass
+class DemonstrationSet:
+    """Recorded demonstrations with what they were recorded with (``settings``: the dataset's
+    id and file hash, action type, pose source, seeds, DART sigma; see
+    :func:`scorbot_gym.rl.datasets.read_dataset`). :func:`train_imitation` checks the action
+    type against the env's and records these settings instead of its config's defaults."""
+
+    episodes: list[LabelledEpisode]
+    settings: dict[str, Any]
+
+    def __len__(self) -> int:
+        return len(self.episodes)
+
+    def __iter__(self):
+        return iter(self.episodes)
 
 
 def oracle_view(obs: dict[str, np.ndarray], info: dict[str, Any], classes: Sequence[str]) -> dict:
@@ -345,6 +363,9 @@ class ImitationConfig:
         for name in ("dagger_rounds", "dagger_episodes"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        seed_ranges.check_run_seed(self.seed)
+        seed_ranges.DEMONSTRATIONS.block(self.seed, self.demos)  # one-line error if too many
+        seed_ranges.DAGGER.block(self.seed, self.dagger_rounds * self.dagger_episodes)
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
             raise ValueError(
                 f"beta and beta_decay must be in [0, 1], got {self.beta}, {self.beta_decay}"
@@ -518,10 +539,7 @@ def _init_policy(config: ImitationConfig, skeleton: ImitationPolicy) -> Imitatio
     features, classes and network layout); one-line error otherwise."""
     if config.init_policy is None:
         return None
-    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
-
-    path = SHIPPED_LEARNED_POLICY if config.init_policy == "learned" else config.init_policy
-    init = ImitationPolicy.load(path)
+    init = ImitationPolicy.load(init_policy_path(config.init_policy))
     shapes = [w.shape for w in init.net.weights]
     want = [w.shape for w in skeleton.net.weights]
     if shapes != want or init.classes != skeleton.classes:
@@ -564,13 +582,20 @@ def label_accuracy(policy: ImitationPolicy, feats: np.ndarray, labels: np.ndarra
 def train_imitation(
     env: gym.Env | Sequence[gym.Env],
     config: ImitationConfig,
-    demonstrations: Sequence[LabelledEpisode] | None = None,
+    demonstrations: Sequence[LabelledEpisode] | DemonstrationSet | None = None,
     progress: Callable[[str], None] | None = None,
     on_round: Callable[[ImitationPolicy, dict[str, Any]], None] | None = None,
 ) -> tuple[ImitationPolicy, dict[str, Any]]:
-    """BC on the demonstrations (recorded with :func:`collect_episodes`, or collected here with
-    ``config.demos`` seeds ``seed, seed + 1, ...``), then ``config.dagger_rounds`` DAgger
-    rounds on fresh seeds. Returns the policy and the training record (also in its meta).
+    """BC on the demonstrations (recorded with :func:`collect_episodes`, a
+    :class:`DemonstrationSet` read from a dataset, or collected here: ``config.demos`` seeds
+    of ``config.seed``'s block of :data:`scorbot_gym.seeds.DEMONSTRATIONS`), then
+    ``config.dagger_rounds`` DAgger rounds on seeds of its :data:`~scorbot_gym.seeds.DAGGER`
+    block. Returns the policy and the training record (also in its meta, with
+    ``trained_by`` and ``provenance``: :mod:`scorbot_gym.rl.provenance`).
+
+    A :class:`DemonstrationSet` whose action type differs from the env's is refused (one-line
+    error), and its settings (episodes, DART sigma, seeds, dataset id and hash) are recorded in
+    place of ``config.demos`` and ``config.dart_sigma``.
 
     ``env``: one env per ``config.poses`` entry (:func:`make_learner_envs`), episode ``i`` on
     ``env[i % n]``; a single env stands for ``config.poses == ("oracle",)`` whatever its pose
@@ -583,10 +608,12 @@ def train_imitation(
             f"{len(envs)} envs (make_learner_envs builds them)"
         )
     say = progress or (lambda _msg: None)
+    source = _demonstration_source(demonstrations, envs[0])
     start = time.perf_counter()
     rng = np.random.default_rng(config.seed)
     if demonstrations is None:
-        seeds = range(config.seed, config.seed + config.demos)
+        seeds = seed_ranges.DEMONSTRATIONS.block(config.seed, config.demos)
+        source.update(episodes=config.demos, seeds=_span(seeds), dart_sigma=config.dart_sigma)
         demonstrations = _collect_round_robin(envs, seeds, dart_sigma=config.dart_sigma, rng=rng)
     data = list(demonstrations)
     policy = _skeleton(envs[0], config)
@@ -613,11 +640,12 @@ def train_imitation(
     say(f"BC on {len(data)} demonstrations ({len(feats)} steps): {rounds[-1]}")
     if on_round is not None:
         on_round(policy, rounds[-1])
-    next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
+    dagger_seeds = seed_ranges.DAGGER.block(
+        config.seed, config.dagger_rounds * config.dagger_episodes
+    )
     for r in range(1, config.dagger_rounds + 1):
         beta = config.beta * config.beta_decay ** (r - 1)
-        seeds = range(next_seed, next_seed + config.dagger_episodes)
-        next_seed += config.dagger_episodes
+        seeds = dagger_seeds[(r - 1) * config.dagger_episodes : r * config.dagger_episodes]
         new = _collect_round_robin(
             envs,
             seeds,
@@ -648,8 +676,12 @@ def train_imitation(
         if on_round is not None:
             on_round(policy, rounds[-1])
     before = _init_training(init)  # what the starting policy cost, counted in the totals
+    config_record = {**asdict(config), "hidden": list(config.hidden)}
+    if source["kind"] != "collected":  # what the given demonstrations were, not the defaults
+        config_record["demos"] = len(demonstrations)
+        config_record["dart_sigma"] = source.get("dart_sigma", "unknown")
     record = {
-        "config": {**asdict(config), "hidden": list(config.hidden)},
+        "config": config_record,
         "demonstration_episodes": len(demonstrations) + before["demonstration_episodes"],
         "dagger_episodes": int(sum(r["episodes"] for r in rounds[1:])) + before["dagger_episodes"],
         "env_steps": int(sum(r["env_steps"] for r in rounds)) + before["env_steps"],
@@ -666,4 +698,79 @@ def train_imitation(
         "bc_demo_episodes": record["demonstration_episodes"],
         "dagger_labelled_episodes": record["dagger_episodes"],
     }
+    policy.meta.update(
+        imitation_provenance("imitation", config, config.poses, envs, source, dagger_seeds, init)
+    )
     return policy, record
+
+
+def _span(seeds: range) -> dict[str, Any] | None:
+    from scorbot_gym.rl.provenance import seed_span
+
+    return seed_span(seeds)
+
+
+def _demonstration_source(demonstrations: Any, env: gym.Env) -> dict[str, Any]:
+    """What the demonstrations are (for the provenance); a dataset recorded for another action
+    type than ``env``'s is a one-line error."""
+    if demonstrations is None:
+        return {"kind": "collected"}
+    if not isinstance(demonstrations, DemonstrationSet):
+        seeds = sorted(int(ep.seed) for ep in demonstrations)
+        return {"kind": "given", "episodes": len(seeds), "seeds": seeds}
+    settings = dict(demonstrations.settings)
+    want = env.get_wrapper_attr("action_type")
+    have = settings.get("action_type")
+    name = settings.get("dataset_id", "the demonstrations")
+    if have is None:
+        import warnings
+
+        warnings.warn(
+            f"dataset {name!r} records no action type (recorded before it was); assuming "
+            f"{want} actions, as the env's",
+            stacklevel=3,
+        )
+        settings["action_type"] = "not recorded"
+    elif have != want:
+        raise ValueError(
+            f"dataset {name!r} holds {have} actions but the env takes {want} actions: train "
+            f"with action_type {have!r}, or record the demonstrations with --action-type {want}"
+        )
+    return {"kind": "dataset", **settings, "episodes": len(demonstrations)}
+
+
+def imitation_provenance(
+    trained_by: str,
+    config: Any,
+    poses: Sequence[str],
+    envs: Sequence[gym.Env],
+    source: dict[str, Any],
+    dagger_seeds: range,
+    init: Any = None,
+) -> dict[str, Any]:
+    """``trained_by`` and ``provenance`` of an imitation-trained policy: the demonstrations
+    (``source``), the DAgger seeds, the learner's pose conditions (``poses``, one per env;
+    none for a policy that reads no pose) and the pose models behind each (``None`` where it
+    has none: the oracle)."""
+    from scorbot_gym.rl import provenance
+
+    by_pose = {name: provenance.env_pose_models(env) for name, env in zip(poses, envs, strict=True)}
+    data = {
+        "demonstrations": source,
+        "dagger": provenance.seed_span(dagger_seeds),
+        "learner_poses": list(poses),
+    }
+    if init is not None:
+        data["init_policy"] = {
+            "name": config.init_policy,
+            **provenance.policy_identity(init_policy_path(config.init_policy), init.meta),
+        }
+    models = by_pose if any(v is not None for v in by_pose.values()) else None
+    return provenance.record(trained_by, data, models)
+
+
+def init_policy_path(name: str):
+    """The folder ``init_policy`` names (``learned``: the shipped policy)."""
+    from scorbot_gym.policies.imitation import SHIPPED_LEARNED_POLICY
+
+    return SHIPPED_LEARNED_POLICY if name == "learned" else name

@@ -24,9 +24,16 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.policies.imitation import ActionHistory, HistorySpec, to_action
 from scorbot_gym.policies.pixel import NetSpec, PixelPolicy, n_vector_features, new_meta
-from scorbot_gym.rl.imitation import LabelledEpisode, check_expert_options, collect_episodes
+from scorbot_gym.rl.imitation import (
+    LabelledEpisode,
+    check_expert_options,
+    collect_episodes,
+    imitation_provenance,
+)
+from scorbot_gym.rl.provenance import seed_span
 
 
 @dataclass
@@ -78,6 +85,7 @@ class PixelImitationConfig:
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
         check_expert_options(self.sync_expert, self.expert_keeps_close)
+        seed_ranges.check_run_seed(self.seed)
         if self.device not in ("auto", "cpu", "cuda"):
             raise ValueError(f"device must be 'auto', 'cpu' or 'cuda', got {self.device!r}")
 
@@ -224,8 +232,9 @@ def train_pixel_imitation(
     on_round: Callable[[PixelPolicy, dict[str, Any]], None] | None = None,
     env_kwargs: dict[str, Any] | None = None,
 ) -> tuple[PixelPolicy, dict[str, Any]]:
-    """BC on ``config.demos`` DART-noised scripted demonstrations (seeds ``seed, seed + 1,
-    ...``), then ``config.dagger_rounds`` DAgger rounds on fresh seeds, the scripted controller
+    """BC on ``config.demos`` DART-noised scripted demonstrations (``config.seed``'s block of
+    :data:`scorbot_gym.seeds.DEMONSTRATIONS`), then ``config.dagger_rounds`` DAgger rounds on
+    its block of :data:`~scorbot_gym.seeds.DAGGER`, the scripted controller
     labelling from the oracle pose. ``env`` renders ``config.camera`` and has ``class_names``
     (e.g. ``make_env(pose="oracle", include_class=True, cameras=["top"], image_width=112,
     image_height=84)``; its pose entries are there for the expert's bookkeeping only, the
@@ -256,7 +265,19 @@ def train_pixel_imitation(
             env_kwargs=env_kwargs,
         )
 
-    seeds = range(config.seed, config.seed + config.demos)
+    seeds = seed_ranges.DEMONSTRATIONS.block(config.seed, config.demos)
+    dagger_seeds = seed_ranges.DAGGER.block(
+        config.seed, config.dagger_rounds * config.dagger_episodes
+    )
+    source = {
+        "kind": "collected",
+        "episodes": config.demos,
+        "seeds": seed_span(seeds),
+        "dart_sigma": config.dart_sigma,
+    }
+    policy.meta.update(
+        imitation_provenance("pixel_imitation", config, [], [], source, dagger_seeds)
+    )
     data = collect(0, seeds, None, 1.0)
     frames, vectors, labels = _concat([episode_arrays(ep, policy) for ep in data])
     fit_t0 = time.perf_counter()
@@ -268,11 +289,9 @@ def train_pixel_imitation(
     say(f"BC on {len(data)} demonstrations ({len(labels)} steps): {rounds[-1]}")
     if on_round is not None:
         on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
-    next_seed = config.seed + 1_000_000  # DAgger seeds never repeat the demonstrations'
     for r in range(1, config.dagger_rounds + 1):
         beta = config.beta * config.beta_decay ** (r - 1)
-        seeds = range(next_seed, next_seed + config.dagger_episodes)
-        next_seed += config.dagger_episodes
+        seeds = dagger_seeds[(r - 1) * config.dagger_episodes : r * config.dagger_episodes]
         new = collect(r, seeds, policy, beta)
         f, v, y = _concat([episode_arrays(ep, policy) for ep in new])
         frames = np.concatenate([frames, f])

@@ -4,7 +4,10 @@ A run folder (``scorbot-gym train --out DIR``)::
 
     config.json        the TrainConfig, hyperparameters resolved
     hyperparams.yml    the resolved hyperparameters and how they map onto SB3 (read-only record)
-    monitor/           SB3 Monitor CSVs, one per env (env_0.monitor.csv, ...)
+    conf.yml           the user's --conf hyperparameter file, as given (if one was)
+    monitor/           SB3 Monitor CSVs, one per env and segment (env_0.monitor.csv, ...;
+                       a resumed run adds env_0.resume1.monitor.csv, ...), and
+                       evaluations.npz (the evaluations, as SB3's EvalCallback writes them)
     checkpoint/        model.safetensors, replay_buffer.npz, vecnormalize.json, state.json
                        (formats that cannot run code: see scorbot_gym.rl.checkpoint)
     policy/            the last exported policy (model.safetensors, policy.json, normalize.npz)
@@ -40,15 +43,17 @@ from scorbot_gym.outputs import (
 
 CONFIG = "config.json"
 HYPERPARAMS = "hyperparams.yml"
+CONF = "conf.yml"
 SEEDS = "seeds.json"
 CHECKPOINT = "checkpoint"
 STATE = "state.json"
 POLICY = "policy"
 BEST = "best"
 MONITOR = "monitor"
+EVALUATIONS = "evaluations.npz"  # in MONITOR, beside the CSVs
 TENSORBOARD = "tb"
 #: what a run writes besides config.json (removed when a run that never checkpointed restarts)
-ARTEFACTS = (HYPERPARAMS, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
+ARTEFACTS = (HYPERPARAMS, CONF, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
 CHECKPOINTS = ("best", "last")
 MARKER = ".scorbot-gym-run.json"
 LOCK = ".scorbot-gym-run.lock"
@@ -182,7 +187,9 @@ __all__ = [
     "ARTEFACTS",
     "BEST",
     "CHECKPOINT",
+    "CONF",
     "CONFIG",
+    "EVALUATIONS",
     "HYPERPARAMS",
     "LOCK",
     "MARKER",

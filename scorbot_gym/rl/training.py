@@ -34,6 +34,7 @@ import numpy as np
 import yaml
 
 from pose.fileio import atomic_write_bytes, atomic_write_json
+from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.envs.factory import make_env
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.policies.sb3 import FORMAT, VERSION, ObservationNormalizer, SB3Policy
@@ -49,7 +50,8 @@ from scorbot_gym.rl.callbacks import (
 from scorbot_gym.rl.hyperparams import ALGOS, POSES
 from scorbot_gym.rl.residual import ResidualActionWrapper
 
-EVAL_SEED = 1_000_000  # evaluation seeds start here; training episodes never use them
+#: the evaluations during training use these seeds; no training episode does (scorbot_gym.seeds)
+EVAL_SEED = seed_ranges.TRAINING_EVALUATION.start
 #: settings a resumed run may change (how long, how often to evaluate and save, logging);
 #: any other difference from the checkpoint's configuration is refused
 RESUMABLE_CHANGES = (
@@ -121,7 +123,6 @@ class TrainConfig:
             ("eval_every", 1),
             ("eval_episodes", 1),
             ("checkpoint_every", 1),
-            ("seed", 0),
             ("bc_demos", 0),
             ("bc_steps", 0),
             ("torch_threads", 0),
@@ -137,6 +138,7 @@ class TrainConfig:
             if not (math.isfinite(value) and (value > 0 if low_open else value >= 0)):
                 bound = "> 0" if low_open else ">= 0"
                 raise ValueError(f"{name} must be a finite number {bound}, got {value}")
+        seed_ranges.check_run_seed(self.seed)
         for name in self.objects or []:
             if name not in CATALOGUE:
                 raise ValueError(f"unknown object {name!r}; catalogue: {', '.join(CATALOGUE)}")
@@ -331,19 +333,33 @@ def _monitored(config: TrainConfig, filename: str | None, objects: tuple = ()) -
     from scorbot_gym.objects import install_objects
 
     install_objects(objects)
-    # a resumed run appends to its CSV (SB3 writes the header only when it starts a file)
-    fresh = filename is None or not Path(f"{filename}.{Monitor.EXT}").exists()
+    # every segment (the first run, each resume) starts a file of its own (see monitor_segment)
     return Monitor(
         make_training_env(config),
         filename=filename,
         info_keywords=("is_success",),
-        override_existing=fresh,
+        override_existing=True,
     )
 
 
-def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
+def monitor_segment(monitor_dir: Path) -> int:
+    """The index of the next Monitor segment in ``monitor_dir``: 0 for a new run, then 1, 2, ...
+
+    SB3's Monitor writes ``t`` relative to its file's ``t_start`` header, and appending to a
+    file after a resume would restart ``t`` under the old header; so each segment writes
+    ``env_<i>.resume<k>.monitor.csv`` with a header of its own, and
+    ``stable_baselines3.common.monitor.load_results`` orders all episodes by absolute time."""
+    monitor_dir = Path(monitor_dir)
+    if not (monitor_dir / "env_0.monitor.csv").is_file():
+        return 0
+    done = [p.name.split(".")[1] for p in monitor_dir.glob("env_0.resume*.monitor.csv")]
+    return 1 + max((int(k[6:]) for k in done if k[6:].isdigit()), default=0)
+
+
+def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None, segment: int = 0):
     """``n_envs`` training envs (``SubprocVecEnv``; ``DummyVecEnv`` for one), normalised;
-    with ``monitor_dir``, each env logs its episodes to ``monitor_dir/env_<i>.monitor.csv``."""
+    with ``monitor_dir``, each env logs its episodes to ``monitor_dir/env_<i>.monitor.csv``
+    (segment 0) or ``env_<i>.resume<segment>.monitor.csv`` (a resumed run)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     if config.n_envs > 1:
@@ -353,11 +369,12 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
     from scorbot_gym.objects import user_objects
 
     objects = user_objects()
+    suffix = f".resume{segment}" if segment else ""
     fns = [
         functools.partial(
             _monitored,
             config,
-            str(Path(monitor_dir) / f"env_{i}") if monitor_dir else None,
+            str(Path(monitor_dir) / f"env_{i}{suffix}") if monitor_dir else None,
             objects,
         )
         for i in range(config.n_envs)
@@ -368,8 +385,61 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
     return venv
 
 
-def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, Any]:
-    """``policy.json``: how to rebuild the policy's inputs, and what it saw in training."""
+def seed_training_envs(model, config: TrainConfig, segment: int = 0) -> None:
+    """Seed the first reset of every training env from the run's ``TRAINING_ENVS`` block
+    (SB3 seeds them with the model's seed, whose placements are evaluation seeds); a resumed
+    segment takes the next seeds, so it does not replay the first episodes' placements."""
+    n = config.n_envs
+    model.get_env().seed(seed_ranges.TRAINING_ENVS.block(config.seed, n, segment * n).start)
+
+
+def trained_by(config: TrainConfig) -> str:
+    """How a run's policy is trained (:data:`scorbot_gym.rl.provenance.TRAINED_BY`)."""
+    if config.finetune:
+        return "rl_finetune"
+    return "residual" if config.residual else "rl_from_scratch"
+
+
+def run_provenance(config: TrainConfig, env: gym.Env) -> dict[str, Any]:
+    """The ``provenance`` of a run's policies (:mod:`scorbot_gym.rl.provenance`): this
+    command and code, the seeds its episodes came from, and the pose models it observed."""
+    from scorbot_gym.rl import provenance
+
+    n_demos = config.bc_demos
+    data = {
+        "pose": config.pose,
+        "objects": config.objects or "catalogue",
+        "training_env_first_resets": provenance.seed_span(
+            seed_ranges.TRAINING_ENVS.block(config.seed, config.n_envs)
+        ),
+        "demonstrations": provenance.seed_span(
+            seed_ranges.DEMONSTRATIONS.block(config.seed, n_demos)
+        ),
+        "evaluation_seeds": provenance.seed_span(
+            range(EVAL_SEED, EVAL_SEED + config.eval_episodes)
+        ),
+    }
+    if config.finetune:
+        from scorbot_gym.policies.loading import SHIPPED
+
+        path = SHIPPED.get(config.init_policy, config.init_policy)
+        init = runs.policy_dir(Path(path))
+        data["init_policy"] = {
+            "name": config.init_policy,
+            **provenance.policy_identity(init, runs.read_json(init / "policy.json")),
+        }
+    if config.pose_model:
+        models = provenance.pose_model_identity(config.pose_model)
+    else:
+        models = provenance.env_pose_models(env)
+    return provenance.record(trained_by(config), data, models)["provenance"]
+
+
+def policy_meta(
+    config: TrainConfig, env: gym.Env, timesteps: int, provenance: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """``policy.json``: how to rebuild the policy's inputs, what it saw in training, and how it
+    was made (``trained_by``; ``provenance``, :func:`run_provenance`, if given)."""
     shapes = {k: list(s.shape) for k, s in env.observation_space.spaces.items()}
     residual = None
     if config.residual:
@@ -402,6 +472,8 @@ def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, 
             "bc_demo_episodes": int(config.bc_demos),
         },
         "config": config.to_json(),
+        "trained_by": trained_by(config),
+        **({"provenance": provenance} if provenance is not None else {}),
     }
 
 
@@ -501,11 +573,28 @@ class _Run:
         self.clock = TrainingClock(state.get("wall_s", 0.0))
         self.eval_env = make_policy_env(config)
         self.meta_env = make_training_env(config)  # observation space incl. base_action
+        self._record_provenance()
         self.init_policy = None
         if config.finetune:
             from scorbot_gym.rl.finetune import load_init_policy
 
             self.init_policy = load_init_policy(config.init_policy)
+
+    def _record_provenance(self) -> None:
+        """The run's provenance in its state: made when it starts; a resume adds its own
+        command and code under ``resumed``."""
+        now = run_provenance(self.config, self.meta_env)
+        first = self.state.get("provenance")
+        if first is None and self.state.get("timesteps", 0) > 0:  # a checkpoint from before it
+            now["first_segment"] = (
+                "not recorded (this run was resumed from a checkpoint written before "
+                "provenance was recorded): the command and code above are the resume's"
+            )
+            first = now
+        elif first is not None:
+            resumed = {k: now[k] for k in ("command", "code", "libraries", "recorded_at")}
+            first.setdefault("resumed", []).append(resumed)
+        self.state["provenance"] = first or now
 
     def normalizer(self) -> ObservationNormalizer | None:
         return (
@@ -516,8 +605,11 @@ class _Run:
         """The policy as it is exported: an SB3 policy, or a fine-tune's imitation policy."""
         if self.init_policy is not None:
             return self._finetuned(model)
-        return SB3Policy(
-            model, policy_meta(self.config, self.meta_env, model.num_timesteps), self.normalizer()
+        return SB3Policy(model, self._meta(model), self.normalizer())
+
+    def _meta(self, model) -> dict[str, Any]:
+        return policy_meta(
+            self.config, self.meta_env, model.num_timesteps, self.state["provenance"]
         )
 
     def save(self, model) -> None:
@@ -557,7 +649,7 @@ class _Run:
             "seed": c.seed,
             "hyperparams": c.hyperparams,
         }
-        return to_imitation_policy(model, self.init_policy, record)
+        return to_imitation_policy(model, self.init_policy, record, self.state["provenance"])
 
     def export(self, model, path: Path) -> None:
         if self.init_policy is not None:  # numpy weights + policy.json, as the imitation trainer
@@ -565,8 +657,7 @@ class _Run:
             return
         path.mkdir(parents=True, exist_ok=True)
         atomic_save(path / MODEL_FILE, lambda p: save_model(model, p))
-        meta = policy_meta(self.config, self.meta_env, model.num_timesteps)
-        atomic_write_json(path / "policy.json", meta)
+        atomic_write_json(path / "policy.json", self._meta(model))
         norm = self.normalizer()
         if norm is not None:
             atomic_save(path / "normalize.npz", norm.save)
@@ -584,6 +675,7 @@ class _Run:
             c.eval_episodes,
             EVAL_SEED,
             on_best=self.save_best,
+            npz_path=self.out / runs.MONITOR / runs.EVALUATIONS,
         )
         callbacks = CallbackList([evaluator, CheckpointCallback(self.save, c.checkpoint_every)])
         if remaining > 0:
@@ -617,7 +709,8 @@ def _seed_with_demos(run: _Run) -> dict[str, Any]:
     c = run.config
     if c.finetune:
         return _fill_demo_buffer(run)
-    demos = collect_demonstrations(run.meta_env, c.bc_demos, seed=c.seed * 1000 + 500_000)
+    first = seed_ranges.DEMONSTRATIONS.block(c.seed, c.bc_demos).start
+    demos = collect_demonstrations(run.meta_env, c.bc_demos, seed=first)
     if c.normalize:
         for k, v in demos.obs.items():
             run.venv.obs_rms[k].update(v)
@@ -640,12 +733,10 @@ def _fill_demo_buffer(run: _Run) -> dict[str, Any]:
     from scorbot_gym.rl.imitation import ImitationConfig, collect_episodes
 
     c = run.config
-    start = c.seed * 1000 + 500_000
-    rng = np.random.default_rng(start)
+    demo_seeds = seed_ranges.DEMONSTRATIONS.block(c.seed, c.bc_demos)
+    rng = np.random.default_rng(demo_seeds.start)
     sigma = ImitationConfig().dart_sigma
-    episodes = collect_episodes(
-        run.eval_env, range(start, start + c.bc_demos), dart_sigma=sigma, rng=rng
-    )
+    episodes = collect_episodes(run.eval_env, demo_seeds, dart_sigma=sigma, rng=rng)
     transitions = demo_transitions(episodes, run.init_policy)
     run.model.replay_buffer.demos = demo_buffer(transitions, run.model)
     return {
@@ -666,11 +757,13 @@ def _limit_threads(n: int) -> None:
         th.set_num_threads(n)
 
 
-def _hyperparams_record(config: TrainConfig) -> bytes:
-    """``hyperparams.yml``: the resolved set, where it came from, and SB3's schedule."""
+def _hyperparams_record(config: TrainConfig, conf: dict[str, Any] | None = None) -> bytes:
+    """``hyperparams.yml``: the resolved set, where it came from (the user's ``--conf`` file,
+    copied beside it, if any), and SB3's schedule."""
     record = {
         "algo": config.algo,
         "setting": config.setting,
+        **({"conf": conf} if conf else {}),
         "n_envs": config.n_envs,
         "hyperparams": config.hyperparams,
         "sb3": config.schedule(),
@@ -678,25 +771,52 @@ def _hyperparams_record(config: TrainConfig) -> bytes:
     return yaml.safe_dump(record, sort_keys=False).encode()
 
 
-def train(config: TrainConfig, out: str | Path) -> dict[str, Any]:
+def _read_conf(path: str | Path | None, config: TrainConfig) -> tuple[bytes, dict] | None:
+    """The user's hyperparameter file as given (bytes, to copy into the run folder) and its
+    record, read before anything is written; ``config`` must already hold its values."""
+    if path is None:
+        return None
+    from scorbot_gym.rl.provenance import file_sha256
+
+    setting = config.setting
+    entry = hparams.load_user_file(path, config.algo, setting)  # one-line errors
+    differ = sorted(k for k, v in entry.items() if config.hyperparams.get(k) != v)
+    overridden = {k: config.hyperparams.get(k) for k in differ}
+    record = {
+        "file": str(path),
+        "copy": runs.CONF,
+        "sha256": file_sha256(path),
+        "entry": setting,
+        **({"overridden_by_hyperparams": overridden} if overridden else {}),
+    }
+    return Path(path).read_bytes(), record
+
+
+def train(
+    config: TrainConfig, out: str | Path, hyperparams_file: str | Path | None = None
+) -> dict[str, Any]:
     """Train from scratch into ``out``; returns the state.
 
     Every setting is checked and the envs and model are built before ``config.json`` is
     written, so a refused run leaves no half-made run folder behind. ``out`` must be new,
     empty or a run of this tool that stopped before its first checkpoint, and is locked for
-    the run's life (:func:`scorbot_gym.rl.runs.claim`).
+    the run's life (:func:`scorbot_gym.rl.runs.claim`). ``hyperparams_file``: the user's
+    ``--conf`` file whose values ``config.hyperparams`` holds, copied into the run folder
+    (``conf.yml``) and recorded in ``hyperparams.yml``.
     """
     config = config.validate().resolved()
     check_pose_model(config)
+    conf = _read_conf(hyperparams_file, config)
     with runs.claim(out, new=True) as out:
-        return _train(config, out)
+        return _train(config, out, conf)
 
 
-def _train(config: TrainConfig, out: Path) -> dict[str, Any]:
+def _train(config: TrainConfig, out: Path, conf: tuple[bytes, dict] | None) -> dict[str, Any]:
     _limit_threads(config.torch_threads)
     venv = make_vec_env(config, out / runs.MONITOR)
     try:
         model = build_model(config, venv, out / runs.TENSORBOARD if config.tensorboard else None)
+        seed_training_envs(model, config)
     except BaseException:
         venv.close()
         raise
@@ -704,7 +824,9 @@ def _train(config: TrainConfig, out: Path) -> dict[str, Any]:
     run = _Run(config, out, model, venv, state)
     try:
         atomic_write_json(out / runs.CONFIG, config.to_json())
-        atomic_write_bytes(out / runs.HYPERPARAMS, _hyperparams_record(config))
+        if conf is not None:
+            atomic_write_bytes(out / runs.CONF, conf[0])
+        atomic_write_bytes(out / runs.HYPERPARAMS, _hyperparams_record(config, conf and conf[1]))
         if config.bc_demos:
             run.state["demos"] = _seed_with_demos(run)
         run.save(model)  # resumable from here on
@@ -715,20 +837,32 @@ def _train(config: TrainConfig, out: Path) -> dict[str, Any]:
 
 
 def train_seeds(
-    config: TrainConfig, out: str | Path, seeds: list[int], processes: int = 1
+    config: TrainConfig,
+    out: str | Path,
+    seeds: list[int],
+    processes: int = 1,
+    hyperparams_file: str | Path | None = None,
 ) -> dict[str, Any]:
     """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
     (each in a process of its own, see :func:`train_seed`; 1: one after another in this
     process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
-    continues all of them. Returns ``{"seeds": {seed: state}}``."""
+    continues all of them. ``hyperparams_file`` as for :func:`train` (copied into every
+    seed's folder). Returns ``{"seeds": {seed: state}}``."""
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
+    for s in seeds:
+        seed_ranges.check_run_seed(s, "every seed")
     _check_processes(processes)
     config = config.validate().resolved()
     check_pose_model(config)
+    _read_conf(hyperparams_file, config)  # a bad file fails before seeds.json is written
     with runs.claim(out, new=True) as out:
         atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-        return {"seeds": _train_seeds(config, out, seeds, processes=processes)}
+        return {
+            "seeds": _train_seeds(
+                config, out, seeds, processes=processes, hyperparams_file=hyperparams_file
+            )
+        }
 
 
 def _check_processes(processes: int) -> None:
@@ -741,6 +875,7 @@ def train_seed(
     run: str | Path,
     progress_bar: bool | None = None,
     device: str | None = None,
+    hyperparams_file: str | None = None,
 ) -> dict[str, Any]:
     """Train one seed's run (``config`` as in ``config.json``, its ``seed`` set) into ``run``,
     or continue it from its checkpoint to ``config["timesteps"]``: what a worker process of
@@ -748,7 +883,7 @@ def train_seed(
     run = Path(run)
     if runs.has_checkpoint(run):
         return resume(run, timesteps=config["timesteps"], progress_bar=progress_bar, device=device)
-    return train(TrainConfig.from_json(config), run)
+    return train(TrainConfig.from_json(config), run, hyperparams_file)
 
 
 def _train_seeds(
@@ -758,10 +893,14 @@ def _train_seeds(
     progress_bar: bool | None = None,
     device: str | None = None,
     processes: int = 1,
+    hyperparams_file: str | Path | None = None,
 ) -> dict[int, dict]:
     jobs = {seed: dataclasses.replace(config, seed=seed).to_json() for seed in seeds}
+    conf = None if hyperparams_file is None else str(hyperparams_file)
     if processes == 1 or len(seeds) == 1:
-        return {s: train_seed(c, out / f"seed_{s}", progress_bar, device) for s, c in jobs.items()}
+        return {
+            s: train_seed(c, out / f"seed_{s}", progress_bar, device, conf) for s, c in jobs.items()
+        }
     from scorbot_gym.experiments.workers import worker_pool
 
     config.pose_args()  # default pose models are trained here once, not by every seed at once
@@ -771,7 +910,7 @@ def _train_seeds(
     errors: list[str] = []
     with worker_pool(min(processes, len(seeds))) as pool:
         futures = {
-            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device): s
+            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device, conf): s
             for s, c in jobs.items()
         }
         for future in as_completed(futures):
@@ -950,9 +1089,11 @@ def _resume(
         )
     _remove_orphaned_writes(out)
     _limit_threads(config.torch_threads)
-    venv = make_vec_env(config, out / runs.MONITOR)
+    segment = monitor_segment(out / runs.MONITOR)
+    venv = make_vec_env(config, out / runs.MONITOR, segment)
     try:
         model = _load_checkpoint(config, out, venv)
+        seed_training_envs(model, config, segment)
     except BaseException:
         venv.close()
         raise
