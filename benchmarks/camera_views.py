@@ -17,7 +17,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--object", default="tomato_soup_can")
     parser.add_argument("--seed", type=int, default=4)
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/cameras.png"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/camera_views.png"))
     args = parser.parse_args(argv)
 
     import cv2

@@ -9,9 +9,10 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
   recognition; the table-top prior): no privileged input. Variants swap one component: no
   table-top prior (estimates as the models answer them), FLR alone or appearance alone as the
   recogniser, the ``side`` camera's own pose models where the top view is hidden;
-- ``chance (image-blind estimator)``: the ``manifold`` arm with the trained models swapped for
-  a constant rotation fitted on their views (``RolloutConfig.estimator="chance"``), masks,
-  recognition and prior unchanged: the chance level beside the estimator;
+- ``rotation-blind (image position, constant rotation)``: the ``manifold`` arm with the trained
+  models swapped for a constant rotation fitted on their views (``RolloutConfig.estimator=
+  "chance"``), masks, recognition and prior unchanged, so the position and identity still come
+  from the image and only the rotation ignores it: the chance level beside the estimator;
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
   ``silhouette motion`` arms add ``motion="silhouette"`` to the side-fallback source;
@@ -56,7 +57,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 #: the ``--arms`` name of the noise curves (the ``robustness`` section of the report)
 ROBUSTNESS = "robustness"
 #: the image-blind arm: the ``manifold`` arm with its models swapped for a constant rotation
-CHANCE_ARM = "chance (image-blind estimator)"
+CHANCE_ARM = "rotation-blind (image position, constant rotation)"
 YAW_SIGMAS = (0.0, 5.0, 10.0, 20.0, 30.0)
 POS_SIGMAS_CM = (0.0, 0.5, 1.0, 2.0, 3.0)
 # at 320 x 240 the small objects are too few pixels from the hand camera's home pose to train

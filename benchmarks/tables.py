@@ -33,10 +33,15 @@ PROTOCOLS = (
 )
 
 
-def read(name: str) -> dict:
-    from pose.fileio import read_json
+def read(name: str, config: str | None = None) -> dict:
+    """The default run of ``results/NAME`` or, given ``config``, its variant of that name."""
+    from pose.fileio import read_result
 
-    return read_json(RESULTS / name)
+    return read_result(RESULTS / name, config)
+
+
+#: the pose-ablation sweeps, one config per ``{protocol}{suffix}`` (``pose_ablation.py``)
+ABLATION = "pose_ablation.json.gz"
 
 
 def pct(x: float | None, digits: int = 1) -> str:
@@ -73,11 +78,11 @@ def short(spec: str, names: dict[str, str]) -> str:
 
 def headline_closed_loop() -> str:
     d = read("closed_loop.json")
-    # the image-blind arm is the one whose config swaps the estimator for ``chance``; found by
-    # that, not by its label, so the label lives in closed_loop.py alone
+    # the rotation-blind arm is the one whose config swaps the estimator for ``chance``; found
+    # by that, not by its label, so the label lives in closed_loop.py alone
     chance = [k for k, v in d["arms"].items() if v.get("config", {}).get("estimator") == "chance"]
     missing = [k for k in ("manifold", "oracle") if k not in d["arms"]]
-    missing += [] if chance else ["chance (image-blind estimator)"]
+    missing += [] if chance else ["rotation-blind (image position, constant rotation)"]
     if missing:  # the headline states the chance level beside the estimator, or nothing
         sys.exit(
             f"closed_loop.json lacks the arms {missing}: run benchmarks/closed_loop.py --arms "
@@ -90,20 +95,23 @@ def headline_closed_loop() -> str:
         f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
         f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
-        f"{pct(o['success_rate'])}, with the image-blind chance estimator (a constant rotation) "
-        f"{pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms `manifold`, "
+        f"{pct(o['success_rate'])}, rotation-blind (the position from the image, a constant "
+        f"rotation) {pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms "
+        f"`manifold`, "
         f"`oracle` and `{chance[0]}`).\n"
     )
 
 
-#: the closed-loop run with the resting-view pose models (the default before the tilted ones)
-RESTING_CLOSED_LOOP = "closed_loop_resting_models.json"
-#: its perturbation run (``closed_loop.py --perturbations``)
-RESTING_PERTURBATIONS = "closed_loop_perturbations_resting_models.json"
+#: configs of closed_loop.json: the run with the resting-view pose models (the default before
+#: the tilted ones), the perturbation run (``closed_loop.py --perturbations``) and its
+#: resting-view twin
+RESTING_CLOSED_LOOP = "resting_models"
+PERTURBATIONS = "perturbations"
+RESTING_PERTURBATIONS = "perturbations_resting_models"
 
 
-def closed_loop_arms(name: str = "closed_loop.json") -> str:
-    d = read(name)
+def closed_loop_arms(config: str | None = None) -> str:
+    d = read("closed_loop.json", config)
     rows = []
     for label, a in d["arms"].items():
         valid = a.get("perception", {}).get("valid_rate")
@@ -135,8 +143,8 @@ def closed_loop_robustness() -> str:
 
 
 def closed_loop_perturbations() -> str:
-    d = read("closed_loop_perturbations.json")
-    before = read(RESTING_PERTURBATIONS)["arms"]  # the same run with the resting-view models
+    d = read("closed_loop.json", PERTURBATIONS)
+    before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]  # the same run with the resting-view models
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -193,9 +201,9 @@ def _compare_rows(d: dict) -> list[list[str]]:
     return rows
 
 
-def compare_table(name: str) -> Callable[[], str]:
+def compare_table(config: str) -> Callable[[], str]:
     def render() -> str:
-        d = read(name)
+        d = read("compare.json", config)
         head = [
             "pose",
             f"`{d['results'][0]['policy']}` (95 % CI)",
@@ -221,8 +229,8 @@ def _condition_words(cond: dict) -> str:
         return "with the true pose"
     if cond.get("estimator") == "chance":  # the manifold source, but not its estimator
         return (
-            "at the chance level (the same masks and recognised identity, an image-blind "
-            "constant rotation for the pose)"
+            "rotation-blind (the same masks and recognised identity, the position from the "
+            "image, a constant rotation)"
         )
     if cond["source"] == "manifold" and cond.get("identity") == "recognize":
         return (
@@ -330,8 +338,8 @@ def sweep_table(
     names: dict[str, str] | None = None,
     cost: bool = False,
 ) -> Callable[[], str]:
-    """success@5° [asymmetric banana] per (protocol, estimator) and occlusion, from
-    ``pose_ablation_{protocol}{suffix}.json.gz``; the 95 % CI in the first column. ``cost``
+    """success@5° [asymmetric banana] per (protocol, estimator) and occlusion, from the config
+    ``{protocol}{suffix}`` of ``pose_ablation.json.gz``; the 95 % CI in the first column. ``cost``
     adds the share of views answered and the median ``predict`` wall time at the first level
     (two workers sharing two cores: not a single-core figure)."""
     names = names or {}
@@ -339,7 +347,7 @@ def sweep_table(
     def render() -> str:
         rows, levels = [], None
         for protocol in protocols:
-            d = read(f"pose_ablation_{protocol}{suffix}.json.gz")
+            d = read(ABLATION, f"{protocol}{suffix}")
             levels = d["spec"]["occlusions"]
             cells = {(r["estimator"], r["occlusion"]): r for r in d["results"]}
             for est in d["spec"]["estimators"]:
@@ -377,12 +385,12 @@ def _select_names(spec_estimators: list[str]) -> dict[str, str]:
 
 
 def select_table() -> str:
-    names = _select_names(read("pose_ablation_top-resting_select.json.gz")["spec"]["estimators"])
+    names = _select_names(read(ABLATION, "top-resting_select")["spec"]["estimators"])
     return sweep_table("_select", names=names)()
 
 
 def headline_ablation() -> str:
-    d = read("pose_ablation_side-turntable_select.json.gz")
+    d = read(ABLATION, "side-turntable_select")
     sel = next(e for e in d["spec"]["estimators"] if e.startswith("select("))
     cells = {(r["estimator"], r["occlusion"]): r for r in d["results"]}
     zero, half = cells[(sel, 0.0)], cells[(sel, 0.5)]
@@ -394,14 +402,14 @@ def headline_ablation() -> str:
         f"success@5° {ci(zero['success_5deg_ci95'])} unoccluded and "
         f"**{pct(half['success_5deg'])}** {ci(half['success_5deg_ci95'])} at 50 % occlusion; "
         f"the image-blind answer scores {pct(blind)} "
-        f"(`benchmarks/results/pose_ablation_side-turntable_select.json.gz`).\n"
+        f"(`benchmarks/results/pose_ablation.json.gz`, config `side-turntable_select`).\n"
     )
 
 
 def fig3_curves() -> str:
     """Each estimator's curve over 0–95 % as mean success / first level at or below chance
-    [mean over the asymmetric banana], from each ``_fig3`` file's ``curves``."""
-    per = {p: read(f"pose_ablation_{p}_fig3.json.gz") for p in PROTOCOLS}
+    [mean over the asymmetric banana], from each ``{protocol}_fig3`` config's ``curves``."""
+    per = {p: read(ABLATION, f"{p}_fig3") for p in PROTOCOLS}
     estimators = per[PROTOCOLS[0]]["spec"]["estimators"]
     names = _select_names(estimators)
     rows = []
@@ -424,8 +432,9 @@ def fig3_curves() -> str:
 
 def stage_ablation() -> str:
     """Coarse success@5° at 0 / 50 % [banana at 0 %] of each manifold variant on every
-    protocol, from each ``_stages`` file's ``stage_ablation`` rows (``[coarse]``: refine off)."""
-    per = {p: read(f"pose_ablation_{p}_stages.json.gz")["stage_ablation"] for p in PROTOCOLS}
+    protocol, from each ``{protocol}_stages`` config's ``stage_ablation`` rows (``[coarse]``:
+    refine off)."""
+    per = {p: read(ABLATION, f"{p}_stages")["stage_ablation"] for p in PROTOCOLS}
     variants = [r["variant"] for r in per[PROTOCOLS[0]] if r["occlusion"] == 0.0]
     coarse = [v for v in variants if v.endswith(" [coarse]")]
     rows = []
@@ -446,7 +455,7 @@ def stage_ablation() -> str:
 
 
 def view_perturbations() -> str:
-    d = read("pose_ablation_side-turntable_perturbations.json.gz")
+    d = read(ABLATION, "side-turntable_perturbations")
     ests = d["spec"]["estimators"]
     names = _select_names(ests)
     levels = sorted({r["occlusion"] for r in d["results"]})
@@ -460,7 +469,7 @@ def view_perturbations() -> str:
 
 
 def keep_margin() -> str:
-    d = read("keep_margin_seed1.json")
+    d = read(ABLATION, "keep_margin_seed1")
     cells = list(dict.fromkeys((r["protocol"], r["occlusion"]) for r in d["results"]))
     rows = []
     for m in d["margins"]:
@@ -470,7 +479,7 @@ def keep_margin() -> str:
 
 
 def selection_choices() -> str:
-    d = read("selection_choices.json")
+    d = read(ABLATION, "selection_choices")
     names = {**SELECT_NAMES, "pca-rbf": "`pca-rbf`", "chance": "`chance`"}
     by: dict[str, dict[str, list[str]]] = {}
     for r in d["choices"]:
@@ -491,9 +500,9 @@ TABLES: dict[str, Callable[[], str]] = {
     "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP),
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
-    "compare-noise-once": compare_table("compare_noise_once.json"),
-    "compare-heldout": compare_table("compare_heldout_objects.json"),
-    "compare-heldout-training": compare_table("compare_heldout_training_objects.json"),
+    "compare-noise-once": compare_table("noise_once"),
+    "compare-heldout": compare_table("heldout_objects"),
+    "compare-heldout-training": compare_table("heldout_training_objects"),
     "rl-training": rl_training,
     "env-step": env_step,
     "fig3-curves": fig3_curves,
