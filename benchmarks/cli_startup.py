@@ -16,7 +16,7 @@ torch).
     python benchmarks/cli_startup.py --runs 3 --out /tmp/cli.json
     mkdir /tmp/before && git archive febf072 | tar -x -C /tmp/before
     python benchmarks/cli_startup.py --baseline /tmp/before   # the same commands, side by side
-    python benchmarks/cli_startup.py --preload-only --out benchmarks/results/gl_preload_cuda.json
+    python benchmarks/cli_startup.py --preload-only --config gl_preload_cuda   # (CUDA torch venv)
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pose.fileio import atomic_write_json  # noqa: E402
+from pose.fileio import write_result  # noqa: E402
 
 COMMANDS = (
     ("--help",),
@@ -128,6 +128,11 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--runs", type=int, default=5, help="fresh processes per command (median)")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/cli_startup.json")
     ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
+    ap.add_argument(
         "--baseline",
         type=Path,
         default=None,
@@ -162,8 +167,8 @@ def main(argv: list[str] | None = None) -> dict:
         "commands": commands,
         "gl_preload": preload,
     }
-    atomic_write_json(args.out, result)
-    print(f"wrote {args.out}")
+    write_result(args.out, result, args.config)
+    print(f"wrote {args.out}" + (f" (config {args.config!r})" if args.config else ""))
     return result
 
 

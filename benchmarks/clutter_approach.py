@@ -139,10 +139,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--controllers", nargs="+", choices=CONTROLLERS, default=list(CONTROLLERS))
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
     ap.add_argument("--out", type=Path, default=RESULTS / "clutter_approach.json")
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = ap.parse_args(argv)
     if args.episodes < 1 or args.jobs < 1 or args.distractors < 1:
         ap.error("--episodes, --jobs and --distractors must be >= 1")
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     tasks = [
         (c, args.distractors, s, min(CHUNK, args.seed + args.episodes - s))
@@ -179,8 +184,8 @@ def main(argv: list[str] | None = None) -> int:
             "load_average_1min_at_end": os.getloadavg()[0],
         },
     }
-    atomic_write_json(args.out, report)
-    print(f"written {args.out}")
+    write_result(args.out, report, args.config)
+    print(f"written {args.out}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

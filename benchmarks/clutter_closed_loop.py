@@ -15,12 +15,14 @@ pose source (:mod:`scorbot_gym.perception.registry`):
 
 Episodes are cut into chunks that run in ``--jobs`` processes (each builds its env once per
 chunk); the summary pools every chunk's episodes, so the figures do not depend on ``--jobs``.
-Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quick``): per
+Writes ``benchmarks/results/clutter_closed_loop.json`` (the main run at its top level;
+``--config NAME`` stores a variant, e.g. another splitter or seed range, as ``configs[NAME]``,
+the file's other runs left as they were; ``--quick`` the config ``quick``): per
 distractor count and arm the rollout summary (success with its 95 % interval, failure causes
 with ``wrong_object``, distractors knocked over, perception: target recognition accuracy, blob
 recognition, errors, the in-loop cost per estimate and per stage), one line per failed episode
 (seed, target, cause) to find the failures behind a number, the issue's targets met or not, and
-a PNG.
+(for the main run) a PNG.
 
     python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
 
@@ -200,8 +202,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--distractors", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--seed", type=int, default=5000, help="first episode's seed")
     ap.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
-    ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
-    ap.add_argument("--out", type=Path, default=None, help="JSON path (the PNG goes beside it)")
+    ap.add_argument("--quick", action="store_true", help="4 episodes, as the config 'quick'")
+    ap.add_argument("--out", type=Path, default=RESULTS / "clutter_closed_loop.json",
+                    help="the result file (the main run's PNG goes beside it)")  # fmt: skip
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
     ap.add_argument(
         "--splitter",
@@ -230,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--regrasps must be >= 0, got {args.regrasps}")
     episodes = 4 if args.quick else args.episodes
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.perception.training import default_pose_models
 
     default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
@@ -289,11 +297,13 @@ def main(argv: list[str] | None = None) -> int:
     for t in report["targets"]:
         print(f"target {t['figure']} {t['kind']} {t['bound']}: {t['value']} "
               f"({'met' if t['met'] else 'NOT met'})")  # fmt: skip
-    name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
-    out = args.out or RESULTS / name
-    atomic_write_json(out, report)
-    plot(report, out.with_suffix(".png"))
-    print(f"written {out} and {out.with_suffix('.png')}")
+    config = "quick" if args.quick and args.config is None else args.config
+    write_result(args.out, report, config)
+    if config is None:  # the figure is the main run's
+        plot(report, args.out.with_suffix(".png"))
+        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    else:
+        print(f"written {args.out} (config {config!r})")
     return 0
 
 

@@ -15,7 +15,9 @@ stage's from its policy.json) and the fine-tune's evaluation curve.
     python benchmarks/finetune.py --timesteps 50000 --seeds 0,1,2 --jobs 16   # a big machine
     python benchmarks/finetune.py --skip-training --runs runs/finetune   # evaluate runs again
 
-Writes ``benchmarks/results/<--name>.json`` and ``.png`` (default ``finetune``).
+Writes ``benchmarks/results/finetune.json`` and ``.png``; ``--config NAME`` stores the run as the
+variant ``configs[NAME]`` of that file instead (e.g. another ``bc_coef``), without a figure, the
+file's other runs kept.
 """
 
 from __future__ import annotations
@@ -200,10 +202,15 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--jobs", type=positive_int, default=1)
     p.add_argument("--runs", type=Path, default=Path("runs/finetune"))
     p.add_argument("--skip-training", action="store_true", help="evaluate the runs in --runs")
-    p.add_argument("--name", default="finetune", help="results file stem")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of benchmarks/results/finetune.json "
+        "(default: the file's main run)",
+    )
     args = p.parse_args(argv)
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.evaluation.compare import compare, resolve_arm
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.rl.runs import policy_dir
@@ -263,9 +270,9 @@ def main(argv: list[str] | None = None) -> None:
         "evaluation_wall_s": round(report["wall_s"], 1),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
-    RESULTS.mkdir(exist_ok=True)
-    atomic_write_json(RESULTS / f"{args.name}.json", out)
-    _plot(out, RESULTS / f"{args.name}.png")
+    write_result(RESULTS / "finetune.json", out, args.config)
+    if args.config is None:  # the figure is the main run's
+        _plot(out, RESULTS / "finetune.png")
     for d in diffs:
         print(
             f"{d['pose']:>14} {d['a']} - imitation: {100 * d['diff']:+.1f} points "
@@ -275,7 +282,8 @@ def main(argv: list[str] | None = None) -> None:
     for r in out["evaluation"]["results"]:
         lo, hi = r["ci95"]
         print(f"{r['pose']:>14} {r['policy']:>14}: {r['success_rate']:.1%} [{lo:.1%}, {hi:.1%}]")
-    print(f"results written to {RESULTS / args.name}.json / .png")
+    where = f"config {args.config!r}" if args.config else "and finetune.png"
+    print(f"results written to {RESULTS / 'finetune.json'} ({where})")
 
 
 if __name__ == "__main__":

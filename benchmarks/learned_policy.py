@@ -119,10 +119,15 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument("--out", type=Path, default=SHIPPED_LEARNED_POLICY)
     p.add_argument("--json", type=Path, default=RESULTS / "learned_policy.json")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
     args = p.parse_args(argv)
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.policies.imitation import HistorySpec, ImitationPolicy
     from scorbot_gym.rl.imitation import ImitationConfig, make_learner_envs, train_imitation
 
@@ -187,8 +192,8 @@ def main(argv: list[str] | None = None) -> None:
         "policy_size_kb": round(size_kb, 1),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
-    atomic_write_json(args.json, out)
-    print(f"results written to {args.json}")
+    write_result(args.json, out, args.config)
+    print(f"results written to {args.json}" + (f" (config {args.config!r})" if args.config else ""))
 
 
 if __name__ == "__main__":

@@ -60,6 +60,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--eval-every", type=_positive, default=1000, help="with --train")
     parser.add_argument("--eval-episodes", type=_positive, default=10, help="with --train")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/learning_curves.json"))
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     arms = dict(args.arm)
     if args.train:
@@ -74,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"no run folder at {', '.join(missing)} (--train trains preset arms)")
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.rl.curves import learning_curves, plot_learning_curves
 
     trained = {}
@@ -115,15 +120,17 @@ def main(argv: list[str] | None = None) -> int:
             "scorbot_gym": scorbot_gym.__version__,
         },
     }
-    atomic_write_json(args.out, report)
-    plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
     for label, arm in report["arms"].items():
         final = arm["by_timesteps"]
         lo, hi = final["ci95_low"], final["ci95_high"]
         band = f" (95% CI {lo[-1]:.1%} - {hi[-1]:.1%})" if lo else ""
         steps = int(final["timesteps"][-1])
         print(f"{label}: {final['mean'][-1]:.1%}{band} at {steps} env steps, seeds {arm['seeds']}")
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
+    print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

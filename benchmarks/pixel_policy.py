@@ -173,12 +173,17 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=Path("runs") / "pixel_policy")
     p.add_argument("--json", type=Path, default=RESULTS / "pixel_policy.json")
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
     args = p.parse_args(argv)
 
     import torch
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.envs.factory import make_env
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
@@ -307,8 +312,8 @@ def main(argv: list[str] | None = None) -> None:
         },
         "command": " ".join(["python benchmarks/pixel_policy.py", *(argv or sys.argv[1:])]),
     }
-    atomic_write_json(args.json, out)
-    print(f"results written to {args.json}")
+    write_result(args.json, out, args.config)
+    print(f"results written to {args.json}" + (f" (config {args.config!r})" if args.config else ""))
 
 
 if __name__ == "__main__":

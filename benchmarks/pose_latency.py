@@ -28,7 +28,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from pose.fileio import atomic_write_json  # noqa: E402
+from pose.fileio import write_result  # noqa: E402
 from scorbot_gym.data.protocols import held_out_views, protocol_names  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, make_jobs, run_sweep, sweep  # noqa: E402
 from scorbot_gym.experiments.latency import (  # noqa: E402
@@ -77,6 +77,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default=None,
                     help="an empty one times training from scratch, rendering too")  # fmt: skip
     ap.add_argument("--json", default=str(RESULT))
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     args = ap.parse_args(argv)
     protocols = [p for p in args.protocols.split(",") if p]
     unknown = sorted(set(protocols) - set(protocol_names()))
@@ -159,8 +164,8 @@ def main(argv: list[str] | None = None) -> int:
     report["machine"] = {"platform": platform.platform(), "python": sys.version.split()[0],
                          "cpu": cpu_model(), "cpus": os.cpu_count(), "pinned_core": core,
                          "threads": 1}  # fmt: skip
-    atomic_write_json(Path(args.json), report)
-    print(f"wrote {args.json}")
+    write_result(Path(args.json), report, args.config)
+    print(f"wrote {args.json}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

@@ -62,6 +62,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--out", default=str(RESULT))
     ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
+    ap.add_argument(
         "--params",
         nargs="*",
         default=[],
@@ -133,14 +138,12 @@ def main(argv: list[str] | None = None) -> int:
         "training": info,
         "results": results,
     }
-    path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(out, indent=2))
-    os.replace(tmp, path)
+    from pose.fileio import write_result
+
+    path = write_result(args.out, out, args.config)
     print(format_tables(results))
     print(f"\ntraining {train_s:.1f} s; measured {json.dumps(measured)}; met {json.dumps(met)}")
-    print(f"wrote {path}")
+    print(f"wrote {path}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

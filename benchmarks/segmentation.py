@@ -23,7 +23,8 @@ estimate <= 40 ms median per step at 320 x 240 on one core.
    OpenCV runs on one thread and Mesa's llvmpipe on one (``LP_NUM_THREADS=1`` unless set).
 
 Writes ``benchmarks/results/segmentation.json.gz`` (gzip-compressed: it keeps every frame's row)
-and ``segmentation.png``.
+and ``segmentation.png``; ``--config NAME`` stores the run as the variant ``configs[NAME]`` of that
+file (e.g. ``depth``), without a figure, the file's other runs kept.
 Run: ``MUJOCO_GL=egl python benchmarks/segmentation.py`` (about 10 min on 2 cores).
 """
 
@@ -43,7 +44,7 @@ import cv2  # noqa: E402
 import numpy as np
 
 from pose.camera import CameraModel
-from pose.fileio import atomic_write_json
+from pose.fileio import write_result
 from pose.segmentation import mask_iou
 from pose.view import View
 from scorbot_gym.envs.factory import make_env
@@ -246,6 +247,11 @@ def main(argv: list[str] | None = None) -> int:
         "--no-timing", action="store_true", help="mask quality only (no stage timings)"
     )
     parser.add_argument("--out", type=Path, default=RESULTS / "segmentation.json.gz")
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     cv2.setNumThreads(1)
     w, h = 320, 240
@@ -316,9 +322,12 @@ def main(argv: list[str] | None = None) -> int:
             "processor": platform.processor(),
         },
     }
-    atomic_write_json(args.out, report)
+    write_result(args.out, report, args.config)
+    if args.config is not None:
+        print(f"wrote {args.out} (config {args.config!r})")
+        return 0
     png = args.out.with_name(args.out.name.removesuffix(".gz").removesuffix(".json") + ".png")
-    plot(rows, timings, png)
+    plot(rows, timings, png)  # the figure is the main run's
     print(f"wrote {args.out} and {png}")
     return 0
 

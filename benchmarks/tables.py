@@ -144,7 +144,8 @@ def closed_loop_robustness() -> str:
 
 def closed_loop_perturbations() -> str:
     d = read("closed_loop.json", PERTURBATIONS)
-    before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]  # the same run with the resting-view models
+    # the same run with the resting-view models
+    before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]

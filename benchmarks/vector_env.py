@@ -360,12 +360,17 @@ def main(argv: list[str] | None = None) -> int:
         help="also async_cap-N for N above the cores and async_raster_thread-2",
     )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/vector_env.json"))
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     if args.repeats < 1 or args.steps < 1 or args.image_steps < 1 or min(args.counts) < 1:
         parser.error("--repeats, --steps, --image-steps and --counts must be >= 1")
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     configs = configurations(tuple(args.counts), args.ablations)
     steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
@@ -403,8 +408,9 @@ def main(argv: list[str] | None = None) -> int:
             "mujoco_gl": os.environ.get("MUJOCO_GL"),
         },
     }
-    atomic_write_json(args.out, report)
-    plot(report, args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        plot(report, args.out.with_suffix(".png"))
     for setting, res in report["results"].items():
         for config, r in res.items():
             shown = r.get("error") or (
@@ -412,7 +418,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"({r['ratio_to_plain']:.2f}x plain), {r['cpu_ms_per_env_step_median']:.2f} ms CPU"
             )
             print(f"{setting:>14} {config:>12}: {shown}")
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
+    print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 
