@@ -2,7 +2,11 @@
 
 Every table (or headline sentence) that quotes a benchmark file sits between two markers,
 ``<!-- table:NAME -->`` and ``<!-- /table -->``; this script replaces what lies between them
-with :data:`TABLES` ``[NAME]`` rendered from ``benchmarks/results/``. So a rerun benchmark updates
+with :data:`TABLES` ``[NAME]`` rendered from ``benchmarks/results/``: in ``benchmarks/README.md``
+every result section's table and its "Main run" conditions line (episodes, seeds, machine, the
+configs beside it), and the index of result files; in ``README.md`` the headline figures. A
+result file holds a script's main run and its variants as named configs
+(:func:`pose.fileio.read_result`). So a rerun benchmark updates
 its tables with one command, and a figure cannot drift from its file:
 ``tests/test_benchmark_tables.py`` requires the committed READMEs to equal what this script
 writes.
