@@ -876,7 +876,7 @@ def results_index() -> str:
                 f"`{stem}.py`",
                 f"[`{path.name}`](results/{path.name})",
                 f"[`{png.name}`](results/{png.name})" if png.is_file() else "—",
-                ", ".join(f"`{c}`" for c in configs) if len(configs) <= 8
+                ", ".join(f"`{c}`" for c in configs) or "—" if len(configs) <= 8
                 else f"{len(configs)} (`{configs[0]}` … `{configs[-1]}`)",
             ]
         )  # fmt: skip
