@@ -16,9 +16,12 @@ splits the same components:
 - the time of a full split of all components of a view, and of the remembered split
   (:class:`pose.splitting.SplitMemory`, the same view again: what most closed-loop steps pay).
 
-Writes ``benchmarks/results/blob_split.json`` (medians, rates; no per-view arrays).
+Writes ``blob_split.json`` (medians, rates; no per-view arrays), by default into a new
+``runs/blob_split-<time>/``; ``--out`` names the file (an existing one only with ``--overwrite``).
 
     python benchmarks/blob_split.py --scenes 200
+    python benchmarks/blob_split.py --scenes 200 --out benchmarks/results/blob_split.json \\
+        --overwrite   # the committed record
 """
 
 from __future__ import annotations

@@ -1,6 +1,9 @@
 """Render the README picture: what each fixed camera sees at reset and during a scripted lift.
 
 Run:  python benchmarks/camera_views.py [--object tomato_soup_can] [--out PATH.png]
+
+The committed picture is rebuilt with
+``python benchmarks/camera_views.py --out benchmarks/results/camera_views.png --overwrite``.
 """
 
 from __future__ import annotations
@@ -23,13 +26,15 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=Path,
         default=None,
-        help="where to write (default: runs/camera_views-<time>/cameras.png; an existing "
+        help="where to write (default: runs/camera_views-<time>/camera_views.png; an existing "
         "file is refused without --overwrite)",
     )
     add_overwrite_option(parser)
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
-        args.out = Outputs("camera_views", args.overwrite).path(args.out, "cameras.png", "--out")
+        args.out = Outputs("camera_views", args.overwrite).path(
+            args.out, "camera_views.png", "--out"
+        )
     except ValueError as exc:
         parser.error(str(exc))
 

@@ -12,11 +12,13 @@ context, where triton is installed) is timed in its own fresh processes, with th
 (dirty) memory of the libraries it loaded: none where triton is not installed (the CPU build of
 torch).
 
-    python benchmarks/cli_startup.py              # writes benchmarks/results/cli_startup.json
+    python benchmarks/cli_startup.py              # writes runs/cli_startup-<time>/cli_startup.json
+    python benchmarks/cli_startup.py --out benchmarks/results/cli_startup.json --overwrite  # record
     python benchmarks/cli_startup.py --runs 3 --out /tmp/cli.json
     mkdir /tmp/before && git archive febf072 | tar -x -C /tmp/before
     python benchmarks/cli_startup.py --baseline /tmp/before   # the same commands, side by side
-    python benchmarks/cli_startup.py --preload-only --out benchmarks/results/gl_preload_cuda.json
+    python benchmarks/cli_startup.py --preload-only --config gl_preload_cuda \\
+        --out benchmarks/results/cli_startup.json --overwrite   # (CUDA torch venv)
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pose.fileio import atomic_write_json  # noqa: E402
+from pose.fileio import write_result  # noqa: E402
 
 COMMANDS = (
     ("--help",),
@@ -137,6 +139,11 @@ def main(argv: list[str] | None = None) -> dict:
     )
     add_overwrite_option(ap)
     ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
+    ap.add_argument(
         "--baseline",
         type=Path,
         default=None,
@@ -177,8 +184,8 @@ def main(argv: list[str] | None = None) -> dict:
         "commands": commands,
         "gl_preload": preload,
     }
-    atomic_write_json(args.out, result)
-    print(f"wrote {args.out}")
+    write_result(args.out, result, args.config)
+    print(f"wrote {args.out}" + (f" (config {args.config!r})" if args.config else ""))
     return result
 
 

@@ -9,9 +9,10 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
   recognition; the table-top prior): no privileged input. Variants swap one component: no
   table-top prior (estimates as the models answer them), FLR alone or appearance alone as the
   recogniser, the ``side`` camera's own pose models where the top view is hidden;
-- ``chance (image-blind estimator)``: the ``manifold`` arm with the trained models swapped for
-  a constant rotation fitted on their views (``RolloutConfig.estimator="chance"``), masks,
-  recognition and prior unchanged: the chance level beside the estimator;
+- ``rotation-blind (image position, constant rotation)``: the ``manifold`` arm with the trained
+  models swapped for a constant rotation fitted on their views (``RolloutConfig.estimator=
+  "chance"``), masks, recognition and prior unchanged, so the position and identity still come
+  from the image and only the rotation ignores it: the chance level beside the estimator;
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
   ``silhouette motion`` arms add ``motion="silhouette"`` to the side-fallback source;
@@ -26,17 +27,24 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 the figures do not depend on N); the in-loop timing runs afterwards, alone. ``--arms`` runs a
 subset (``robustness``: the noise curves; the timing goes with ``manifold``), and ``--merge
 PART.json ...`` joins the reports of such runs into the one a whole run writes, so a long batch
-can be split over several commands. Writes ``benchmarks/results/closed_loop.json`` and
-``closed_loop.png``.
+can be split over several commands. Writes ``closed_loop.json``, by default into a new
+``runs/closed_loop-<time>/`` (``--out`` names the file, an existing one only with
+``--overwrite``; the committed record is ``--out benchmarks/results/closed_loop.json
+--overwrite``) (the default run at its top level; ``--config NAME`` stores a variant, e.g.
+another model set, under ``configs[NAME]`` and leaves the rest of the file as it was) and, for
+the default run, ``closed_loop.png``.
 
 ``--perturbations "none;lighting=0.5;..."`` runs instead the ``manifold`` arm once per env
 perturbation (``scorbot_gym.data.perturbations``, redrawn every episode; the pose models are the
-unperturbed ones): the perturbation axes in the loop. Writes ``closed_loop_perturbations.json``
-and ``.png``.
+unperturbed ones): the perturbation axes in the loop, stored as the config ``perturbations`` of
+``closed_loop.json`` (unless ``--config`` names another).
 
     python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 16] [--quick]
     python benchmarks/closed_loop.py --arms "oracle;manifold;robustness" --out part1.json
-    python benchmarks/closed_loop.py --merge part1.json part2.json
+    python benchmarks/closed_loop.py --merge part1.json part2.json \\
+        --out benchmarks/results/closed_loop.json --overwrite
+    python benchmarks/closed_loop.py --perturbations "none;calibration=1" --jobs 16 \\
+        --out benchmarks/results/closed_loop.json --overwrite   # config 'perturbations'
 """
 
 from __future__ import annotations
@@ -55,8 +63,11 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 #: the ``--arms`` name of the noise curves (the ``robustness`` section of the report)
 ROBUSTNESS = "robustness"
-#: the image-blind arm: the ``manifold`` arm with its models swapped for a constant rotation
-CHANCE_ARM = "chance (image-blind estimator)"
+#: the rotation-blind arm: the ``manifold`` arm with its models swapped for a constant rotation
+#: (the position and identity still come from the image)
+CHANCE_ARM = "rotation-blind (image position, constant rotation)"
+#: the config its ``--perturbations`` runs are stored under by default
+PERTURBATIONS = "perturbations"
 YAW_SIGMAS = (0.0, 5.0, 10.0, 20.0, 30.0)
 POS_SIGMAS_CM = (0.0, 0.5, 1.0, 2.0, 3.0)
 # at 320 x 240 the small objects are too few pixels from the hand camera's home pose to train
@@ -126,7 +137,8 @@ def _out(parser: argparse.ArgumentParser, args: argparse.Namespace, name: str) -
     from scorbot_gym.experiments.outputs import Outputs
 
     try:
-        return Outputs("closed_loop", args.overwrite).path(args.out, name, companions=[".png"])
+        drawn = [".png"] if args.config is None else []  # the figure is the main run's
+        return Outputs("closed_loop", args.overwrite).path(args.out, name, companions=drawn)
     except ValueError as exc:
         parser.error(str(exc))
 
@@ -147,11 +159,17 @@ def main(argv: list[str] | None = None) -> int:
         "--out",
         type=Path,
         default=None,
-        help="default: runs/closed_loop-<time>/closed_loop.json (or "
-        "closed_loop_perturbations.json); an existing file is refused without --overwrite",
+        help="the result file (default: runs/closed_loop-<time>/closed_loop.json); an existing "
+        "file is refused without --overwrite",
     )
     parser.add_argument(
         "--overwrite", action="store_true", help="replace --out (and its PNG) if it exists"
+    )
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run; "
+        f"{PERTURBATIONS!r} with --perturbations)",
     )
     parser.add_argument("--progress", action="store_true")
     parser.add_argument(
@@ -182,8 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.merge is not None:
         return _merge(parser, args)
     labels = _perturbation_labels(parser, args)
-    stem = "closed_loop_perturbations" if labels else "closed_loop"
-    args.out = _out(parser, args, f"{stem}.json")
+    if labels and args.config is None:
+        args.config = PERTURBATIONS
+    args.out = _out(parser, args, "closed_loop.json")
     if args.quick:
         args.episodes, args.push_episodes, args.curve_episodes = 6, 6, 3
         args.eye_in_hand_episodes = 2
@@ -195,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
 
     import cv2
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.evaluation.rollout import RolloutConfig
     from scorbot_gym.perception.baseline_models import baseline_models_like
     from scorbot_gym.perception.training import default_pose_models
@@ -237,18 +256,19 @@ def main(argv: list[str] | None = None) -> int:
         report["arms"][label] = done[label]
     for key, sigma, label, _ in curves:
         report["robustness"][key].append({"sigma": sigma, **_curve_point(done[label])})
-    atomic_write_json(args.out, report)
+    write_result(args.out, report, args.config)
     if "manifold" in arms:  # alone, after the arms: a timing shares the machine with nothing
         timing = _loop_timing(arms["manifold"], max(2, n // 20))
         report["loop_timing_320x240_one_thread"] = timing
         print(f"perception in the loop, 320x240, one thread: {timing}", flush=True)
     report["machine"] = _machine(args.jobs)
-    atomic_write_json(args.out, report)
-    if report["robustness"]["yaw"]:  # the figure's right panels are the noise curves
+    write_result(args.out, report, args.config)
+    # the figure is the main run's; its right panels are the noise curves
+    if args.config is None and report["robustness"]["yaw"]:
         _plot(report, args.out.with_suffix(".png"))
         print(f"written {args.out} and {args.out.with_suffix('.png')}")
     else:
-        print(f"written {args.out}")
+        print(f"written {args.out}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 
@@ -332,12 +352,12 @@ def _machine(jobs: int) -> dict:
 def _merge(parser: argparse.ArgumentParser, args) -> int:
     """Join the reports of runs of disjoint ``--arms`` (or ``--perturbations``) of the same
     episodes into one, as one run over them all would have written it."""
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     parts = []
     for path in args.merge:
         try:
-            parts.append(json.loads(path.read_text()))
+            parts.append(_part(path))
         except (OSError, ValueError) as exc:
             parser.error(f"--merge: {path} is not a readable JSON ({exc})")
     kinds = {p.get("benchmark") for p in parts}
@@ -352,7 +372,9 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
     twice = sorted({k for k in labels if labels.count(k) > 1})
     if twice:
         parser.error(f"--merge: arms in more than one part: {twice}")
-    out = args.out = _out(parser, args, f"{kind}.json")
+    if kind == "closed_loop_perturbations" and args.config is None:
+        args.config = PERTURBATIONS
+    args.out = _out(parser, args, "closed_loop.json")
     report = {k: v for k, v in parts[0].items() if k in ("benchmark", *same)}
     report["pose_model_ready_s"] = max(p["pose_model_ready_s"] for p in parts)
     if kind == "closed_loop_perturbations":
@@ -378,11 +400,25 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
         for m in part.get("machine", {}).get("merged_from") or [str(path)]
     ]  # fmt: skip
     report["machine"] = {**parts[0]["machine"], "merged_from": sources}
-    atomic_write_json(out, report)
-    plot = _plot_perturbations if kind == "closed_loop_perturbations" else _plot
-    plot(report, out.with_suffix(".png"))
-    print(f"written {out} and {out.with_suffix('.png')}")
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        _plot(report, args.out.with_suffix(".png"))
+        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    else:
+        print(f"written {args.out} (config {args.config!r})")
     return 0
+
+
+def _part(path: Path) -> dict:
+    """A part to merge: a report as a run with ``--out PART.json`` wrote it (its main run, or
+    the one config it holds)."""
+    from pose.fileio import read_json
+
+    data = read_json(path)
+    configs = data.pop("configs", {})
+    if "arms" not in data and len(configs) == 1:
+        return next(iter(configs.values()))
+    return data
 
 
 def _perturbation_labels(parser: argparse.ArgumentParser, args) -> list[str]:
@@ -404,7 +440,7 @@ def _perturbation_labels(parser: argparse.ArgumentParser, args) -> list[str]:
 
 def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
     """The ``manifold`` arm of the main run under each env perturbation, on the same episodes."""
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
@@ -428,37 +464,9 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         "arms": {label: done[label] for label in labels},
         "machine": _machine(args.jobs),
     }
-    atomic_write_json(args.out, report)
-    _plot_perturbations(report, args.out.with_suffix(".png"))
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    write_result(args.out, report, args.config)
+    print(f"written {args.out} (config {args.config!r})")
     return 0
-
-
-def _plot_perturbations(report: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    labels = report["perturbations"]
-    arms = [report["arms"][k] for k in labels]
-    fig, ax = plt.subplots(figsize=(7, 4))
-    xs = range(len(labels))
-    rates = [a["success_rate"] for a in arms]
-    lo = [r - a["success_rate_ci95"][0] for r, a in zip(rates, arms, strict=True)]
-    hi = [a["success_rate_ci95"][1] - r for r, a in zip(rates, arms, strict=True)]
-    ax.bar(xs, rates, yerr=[lo, hi], capsize=3, color="tab:blue", alpha=0.8, label="grasp success")
-    valid = [(a.get("perception") or {}).get("valid_rate") for a in arms]
-    ax.plot(xs, [v if v is not None else float("nan") for v in valid], "o", color="tab:red",
-            label="pose estimates valid")  # fmt: skip
-    ax.set_xticks(list(xs))
-    ax.set_xticklabels(labels, rotation=15, ha="right", fontsize=7)
-    ax.set_ylim(0, 1.02)
-    n = report["episodes_per_arm"]
-    ax.set_title(f"closed loop, manifold pose source, {n} episodes per bar")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
 
 
 def _loop_timing(config, episodes: int) -> dict:

@@ -16,11 +16,13 @@ failures into classes: ``finger_on_neighbour_at_close`` (a finger stood on or ag
 neighbour when the gripper closed), ``physics_blew_up`` (a neighbour or the target thrown more
 than a metre after the hand met a neighbour), ``target_pushed`` (the target moved more than
 1 cm before the fingers closed), ``other``; and for each class whether the hand met a neighbour
-during the descent. Writes ``benchmarks/results/clutter_approach.json``: per controller the
-success rate (95 % interval), failure causes, classes, how many episodes met a neighbour during
-the descent, and one line per failed episode.
+during the descent. Writes ``clutter_approach.json`` (into a new ``runs/clutter_approach-<time>/``
+unless ``--out`` names a file; ``--config NAME`` stores a variant under ``configs[NAME]``): per
+controller the success rate (95 % interval), failure causes, classes, how many episodes met a
+neighbour during the descent, and one line per failed episode. The committed record:
 
-    python benchmarks/clutter_approach.py --episodes 200 --jobs 16
+    python benchmarks/clutter_approach.py --episodes 200 --jobs 16 \\
+        --out benchmarks/results/clutter_approach.json --overwrite
 """
 
 from __future__ import annotations
@@ -147,6 +149,11 @@ def main(argv: list[str] | None = None) -> int:
         "existing file is refused without --overwrite)",
     )
     add_overwrite_option(ap)
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = ap.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("clutter_approach", args.overwrite).path(
@@ -156,7 +163,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(exc))
     if args.episodes < 1 or args.jobs < 1 or args.distractors < 1:
         ap.error("--episodes, --jobs and --distractors must be >= 1")
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     tasks = [
         (c, args.distractors, s, min(CHUNK, args.seed + args.episodes - s))
@@ -193,8 +200,8 @@ def main(argv: list[str] | None = None) -> int:
             "load_average_1min_at_end": os.getloadavg()[0],
         },
     }
-    atomic_write_json(args.out, report)
-    print(f"written {args.out}")
+    write_result(args.out, report, args.config)
+    print(f"written {args.out}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

@@ -15,14 +15,18 @@ pose source (:mod:`scorbot_gym.perception.registry`):
 
 Episodes are cut into chunks that run in ``--jobs`` processes (each builds its env once per
 chunk); the summary pools every chunk's episodes, so the figures do not depend on ``--jobs``.
-Writes ``benchmarks/results/clutter_closed_loop.json`` (``_quick`` with ``--quick``): per
+Writes ``clutter_closed_loop.json``, into a new ``runs/clutter_closed_loop-<time>/`` unless
+``--out`` names a file (an existing one only with ``--overwrite``) (the main run at its top
+level; ``--config NAME`` stores a variant, e.g. another splitter or seed range, as
+``configs[NAME]``, the file's other runs left as they were; ``--quick`` the config ``quick``): per
 distractor count and arm the rollout summary (success with its 95 % interval, failure causes
 with ``wrong_object``, distractors knocked over, perception: target recognition accuracy, blob
 recognition, errors, the in-loop cost per estimate and per stage), one line per failed episode
 (seed, target, cause) to find the failures behind a number, the issue's targets met or not, and
-a PNG.
+(for the main run) a PNG.
 
-    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
+    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16 \\
+        --out benchmarks/results/clutter_closed_loop.json --overwrite   # the committed record
 
 ``--splitter`` swaps the stage that splits blobs several objects share (``none``, the default:
 left whole; ``keypoints``; ``distance``) in every arm that reads blobs; run once per splitter
@@ -199,15 +203,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--distractors", type=int, nargs="+", default=[2, 4])
     ap.add_argument("--seed", type=int, default=5000, help="first episode's seed")
     ap.add_argument("--arms", nargs="+", choices=ARMS, default=list(ARMS))
-    ap.add_argument("--quick", action="store_true", help="4 episodes, written to *_quick.json")
+    ap.add_argument("--quick", action="store_true", help="4 episodes, as the config 'quick'")
     ap.add_argument(
         "--out",
         type=Path,
         default=None,
-        help="JSON path, the PNG beside it (default: runs/clutter_closed_loop-<time>/"
-        "clutter_closed_loop.json); an existing file is refused without --overwrite",
+        help="the result file, the main run's PNG beside it (default: runs/clutter_closed_loop-"
+        "<time>/clutter_closed_loop.json); an existing file is refused without --overwrite",
     )
     ap.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (chunks of episodes)")
     ap.add_argument(
         "--splitter",
@@ -232,10 +241,10 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     from scorbot_gym.experiments.outputs import Outputs
 
-    name = "clutter_closed_loop_quick.json" if args.quick else "clutter_closed_loop.json"
+    config = "quick" if args.quick and args.config is None else args.config
     try:  # before any work: an existing file is not replaced unless asked
         out = Outputs("clutter_closed_loop", args.overwrite).path(
-            args.out, name, companions=[".png"]
+            args.out, "clutter_closed_loop.json", companions=[".png"] if config is None else []
         )
     except ValueError as exc:
         ap.error(str(exc))
@@ -245,7 +254,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--regrasps must be >= 0, got {args.regrasps}")
     episodes = 4 if args.quick else args.episodes
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.perception.training import default_pose_models
 
     default_pose_models("top", 320, 240)  # trained once here, not by every worker at once
@@ -304,9 +313,12 @@ def main(argv: list[str] | None = None) -> int:
     for t in report["targets"]:
         print(f"target {t['figure']} {t['kind']} {t['bound']}: {t['value']} "
               f"({'met' if t['met'] else 'NOT met'})")  # fmt: skip
-    atomic_write_json(out, report)
-    plot(report, out.with_suffix(".png"))
-    print(f"written {out} and {out.with_suffix('.png')}")
+    write_result(out, report, config)
+    if config is None:  # the figure is the main run's
+        plot(report, out.with_suffix(".png"))
+        print(f"written {out} and {out.with_suffix('.png')}")
+    else:
+        print(f"written {out} (config {config!r})")
     return 0
 
 

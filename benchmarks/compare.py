@@ -12,8 +12,12 @@ the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.js
 default top-camera models, or ``--pose-model``); ``chance`` adds its image-blind chance level
 (the same source, masks and recognition with the estimator swapped for a constant rotation
 fitted on the default models' views); ``--noise ""`` runs no noise level.
-Writes ``benchmarks/results/compare.json`` (the report documented in
-:mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``.
+Writes ``compare.json`` (the report documented in :mod:`scorbot_gym.evaluation.compare`, plus
+the machine) and the figure ``compare.png``, into a new ``runs/compare-<time>/`` unless ``--out``
+names the file (an existing one only with ``--overwrite``); ``--config NAME`` stores the run as
+the variant ``configs[NAME]`` of that file instead (e.g. held-out objects, another pose model),
+without a figure, the file's other runs kept. The committed record is rebuilt with ``--out
+benchmarks/results/compare.json --overwrite`` (and a variant of it with ``--config NAME`` too).
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned] [--episodes 200] \
         [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
@@ -65,18 +69,23 @@ def main(argv: list[str] | None = None) -> int:
     )
     add_overwrite_option(parser)
     parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
+    parser.add_argument(
         "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
     )
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("compare", args.overwrite).path(
-            args.out, "compare.json", companions=[".png"]
+            args.out, "compare.json", companions=[".png"] if args.config is None else []
         )
     except ValueError as exc:
         parser.error(str(exc))
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.cli.compare import format_report
     from scorbot_gym.evaluation.compare import compare, plot_comparison
 
@@ -98,11 +107,13 @@ def main(argv: list[str] | None = None) -> int:
         "jobs": args.jobs,
         "scorbot_gym": scorbot_gym.__version__,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.out, report)
-    plot_comparison(report, args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
     print(format_report(report))
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    if args.config is None:  # the figure is the main run's
+        plot_comparison(report, args.out.with_suffix(".png"))
+        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    else:
+        print(f"written {args.out} (config {args.config!r})")
     return 0
 
 

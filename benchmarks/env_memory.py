@@ -14,7 +14,8 @@ is split into anonymous (heap: models, GL state) and file-backed (shared librari
 The objects' derived geometry is read from the on-disk cache, as on every run after the first;
 one configuration starts from an empty cache folder to show the first run's footprint.
 
-    python benchmarks/env_memory.py                  # writes benchmarks/results/env_memory.json
+    python benchmarks/env_memory.py                  # writes runs/env_memory-<time>/env_memory.json
+    python benchmarks/env_memory.py --out benchmarks/results/env_memory.json --overwrite  # record
     python benchmarks/env_memory.py --resets 50 --out /tmp/m.json
 
 Linux only (reads /proc/self/status).

@@ -3,7 +3,14 @@ step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-
 robosuite Lift (Panda) in the same run.
 
 Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...]] [--repeats 5] [--cpu 0]
-      [--out PATH.json]
+      [--out PATH.json] [--config NAME]
+
+By default the run is written to a new ``runs/env_step-<time>/env_step.json`` (and ``.png``);
+``--out`` names another file, which is refused if it exists unless ``--overwrite`` is given.
+``--config NAME`` stores the run as the variant ``configs[NAME]`` of ``--out`` (e.g. every peer,
+another machine), without a figure; the file's other runs are kept. The committed record is
+rebuilt with ``python benchmarks/env_step.py --peers --out benchmarks/results/env_step.json
+--overwrite`` (a variant of it: ``--config NAME`` added).
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
@@ -267,10 +274,15 @@ def main(argv: list[str] | None = None) -> int:
         "file is refused without --overwrite)",
     )
     add_overwrite_option(parser)
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("env_step", args.overwrite).path(
-            args.out, "env_step.json", "--out", companions=[".png"]
+            args.out, "env_step.json", "--out", companions=[".png"] if args.config is None else []
         )
     except ValueError as exc:
         parser.error(str(exc))
@@ -280,7 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         os.sched_setaffinity(0, {args.cpu})  # inherited by every timing subprocess
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     ours = Path(sys.executable)
     envs = {SCORBOT: ours, SCORBOT_CARTESIAN: ours, SCORBOT_SHADOWS: ours}
@@ -323,8 +335,9 @@ def main(argv: list[str] | None = None) -> int:
             "mujoco_gl": os.environ.get("MUJOCO_GL", "egl"),
         },
     }
-    atomic_write_json(args.out, report)
-    plot(report, args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        plot(report, args.out.with_suffix(".png"))
     for setting, per_env in results.items():
         for env, r in per_env.items():
             ratio = r.get("scorbot_ratio_steps_per_second") or r.get(
@@ -337,7 +350,8 @@ def main(argv: list[str] | None = None) -> int:
             extra = f"  ({who} {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
             shown = r.get("error") or f"{r['steps_per_second_median']:8.1f} steps/s"
             print(f"{setting:>14} {env:>26}: {shown}{extra}")
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
+    print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

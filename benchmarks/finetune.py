@@ -17,7 +17,9 @@ stage's from its policy.json) and the fine-tune's evaluation curve.
 
 Writes ``--out`` (JSON) and the ``.png`` beside it, by default ``finetune.json`` in a new
 ``runs/finetune-<UTC time>/``; a named file that exists is refused unless ``--overwrite``
-(the committed record: ``--out benchmarks/results/finetune.json --overwrite``).
+(the committed record: ``--out benchmarks/results/finetune.json --overwrite``). ``--config
+NAME`` stores the run as the variant ``configs[NAME]`` of that file instead (e.g. another
+``bc_coef``), without a figure, the file's other runs kept.
 """
 
 from __future__ import annotations
@@ -205,9 +207,14 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--skip-training", action="store_true", help="evaluate the runs in --runs")
     p.add_argument("--out", type=Path, default=None, help="results JSON (the PNG goes beside it)")
     add_overwrite_option(p)
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = p.parse_args(argv)
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.evaluation.compare import compare, resolve_arm
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.rl.runs import policy_dir
@@ -220,7 +227,7 @@ def main(argv: list[str] | None = None) -> None:
             resolve_arm(arm)
         configs = _configs(args, hparams.parse_overrides(args.hyperparams))
         out_json = Outputs("finetune", args.overwrite).path(
-            args.out, "finetune.json", companions=[".png"]
+            args.out, "finetune.json", companions=[".png"] if args.config is None else []
         )
     except (ValueError, FileNotFoundError) as exc:
         p.error(str(exc))
@@ -270,9 +277,9 @@ def main(argv: list[str] | None = None) -> None:
         "evaluation_wall_s": round(report["wall_s"], 1),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
-    out_json.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(out_json, out)
-    _plot(out, companion(out_json, ".png"))
+    write_result(out_json, out, args.config)
+    if args.config is None:  # the figure is the main run's
+        _plot(out, companion(out_json, ".png"))
     for d in diffs:
         print(
             f"{d['pose']:>14} {d['a']} - imitation: {100 * d['diff']:+.1f} points "
@@ -282,7 +289,8 @@ def main(argv: list[str] | None = None) -> None:
     for r in out["evaluation"]["results"]:
         lo, hi = r["ci95"]
         print(f"{r['pose']:>14} {r['policy']:>14}: {r['success_rate']:.1%} [{lo:.1%}, {hi:.1%}]")
-    print(f"results written to {out_json} / {companion(out_json, '.png').name}")
+    where = f"config {args.config!r}" if args.config else companion(out_json, ".png").name
+    print(f"results written to {out_json} ({where})")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,8 @@ into a new ``runs/learned_policy-<UTC time>/``; a path named that exists is refu
 --expert-keeps-close``; to replace it: ``--out scorbot_gym/policies/data/imitation_dagger_estimates
 --json benchmarks/results/learned_policy.json --overwrite``). ``--dataset NAME`` trains on a
 Minari dataset's demonstrations (its action type must be the env's, cartesian; the policy
-records the dataset's settings).
+records the dataset's settings). ``--config NAME`` stores the results as the variant
+``configs[NAME]`` of ``--json`` (e.g. another ``--poses``), the file's other runs kept.
 """
 
 from __future__ import annotations
@@ -130,6 +131,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--json", type=Path, default=None, help="results (default: beside the policy folder)"
     )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
     add_overwrite_option(p)
     args = p.parse_args(argv)
@@ -155,7 +161,7 @@ def main(argv: list[str] | None = None) -> None:
     except (ValueError, FileNotFoundError) as exc:
         p.error(str(exc))
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.policies.imitation import HistorySpec, ImitationPolicy
     from scorbot_gym.rl.imitation import ImitationConfig, make_learner_envs, train_imitation
 
@@ -218,9 +224,8 @@ def main(argv: list[str] | None = None) -> None:
         "provenance": policy.meta.get("provenance", "not recorded"),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
     }
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.json, out)
-    print(f"results written to {args.json}")
+    write_result(args.json, out, args.config)
+    print(f"results written to {args.json}" + (f" (config {args.config!r})" if args.config else ""))
 
 
 if __name__ == "__main__":

@@ -15,6 +15,12 @@ reproducible. Learning from scratch (#49) on a 16-core GPU machine, 1M env steps
     python benchmarks/learning_curves.py --arm residual=runs/curves_residual --train \\
         --seeds 0,1,2 --timesteps 3000
     python benchmarks/learning_curves.py --arm sac=runs/a --arm tqc=runs/b   # existing runs
+
+By default the JSON and PNG go to a new ``runs/learning_curves-<time>/``; ``--out`` names the
+file (an existing one only with ``--overwrite``), and ``--config NAME`` stores the run as the
+variant ``configs[NAME]`` of it, without a figure, the file's other runs kept. The committed
+record is updated by adding ``--out benchmarks/results/learning_curves.json --overwrite`` to
+the command (and ``--config residual_no_burnin`` or ``scratch_56k`` for its variants).
 """
 
 from __future__ import annotations
@@ -122,10 +128,15 @@ def main(argv: list[str] | None = None) -> int:
         help="results JSON, the PNG beside it (default: runs/learning_curves-<time>/)",
     )
     add_overwrite_option(parser)
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("learning_curves", args.overwrite).path(
-            args.out, "learning_curves.json", companions=[".png"]
+            args.out, "learning_curves.json", companions=[".png"] if args.config is None else []
         )
     except ValueError as exc:
         parser.error(str(exc))
@@ -142,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error(f"no run folder at {', '.join(missing)} (--train trains preset arms)")
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.rl.curves import learning_curves, plot_learning_curves
     from scorbot_gym.rl.hyperparams import parse_overrides
     from scorbot_gym.rl.training import TrainConfig
@@ -205,9 +216,9 @@ def main(argv: list[str] | None = None) -> int:
             "scorbot_gym": scorbot_gym.__version__,
         },
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.out, report)
-    plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        plot_learning_curves(report["arms"], args.out.with_suffix(".png"))
     for label, arm in report["arms"].items():
         final = arm["by_timesteps"]
         lo, hi = final["ci95_low"], final["ci95_high"]
@@ -218,7 +229,8 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"  {float(level):.0%} reached by {hit['seeds_reached']} seeds: {hit['timesteps']}"
             )
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
+    print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

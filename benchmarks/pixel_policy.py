@@ -13,12 +13,15 @@ pixel - state on the same episodes is what the explicit pose estimate buys.
     nice -n 5 python benchmarks/pixel_policy.py [--demos 400] [--dagger-rounds 3]
         [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--encoder nature|spatial_softmax]
         [--keypoints 32] [--episodes 200] [--eval-seed 50000]
-        [--jobs 3] [--out DIR] [--json FILE] [--overwrite] [--skip-training]
+        [--jobs 3] [--out DIR] [--json FILE] [--overwrite] [--config NAME] [--skip-training]
 
 Training uses CUDA when available; ``--jobs`` also collects the training episodes in that many
 processes (the same episodes for any number). Writes the policy folder (``--out``, not into the
 package: its weights are ~4 MB) and ``pixel_policy.json`` (``--json``), by default both into a
 new ``runs/pixel_policy-<UTC time>/``; a named path that exists is refused without ``--overwrite``.
+The committed record is updated with ``--json benchmarks/results/pixel_policy.json --overwrite``;
+``--config NAME`` stores the run as the variant ``configs[NAME]`` of that file (e.g. another
+encoder), the file's other runs kept.
 """
 
 from __future__ import annotations
@@ -183,6 +186,11 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--json", type=Path, default=None, help="results (default: beside the policy folder)"
     )
+    p.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     p.add_argument("--skip-training", action="store_true", help="evaluate --out as it is")
     add_overwrite_option(p)
     args = p.parse_args(argv)
@@ -199,7 +207,7 @@ def main(argv: list[str] | None = None) -> None:
 
     import torch
 
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
     from scorbot_gym.envs.factory import make_env
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
@@ -328,9 +336,8 @@ def main(argv: list[str] | None = None) -> None:
         },
         "command": " ".join(["python benchmarks/pixel_policy.py", *(argv or sys.argv[1:])]),
     }
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(args.json, out)
-    print(f"results written to {args.json}")
+    write_result(args.json, out, args.config)
+    print(f"results written to {args.json}" + (f" (config {args.config!r})" if args.config else ""))
 
 
 if __name__ == "__main__":

@@ -2,12 +2,16 @@
 
 For each protocol, every registered estimator (or ``--estimators``) is fitted per object on the
 protocol's training views and scored on its held-out views at each occlusion level, through
-:func:`scorbot_gym.experiments.ablate` (the code behind ``scorbot-gym pose ablate``). Writes
-``benchmarks/results/pose_ablation_<protocol>.json.gz`` (gzip-compressed: it keeps every view's
-error) and ``.png`` per protocol, with the
-chance level, the asymmetric-only figures, the stage-ablation table and the issue's targets
-(met or not). Trials are cached, so an interrupted run resumes. Threads are pinned to one per
-worker, so ``median_ms`` is a single-core time.
+:func:`scorbot_gym.experiments.ablate` (the code behind ``scorbot-gym pose ablate``). Each
+protocol's sweep, with the chance level, the asymmetric-only figures, the stage-ablation table
+and the issue's targets (met or not), is stored as the config ``<protocol>`` (``--config NAME``:
+``<protocol>_NAME``) of ``--out`` (default: a new
+``runs/pose_ablation-<time>/pose_ablation.json.gz``; the committed record is ``--out
+benchmarks/results/pose_ablation.json.gz --overwrite``; gzip-compressed: it keeps every view's
+error), the file's other configs left as they were. The figure ``pose_ablation.png`` shows one
+config, ``--figure-config`` (the headline selection on ``side-turntable``), redrawn when that
+config is written. Trials are cached, so an interrupted run resumes. Threads are pinned to one
+per worker, so ``median_ms`` is a single-core time.
 
     python benchmarks/pose_ablation.py                      # full: 4 protocols, 0:95:5, catalogue
     python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0:90:10 \\
@@ -15,14 +19,16 @@ worker, so ``median_ms`` is a single-core time.
     python benchmarks/pose_ablation.py --protocols clutter --jobs 16   # real occluders, measured
     python benchmarks/pose_ablation.py --protocols side-turntable --occlusion 0,50 \\
         --estimators manifold --perturbations "none;lighting=0.5;noise_sigma=8"  # robustness
+    python benchmarks/pose_ablation.py --config select --estimators "..." --paired "select(...)"
 
 With ``--perturbations`` each protocol is run once per perturbation (test views only; the
-models are the unperturbed ones, from the model cache) and one combined
-``pose_ablation_<protocol>_perturbations.json.gz`` / ``.png`` is written instead.
-``--replot results/pose_ablation_*.json.gz`` only redraws the PNGs from their JSON files.
+models are the unperturbed ones, from the model cache) and one combined record is stored as
+the config ``<protocol>_perturbations`` instead.
+``--replot JSON`` only redraws a figure from a sweep JSON (a result file: its
+``--figure-config``; a single sweep, as ``scorbot-gym pose ablate --json`` writes: itself).
 ``--paired ESTIMATOR`` compares that estimator view by view with every other one of the sweep
-(``paired`` in the JSON and printed); with ``--replot`` it is computed from each file's
-``view_errors`` and added to the file.
+(``paired`` in the JSON and printed); with ``--replot`` it is computed from the drawn record's
+``view_errors`` and added to it.
 """
 
 from __future__ import annotations
@@ -40,7 +46,12 @@ import sys  # noqa: E402
 import textwrap  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from pose.fileio import atomic_write_bytes, atomic_write_json, read_json  # noqa: E402
+from pose.fileio import (  # noqa: E402
+    CONFIGS,
+    atomic_write_bytes,
+    read_json,
+    write_result,
+)
 from pose.registry import estimator_names  # noqa: E402
 from scorbot_gym.data.perturbations import Perturbation  # noqa: E402
 from scorbot_gym.data.protocols import get_protocol  # noqa: E402
@@ -57,6 +68,9 @@ from scorbot_gym.experiments.spec import (  # noqa: E402
     split_estimators,
 )
 
+RESULT = Path(__file__).resolve().parent / "results" / "pose_ablation.json.gz"
+#: the config the figure shows: the headline per-object selection on ``side-turntable``
+FIGURE_CONFIG = "side-turntable_select"
 PROTOCOLS = ("side-turntable", "top-resting", "tilted", "sparse-headings")
 # The issue's targets: (protocol, occlusion, figure, minimum), checked for every composition
 # of the pose-manifold estimator in the sweep (``manifold`` and its ``manifold-*`` variants).
@@ -87,9 +101,13 @@ def _cell_key(record: dict) -> tuple:
     return record["perturbation"], record["occlusion"], record["estimator"]
 
 
-def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_dir, stem: Path):
-    """One protocol under several perturbations: combined records, and success@5° per
-    perturbation and occlusion as grouped bars, one panel per estimator."""
+def perturbation_sweep(
+    specs: list[SweepSpec], labels: list[str], runner, cache_dir, out: Path, config: str,
+    png: Path | None,
+):  # fmt: skip
+    """One protocol under several perturbations: combined records stored as ``config`` of
+    ``out``, and (given ``png``) success@5° per perturbation and occlusion as grouped bars, one
+    panel per estimator."""
     rows, chance, stats, machine = [], {}, {}, None
     for spec, label in zip(specs, labels, strict=True):
         report = ablate(spec, runner, cache_dir)
@@ -98,11 +116,15 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
         stats[label], machine = report.get("stats"), report.get("machine")
         print(f"\n== {spec.protocol}, perturbation {label}")
         print(format_results(report["results"], report["chance"]))
-    atomic_write_json(
-        Path(f"{stem}.json.gz"),
+    write_result(
+        out,
         {"spec": {**specs[0].to_dict(), "perturbation": None}, "perturbations": labels,
          "results": rows, "chance": chance, "stats": stats, "machine": machine},
+        config,
     )  # fmt: skip
+    print(f"wrote {out} (config {config!r})")
+    if png is None:
+        return
     import matplotlib
 
     matplotlib.use("Agg")
@@ -138,16 +160,19 @@ def perturbation_sweep(specs: list[SweepSpec], labels: list[str], runner, cache_
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)
-    atomic_write_bytes(stem.with_suffix(".png"), buf.getvalue())
-    print(f"wrote {stem}.json.gz / .png")
+    atomic_write_bytes(png, buf.getvalue())
+    print(f"wrote {png}")
 
 
-def replot(json_path: Path, paired: str | None = None) -> None:
-    """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone); with
-    ``paired``, also compare that estimator view by view with the others, from the file's
-    ``view_errors``, and add the rows to the file as ``paired`` (nothing else in it changes)."""
+def replot(json_path: Path, paired: str | None = None, figure_config: str = FIGURE_CONFIG) -> None:
+    """Redraw a sweep's PNG from its JSON (the figure is a function of the file alone): of a
+    result file, its ``figure_config``; of a single sweep's record, the record. With ``paired``,
+    also compare that estimator view by view with the others, from the record's
+    ``view_errors``, and add the rows to it as ``paired`` (nothing else in the file changes)."""
     try:
-        report = read_json(json_path)
+        data = read_json(json_path)
+        config = figure_config if CONFIGS in data and "spec" not in data else None
+        report = data if config is None else data[CONFIGS][figure_config]
         spec = report["spec"]
         results, chance = report["results"], report["chance"]
     except (OSError, EOFError, ValueError, KeyError, TypeError) as exc:
@@ -159,7 +184,7 @@ def replot(json_path: Path, paired: str | None = None) -> None:
             raise ValueError(f"{json_path} has no view_errors (written before sweeps kept them)")
         report["paired"] = paired_differences(report["view_errors"], paired)
         print(format_paired(report["paired"]))
-        atomic_write_json(json_path, report)
+        write_result(json_path, {k: v for k, v in report.items() if k != CONFIGS}, config)
     write_report({"spec": spec, "results": results, "chance": chance}, None,
                  png_path(json_path))  # fmt: skip
 
@@ -195,13 +220,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS")
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument(
-        "--out-dir",
+        "--out",
+        type=Path,
         default=None,
-        help="folder of the result files (default: a new runs/pose_ablation-<time>/); a result "
-        "file there that exists is refused without --overwrite",
+        help="the result file (default: runs/pose_ablation-<time>/pose_ablation.json.gz; an "
+        "existing file is refused without --overwrite)",
     )
-    ap.add_argument("--overwrite", action="store_true", help="replace existing result files")
-    ap.add_argument("--suffix", default="", help="appended to the result file names")
+    ap.add_argument("--overwrite", action="store_true", help="add to or replace an existing --out")
+    ap.add_argument("--config", default="",
+                    help="store each protocol's sweep as the config <protocol>_CONFIG "
+                         "(default: <protocol>)")  # fmt: skip
+    ap.add_argument(
+        "--figure-config",
+        default=FIGURE_CONFIG,
+        help="the config the figure beside --out shows (default: %(default)s)",
+    )
     ap.add_argument("--replot", nargs="+", default=None, metavar="JSON",
                     help="only redraw each sweep JSON's PNG beside it (no sweep runs)")  # fmt: skip
     ap.add_argument("--paired", default=None, metavar="ESTIMATOR",
@@ -217,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.replot:
         for path in map(Path, args.replot):
             try:
-                replot(path, paired)
+                replot(path, paired, args.figure_config)
             except ValueError as exc:
                 ap.error(str(exc))
             print(f"wrote {png_path(path)}")
@@ -248,27 +281,26 @@ def main(argv: list[str] | None = None) -> int:
         ]  # fmt: skip
     except ValueError as exc:
         ap.error(str(exc))
-    from scorbot_gym.experiments.outputs import Outputs, refuse_existing
+    from scorbot_gym.experiments.outputs import Outputs
 
-    if args.out_dir is None:
-        args.out_dir = str(Outputs("pose_ablation").folder)
-    elif not args.overwrite:
-        kind = "_perturbations" if labels else ""
-        stems = [Path(args.out_dir) / f"pose_ablation_{pr}{kind}{args.suffix}" for pr, _ in plan]
-        try:
-            refuse_existing(
-                [Path(f"{st}{ext}") for st in stems for ext in (".json.gz", ".png")], "--out-dir"
-            )
-        except ValueError as exc:
-            ap.error(str(exc))
+    suffix = f"_{args.config}" if args.config else ""
+    configs = [f"{pr}_perturbations{suffix}" if labels else f"{pr}{suffix}" for pr, _ in plan]
+    drawn = [".png"] if args.figure_config in configs else []
+    try:  # before any work: an existing file is not replaced unless asked
+        args.out = Outputs("pose_ablation", args.overwrite).path(
+            args.out, "pose_ablation.json.gz", companions=drawn
+        )
+    except ValueError as exc:
+        ap.error(str(exc))
     if args.ray is not None:
         runner = RayRunner(None if args.ray == "local" else args.ray, num_cpus=args.jobs)
     else:
         runner = LocalRunner(args.jobs)
     for protocol, specs in plan:
         if labels:
-            stem = Path(args.out_dir) / f"pose_ablation_{protocol}_perturbations{args.suffix}"
-            perturbation_sweep(specs, labels, runner, args.cache_dir, stem)
+            config = f"{protocol}_perturbations{suffix}"
+            png = png_path(args.out) if config == args.figure_config else None
+            perturbation_sweep(specs, labels, runner, args.cache_dir, args.out, config, png)
             continue
         spec = specs[0]
         report = ablate(spec, runner, args.cache_dir)
@@ -277,8 +309,10 @@ def main(argv: list[str] | None = None) -> int:
                              "cpus": os.cpu_count(), "jobs": args.jobs}  # fmt: skip
         if paired is not None:
             report["paired"] = paired_differences(report["view_errors"], paired)
-        stem = Path(args.out_dir) / f"pose_ablation_{protocol}{args.suffix}"
-        write_report(report, Path(f"{stem}.json.gz"), Path(f"{stem}.png"))
+        config = f"{protocol}{suffix}"
+        write_result(args.out, {k: v for k, v in report.items() if k != "trials"}, config)
+        if config == args.figure_config:
+            write_report(report, None, png_path(args.out))
         print(f"\n== {protocol}\n" + format_results(report["results"], report["chance"]))
         for table in report_tables(report):
             print(table)
@@ -286,7 +320,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"target {t}")
         for f in report["fit_errors"]:
             print(f"not fitted: {f['estimator']} on {f['object']}: {f['error']}")
-        print(f"stats {report['stats']}\nwrote {stem}.json.gz / .png")
+        print(f"stats {report['stats']}\nwrote {args.out} (config {config!r})")
     return 0
 
 

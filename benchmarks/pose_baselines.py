@@ -13,7 +13,9 @@ image-blind level. Threads are pinned to one, so the per-view times are single-c
     nice -n 10 python benchmarks/pose_baselines.py            # 4 objects, 3 protocols
     python benchmarks/pose_baselines.py --quick               # 2 objects, top-resting, smoke test
 
-Writes ``benchmarks/results/pose_baselines.json`` and ``pose_baselines.png``.
+Writes ``pose_baselines.json`` and ``pose_baselines.png``, by default into a new
+``runs/pose_baselines-<time>/``; the committed record is rebuilt with ``--out
+benchmarks/results/pose_baselines.json --overwrite`` (an existing ``--out`` is refused without it).
 """
 
 from __future__ import annotations

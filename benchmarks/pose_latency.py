@@ -4,11 +4,14 @@ For each protocol the estimators are fitted per object exactly as ``pose_ablatio
 them (same sweep code, same model cache: after a sweep nothing is refitted), then one process
 pinned to one core, every thread pool at one thread, times ``predict`` on each object's held-out
 views (the sweep's test views, 320 × 240) with the estimators interleaved view by view
-(:func:`scorbot_gym.experiments.latency.time_predictions`). Writes
-``benchmarks/results/pose_latency.json``: per protocol and estimator the median, 90th percentile
-and maximum per-view time, and the paired ratio to ``--reference`` on the same views.
+(:func:`scorbot_gym.experiments.latency.time_predictions`). Writes ``pose_latency.json`` (by
+default into a new ``runs/pose_latency-<time>/``; ``--json`` names the file, an existing one
+only with ``--overwrite``; ``--config NAME`` stores a variant under ``configs[NAME]``): per
+protocol and estimator the median, 90th percentile and maximum per-view time, and the paired
+ratio to ``--reference`` on the same views.
 
     python benchmarks/pose_latency.py    # tilted, side-turntable, top-resting; select vs baselines
+    python benchmarks/pose_latency.py --json benchmarks/results/pose_latency.json --overwrite
     python benchmarks/pose_latency.py --protocols tilted --cache-dir /tmp/empty  # training too
 """
 
@@ -28,7 +31,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from pose.fileio import atomic_write_json  # noqa: E402
+from pose.fileio import write_result  # noqa: E402
 from scorbot_gym.data.protocols import held_out_views, protocol_names  # noqa: E402
 from scorbot_gym.experiments import LocalRunner, make_jobs, run_sweep, sweep  # noqa: E402
 from scorbot_gym.experiments.latency import (  # noqa: E402
@@ -84,6 +87,11 @@ def main(argv: list[str] | None = None) -> int:
         "file is refused without --overwrite)",
     )
     add_overwrite_option(ap)
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --json (default: the file's main run)",
+    )
     args = ap.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.json = Outputs("pose_latency", args.overwrite).path(
@@ -172,8 +180,8 @@ def main(argv: list[str] | None = None) -> int:
     report["machine"] = {"platform": platform.platform(), "python": sys.version.split()[0],
                          "cpu": cpu_model(), "cpus": os.cpu_count(), "pinned_core": core,
                          "threads": 1}  # fmt: skip
-    atomic_write_json(Path(args.json), report)
-    print(f"wrote {args.json}")
+    write_result(Path(args.json), report, args.config)
+    print(f"wrote {args.json}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

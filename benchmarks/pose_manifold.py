@@ -2,9 +2,10 @@
 
 Trains one estimator per catalogue object on a cold view cache (so the training time includes
 rendering), evaluates random held-out poses at several occlusion levels and writes
-``benchmarks/results/pose_manifold.json``. Threads are pinned to one (OpenCV, OpenMP, BLAS)
-before anything is imported, so the per-view times are single-core times; training runs
-``--jobs`` objects in parallel (2 cores).
+``pose_manifold.json`` (by default into a new ``runs/pose_manifold-<time>/``; the committed
+record: ``--out benchmarks/results/pose_manifold.json --overwrite [--config NAME]``). Threads
+are pinned to one (OpenCV, OpenMP, BLAS) before anything is imported, so the per-view times are
+single-core times; training runs ``--jobs`` objects in parallel (2 cores).
 
     python benchmarks/pose_manifold.py            # full run, about 10 minutes on 2 cores
     python benchmarks/pose_manifold.py --quick    # 3 objects, fewer views: a smoke test
@@ -24,7 +25,6 @@ import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
-from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 
@@ -68,6 +68,11 @@ def main(argv: list[str] | None = None) -> int:
         "file is refused without --overwrite)",
     )
     add_overwrite_option(ap)
+    ap.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     ap.add_argument(
         "--params",
         nargs="*",
@@ -146,14 +151,12 @@ def main(argv: list[str] | None = None) -> int:
         "training": info,
         "results": results,
     }
-    path = Path(args.out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(out, indent=2))
-    os.replace(tmp, path)
+    from pose.fileio import write_result
+
+    path = write_result(args.out, out, args.config)
     print(format_tables(results))
     print(f"\ntraining {train_s:.1f} s; measured {json.dumps(measured)}; met {json.dumps(met)}")
-    print(f"wrote {path}")
+    print(f"wrote {path}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

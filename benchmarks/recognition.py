@@ -19,8 +19,10 @@ part of the mask (what a perfect segmenter would give):
 - ``flr_shortlist_appearance``: :class:`pose.recognition.ShortlistRecognizer`: the three best
   classes of ``flr_top_side``, decided among by appearance (``recognizer="flr+appearance"``).
 
-Chance level is ``1 / n_objects``. Writes ``benchmarks/results/recognition.json`` and
-``recognition.png``. Run: ``MUJOCO_GL=egl python benchmarks/recognition.py``.
+Chance level is ``1 / n_objects``. Writes ``recognition.json`` and ``recognition.png``, by
+default into a new ``runs/recognition-<time>/``. Run: ``MUJOCO_GL=egl python
+benchmarks/recognition.py``; the committed record: ``... --out benchmarks/results/recognition.json
+--overwrite`` (an existing ``--out`` is refused without ``--overwrite``).
 """
 
 from __future__ import annotations

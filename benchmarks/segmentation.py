@@ -22,9 +22,12 @@ estimate <= 40 ms median per step at 320 x 240 on one core.
    recognition kept after the first clear view (the default) and with it at every step.
    OpenCV runs on one thread and Mesa's llvmpipe on one (``LP_NUM_THREADS=1`` unless set).
 
-Writes ``benchmarks/results/segmentation.json.gz`` (gzip-compressed: it keeps every frame's row)
-and ``segmentation.png``.
-Run: ``MUJOCO_GL=egl python benchmarks/segmentation.py`` (about 10 min on 2 cores).
+Writes ``segmentation.json.gz`` (gzip-compressed: it keeps every frame's row) and
+``segmentation.png``, by default into a new ``runs/segmentation-<time>/`` (``--out`` names the
+file, an existing one only with ``--overwrite``); ``--config NAME`` stores the run as the variant
+``configs[NAME]`` of that file (e.g. ``depth``), without a figure, the file's other runs kept.
+Run: ``MUJOCO_GL=egl python benchmarks/segmentation.py`` (about 10 min on 2 cores); the committed
+record: ``... --out benchmarks/results/segmentation.json.gz --overwrite``.
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ import cv2  # noqa: E402
 import numpy as np
 
 from pose.camera import CameraModel
-from pose.fileio import atomic_write_json
+from pose.fileio import write_result
 from pose.segmentation import mask_iou
 from pose.view import View
 from scorbot_gym.envs.factory import make_env
@@ -254,10 +257,18 @@ def main(argv: list[str] | None = None) -> int:
         "file is refused without --overwrite)",
     )
     add_overwrite_option(parser)
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("segmentation", args.overwrite).path(
-            args.out, "segmentation.json.gz", "--out", companions=[".png"]
+            args.out,
+            "segmentation.json.gz",
+            "--out",
+            companions=[".png"] if args.config is None else [],
         )
     except ValueError as exc:
         parser.error(str(exc))
@@ -330,9 +341,12 @@ def main(argv: list[str] | None = None) -> int:
             "processor": platform.processor(),
         },
     }
-    atomic_write_json(args.out, report)
+    write_result(args.out, report, args.config)
+    if args.config is not None:
+        print(f"wrote {args.out} (config {args.config!r})")
+        return 0
     png = args.out.with_name(args.out.name.removesuffix(".gz").removesuffix(".json") + ".png")
-    plot(rows, timings, png)
+    plot(rows, timings, png)  # the figure is the main run's
     print(f"wrote {args.out} and {png}")
     return 0
 

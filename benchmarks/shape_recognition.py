@@ -17,8 +17,11 @@ evaluates FLR, k-NN and SVM (each tuned by 3-fold CV on the training half) on:
   other scene-camera silhouettes (another seed) added to the training set;
 * ``flr_consolidated``: FLR at the tuned parameters with rule consolidation on (first split).
 
-Writes ``benchmarks/results/shape_recognition.json`` and ``..._confusion.png``.
-Run: ``MUJOCO_GL=egl python benchmarks/shape_recognition.py``.
+Writes ``shape_recognition.json`` and ``shape_recognition.png`` (the confusion matrices), by
+default into a new ``runs/shape_recognition-<time>/``.
+Run: ``MUJOCO_GL=egl python benchmarks/shape_recognition.py``; the committed record: ``... --out
+benchmarks/results/shape_recognition.json --overwrite`` (an existing ``--out`` is refused
+without ``--overwrite``).
 """
 
 from __future__ import annotations
@@ -152,7 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         },
     }
     atomic_write_json(args.out, report)
-    png = args.out.with_name(args.out.stem + "_confusion.png")
+    png = args.out.with_suffix(".png")
     plot_confusions(runs[0], png, title=f"rendered catalogue silhouettes, split seed 0 "
                                         f"({runs[0]['n_test']} held out)")  # fmt: skip
     for name in mean:

@@ -7,9 +7,12 @@ source with its defaults, the table-top prior off, the arm at home, a step or tw
 measured as ``TableSupport`` measures it: the symmetry-aware tilt out of the nearest resting
 pose, and the slide along the top camera's line of sight that would put it on the table, with
 the true height error beside it. Per tilt: quantiles, the share under each candidate threshold
-and per object. Writes ``benchmarks/results/table_support.json``.
+and per object. Writes ``table_support.json``, by default into a new
+``runs/table_support-<time>/`` (``--out`` names the file, an existing one only with
+``--overwrite``).
 
     python benchmarks/table_support.py [--episodes 100] [--tilts 0 10] [--jobs 2]
+    python benchmarks/table_support.py --out benchmarks/results/table_support.json --overwrite
 """
 
 from __future__ import annotations

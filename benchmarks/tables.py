@@ -2,7 +2,11 @@
 
 Every table (or headline sentence) that quotes a benchmark file sits between two markers,
 ``<!-- table:NAME -->`` and ``<!-- /table -->``; this script replaces what lies between them
-with :data:`TABLES` ``[NAME]`` rendered from ``benchmarks/results/``. So a rerun benchmark updates
+with :data:`TABLES` ``[NAME]`` rendered from ``benchmarks/results/``: in ``benchmarks/README.md``
+every result section's table and its "Main run" conditions line (episodes, seeds, machine, the
+configs beside it), and the index of result files; in ``README.md`` the headline figures. A
+result file holds a script's main run and its variants as named configs
+(:func:`pose.fileio.read_result`). So a rerun benchmark updates
 its tables with one command, and a figure cannot drift from its file:
 ``tests/test_benchmark_tables.py`` requires the committed READMEs to equal what this script
 writes.
@@ -33,10 +37,15 @@ PROTOCOLS = (
 )
 
 
-def read(name: str) -> dict:
-    from pose.fileio import read_json
+def read(name: str, config: str | None = None) -> dict:
+    """The default run of ``results/NAME`` or, given ``config``, its variant of that name."""
+    from pose.fileio import read_result
 
-    return read_json(RESULTS / name)
+    return read_result(RESULTS / name, config)
+
+
+#: the pose-ablation sweeps, one config per ``{protocol}{suffix}`` (``pose_ablation.py``)
+ABLATION = "pose_ablation.json.gz"
 
 
 def pct(x: float | None, digits: int = 1) -> str:
@@ -73,11 +82,11 @@ def short(spec: str, names: dict[str, str]) -> str:
 
 def headline_closed_loop() -> str:
     d = read("closed_loop.json")
-    # the image-blind arm is the one whose config swaps the estimator for ``chance``; found by
-    # that, not by its label, so the label lives in closed_loop.py alone
+    # the rotation-blind arm is the one whose config swaps the estimator for ``chance``; found
+    # by that, not by its label, so the label lives in closed_loop.py alone
     chance = [k for k, v in d["arms"].items() if v.get("config", {}).get("estimator") == "chance"]
     missing = [k for k in ("manifold", "oracle") if k not in d["arms"]]
-    missing += [] if chance else ["chance (image-blind estimator)"]
+    missing += [] if chance else ["rotation-blind (image position, constant rotation)"]
     if missing:  # the headline states the chance level beside the estimator, or nothing
         sys.exit(
             f"closed_loop.json lacks the arms {missing}: run benchmarks/closed_loop.py --arms "
@@ -90,20 +99,23 @@ def headline_closed_loop() -> str:
         f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
         f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
-        f"{pct(o['success_rate'])}, with the image-blind chance estimator (a constant rotation) "
-        f"{pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms `manifold`, "
+        f"{pct(o['success_rate'])}, rotation-blind (the position from the image, a constant "
+        f"rotation) {pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms "
+        f"`manifold`, "
         f"`oracle` and `{chance[0]}`).\n"
     )
 
 
-#: the closed-loop run with the resting-view pose models (the default before the tilted ones)
-RESTING_CLOSED_LOOP = "closed_loop_resting_models.json"
-#: its perturbation run (``closed_loop.py --perturbations``)
-RESTING_PERTURBATIONS = "closed_loop_perturbations_resting_models.json"
+#: configs of closed_loop.json: the run with the resting-view pose models (the default before
+#: the tilted ones), the perturbation run (``closed_loop.py --perturbations``) and its
+#: resting-view twin
+RESTING_CLOSED_LOOP = "resting_models"
+PERTURBATIONS = "perturbations"
+RESTING_PERTURBATIONS = "perturbations_resting_models"
 
 
-def closed_loop_arms(name: str = "closed_loop.json") -> str:
-    d = read(name)
+def closed_loop_arms(config: str | None = None) -> str:
+    d = read("closed_loop.json", config)
     rows = []
     for label, a in d["arms"].items():
         valid = a.get("perception", {}).get("valid_rate")
@@ -135,8 +147,9 @@ def closed_loop_robustness() -> str:
 
 
 def closed_loop_perturbations() -> str:
-    d = read("closed_loop_perturbations.json")
-    before = read(RESTING_PERTURBATIONS)["arms"]  # the same run with the resting-view models
+    d = read("closed_loop.json", PERTURBATIONS)
+    # the same run with the resting-view models
+    before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -193,9 +206,9 @@ def _compare_rows(d: dict) -> list[list[str]]:
     return rows
 
 
-def compare_table(name: str) -> Callable[[], str]:
+def compare_table(config: str) -> Callable[[], str]:
     def render() -> str:
-        d = read(name)
+        d = read("compare.json", config)
         head = [
             "pose",
             f"`{d['results'][0]['policy']}` (95 % CI)",
@@ -221,8 +234,8 @@ def _condition_words(cond: dict) -> str:
         return "with the true pose"
     if cond.get("estimator") == "chance":  # the manifold source, but not its estimator
         return (
-            "at the chance level (the same masks and recognised identity, an image-blind "
-            "constant rotation for the pose)"
+            "at the rotation-blind chance level (the same masks and recognised identity, the "
+            "position from the image, a constant rotation)"
         )
     if cond["source"] == "manifold" and cond.get("identity") == "recognize":
         return (
@@ -330,8 +343,8 @@ def sweep_table(
     names: dict[str, str] | None = None,
     cost: bool = False,
 ) -> Callable[[], str]:
-    """success@5° [asymmetric banana] per (protocol, estimator) and occlusion, from
-    ``pose_ablation_{protocol}{suffix}.json.gz``; the 95 % CI in the first column. ``cost``
+    """success@5° [asymmetric banana] per (protocol, estimator) and occlusion, from the config
+    ``{protocol}{suffix}`` of ``pose_ablation.json.gz``; the 95 % CI in the first column. ``cost``
     adds the share of views answered and the median ``predict`` wall time at the first level
     (two workers sharing two cores: not a single-core figure)."""
     names = names or {}
@@ -339,7 +352,7 @@ def sweep_table(
     def render() -> str:
         rows, levels = [], None
         for protocol in protocols:
-            d = read(f"pose_ablation_{protocol}{suffix}.json.gz")
+            d = read(ABLATION, f"{protocol}{suffix}")
             levels = d["spec"]["occlusions"]
             cells = {(r["estimator"], r["occlusion"]): r for r in d["results"]}
             for est in d["spec"]["estimators"]:
@@ -377,12 +390,12 @@ def _select_names(spec_estimators: list[str]) -> dict[str, str]:
 
 
 def select_table() -> str:
-    names = _select_names(read("pose_ablation_top-resting_select.json.gz")["spec"]["estimators"])
+    names = _select_names(read(ABLATION, "top-resting_select")["spec"]["estimators"])
     return sweep_table("_select", names=names)()
 
 
 def headline_ablation() -> str:
-    d = read("pose_ablation_side-turntable_select.json.gz")
+    d = read(ABLATION, "side-turntable_select")
     sel = next(e for e in d["spec"]["estimators"] if e.startswith("select("))
     cells = {(r["estimator"], r["occlusion"]): r for r in d["results"]}
     zero, half = cells[(sel, 0.0)], cells[(sel, 0.5)]
@@ -394,14 +407,14 @@ def headline_ablation() -> str:
         f"success@5° {ci(zero['success_5deg_ci95'])} unoccluded and "
         f"**{pct(half['success_5deg'])}** {ci(half['success_5deg_ci95'])} at 50 % occlusion; "
         f"the image-blind answer scores {pct(blind)} "
-        f"(`benchmarks/results/pose_ablation_side-turntable_select.json.gz`).\n"
+        f"(`benchmarks/results/pose_ablation.json.gz`, config `side-turntable_select`).\n"
     )
 
 
 def fig3_curves() -> str:
     """Each estimator's curve over 0–95 % as mean success / first level at or below chance
-    [mean over the asymmetric banana], from each ``_fig3`` file's ``curves``."""
-    per = {p: read(f"pose_ablation_{p}_fig3.json.gz") for p in PROTOCOLS}
+    [mean over the asymmetric banana], from each ``{protocol}_fig3`` config's ``curves``."""
+    per = {p: read(ABLATION, f"{p}_fig3") for p in PROTOCOLS}
     estimators = per[PROTOCOLS[0]]["spec"]["estimators"]
     names = _select_names(estimators)
     rows = []
@@ -424,8 +437,9 @@ def fig3_curves() -> str:
 
 def stage_ablation() -> str:
     """Coarse success@5° at 0 / 50 % [banana at 0 %] of each manifold variant on every
-    protocol, from each ``_stages`` file's ``stage_ablation`` rows (``[coarse]``: refine off)."""
-    per = {p: read(f"pose_ablation_{p}_stages.json.gz")["stage_ablation"] for p in PROTOCOLS}
+    protocol, from each ``{protocol}_stages`` config's ``stage_ablation`` rows (``[coarse]``:
+    refine off)."""
+    per = {p: read(ABLATION, f"{p}_stages")["stage_ablation"] for p in PROTOCOLS}
     variants = [r["variant"] for r in per[PROTOCOLS[0]] if r["occlusion"] == 0.0]
     coarse = [v for v in variants if v.endswith(" [coarse]")]
     rows = []
@@ -446,7 +460,7 @@ def stage_ablation() -> str:
 
 
 def view_perturbations() -> str:
-    d = read("pose_ablation_side-turntable_perturbations.json.gz")
+    d = read(ABLATION, "side-turntable_perturbations")
     ests = d["spec"]["estimators"]
     names = _select_names(ests)
     levels = sorted({r["occlusion"] for r in d["results"]})
@@ -459,27 +473,414 @@ def view_perturbations() -> str:
     return table(head, rows)
 
 
-def keep_margin() -> str:
-    d = read("keep_margin_seed1.json")
-    cells = list(dict.fromkeys((r["protocol"], r["occlusion"]) for r in d["results"]))
+def _rate(r: dict, key: str = "success_rate", ci_key: str = "success_rate_ci95") -> str:
+    return f"{pct(r[key])} {ci(r[ci_key])}"
+
+
+def clutter_closed_loop() -> str:
+    """Per arm of the main run (2 distractors) and of the runs that change one component."""
     rows = []
-    for m in d["margins"]:
-        by = {(r["protocol"], r["occlusion"]): r for r in d["results"] if r["keep_margin"] == m}
-        rows.append([f"{m:g}"] + [f"{100 * by[c]['success_5deg']:.1f}" for c in cells])
-    return table(["`keep_margin` (px²)"] + [f"`{p}` {100 * o:.0f} %" for p, o in cells], rows)
+    runs = [(None, None), ("200_no_table_prior", "no table-top prior")]
+    runs += [("largest_blob_200", None), ("random_blob_200", None)]
+    for config, note in runs:
+        d = read("clutter_closed_loop.json", config)
+        for k, arms in d["runs"].items():
+            for arm, a in arms.items():
+                p = a.get("perception") or {}
+                rows.append(
+                    [
+                        f"`{arm}`" + (f", {note}" if note else ""),
+                        f"{a['episodes']} ({k} distractors)",
+                        _rate(a),
+                        failures(a["failure_causes"]),
+                        pct(a.get("wrong_object_rate")),
+                        pct(p.get("target_recognition_accuracy")),
+                        str(a.get("distractors_knocked_over", "—")),
+                    ]
+                )
+    head = ["pose source", "episodes", "success (95 % CI)", "failures", "wrong object",
+            "target recognised", "distractors knocked over"]  # fmt: skip
+    return table(head, rows)
 
 
-def selection_choices() -> str:
-    d = read("selection_choices.json")
-    names = {**SELECT_NAMES, "pca-rbf": "`pca-rbf`", "chance": "`chance`"}
-    by: dict[str, dict[str, list[str]]] = {}
-    for r in d["choices"]:
-        chosen = names.get(r["selected"], f"`{r['selected']}`")
-        by.setdefault(r["protocol"], {}).setdefault(chosen, []).append(r["object"])
+def clutter_approach() -> str:
+    d = read("clutter_approach.json", "5100")
     rows = [
-        [f"`{p}`", "; ".join(f"{c}: {', '.join(objs)}" for c, objs in by[p].items())] for p in by
+        [f"`{c}`", str(r["episodes"]), _rate(r), failures(r["failure_causes"])]
+        for c, r in d["runs"].items()
     ]
-    return table(["protocol", "candidate chosen: objects"], rows)
+    return (
+        f"Seeds {d['seed']}–{d['seed'] + d['episodes'] - 1}, {d['distractors']} distractors, "
+        f"`{d['pose_source']}` pose (config `5100`):\n\n"
+        + table(["controller", "episodes", "success (95 % CI)", "failures"], rows)
+    )
+
+
+def blob_split() -> str:
+    d = read("blob_split.json")
+    rows = [
+        [
+            f"`{name}`",
+            pct(s["shared_split_correctly"]),
+            f"{s['shared_mean_best_iou']:.3f}",
+            pct(s["single_object_over_split"]),
+            f"{s['median_ms_per_view']:.2f}",
+        ]
+        for name, s in d["splitters"].items()
+    ]
+    s = next(iter(d["splitters"].values()))
+    head = [
+        "splitter",
+        f"shared blobs split correctly (of {s['shared_components']})",
+        "mean best IoU",
+        f"single-object blobs over-split (of {s['single_object_components']})",
+        "median ms / view",
+    ]
+    return table(head, rows)
+
+
+def segmentation() -> str:
+    d = read("segmentation.json.gz")
+    q = d["mask_quality"]
+    rows = []
+    for cam in ("top", "side", "all"):
+        c = q[cam]
+        rows.append(
+            [
+                cam,
+                str(c["iou_visible"]["n"]),
+                f"{c['iou_visible']['median']:.3f}",
+                f"{c['iou_visible_arm_touching']['median']:.3f}",
+                f"{c['segment_ms']['median']:.1f}",
+            ]
+        )
+    loop = d["timing"]["loop_cpu_ms"]
+    stages = ", ".join(f"{k} {v:.1f}" for k, v in loop.items())
+    return (
+        table(
+            [
+                "camera",
+                "frames (object visible)",
+                "median IoU",
+                "median IoU, arm touching",
+                "segment ms",
+            ],
+            rows,
+        )  # fmt: skip
+        + f"\nLoop CPU ms per step (render + segment + recognise + estimate): {stages}.\n"
+    )
+
+
+def recognition() -> str:
+    d = read("recognition.json")
+    levels = list(next(iter(d["accuracy"].values())))
+    rows = [
+        [f"`{name}`"] + [pct(acc[lv]) for lv in levels] + [f"{d['median_ms'][name]:.1f}"]
+        for name, acc in d["accuracy"].items()
+    ]
+    rows.append(["chance (1 / classes)"] + [pct(d["chance"])] * len(levels) + ["—"])
+    head = ["recogniser"] + [f"{lv} occluded" for lv in levels] + ["median ms"]
+    return table(head, rows)
+
+
+def shape_recognition() -> str:
+    d = read("shape_recognition.json")
+    h = d["headline"]
+    rows = [
+        [f"headline ({len(h['split_seeds'])} random 50/50 splits)"]
+        + [f"{pct(m)} ± {100 * h['accuracy_std'][c]:.1f}" for c, m in h["accuracy_mean"].items()]
+    ]
+    for key in ("with_metric_size", "unseen_viewpoints", "scene_cameras",
+                "scene_cameras_scene_trained"):  # fmt: skip
+        clf = d[key]["classifiers"]
+        rows.append([f"`{key}`"] + [pct(clf[c]["accuracy"]) for c in h["accuracy_mean"]])
+    return table(["split"] + [f"`{c}`" for c in h["accuracy_mean"]], rows)
+
+
+def pose_manifold() -> str:
+    d = read("pose_manifold.json")
+    rows = [
+        [k, f"{d['targets'][k]:g}", f"{d['measured'][k]:g}", "met" if d["met"][k] else "NOT met"]
+        for k in d["targets"]
+    ]
+    w, h = d["setup"]["image"]
+    return (
+        f"Top camera {w} × {h}, 11 objects, {d['results']['views_per_object']} held-out views "
+        f"per object and level:\n\n" + table(["figure", "target", "measured", ""], rows)
+    )
+
+
+def pose_baselines() -> str:
+    """success@5° per estimator (rows) and protocol × occlusion (columns), all four objects;
+    the asymmetric ones alone in brackets at the first level."""
+    d = read("pose_baselines.json")
+    protocols = list(d["results"])
+    levels = list(next(iter(d["results"][protocols[0]].values()))["levels"])
+    rows = []
+    for est in d["results"][protocols[0]]:
+        row = [f"`{est}`"]
+        for proto in protocols:
+            lv = d["results"][proto][est]["levels"]
+            cells = [pct(lv[k]["all"]["success_5deg"]) for k in levels]
+            cells[0] += f" [{pct(lv[levels[0]]['asymmetric']['success_5deg'])}]"
+            row.append(" / ".join(cells))
+        rows.append(row)
+    head = ["estimator"] + [f"`{p}` {' / '.join(f'{k} %' for k in levels)}" for p in protocols]
+    return table(head, rows)
+
+
+def pose_latency() -> str:
+    d = read("pose_latency.json")
+    names = _select_names(d["estimators"])
+    rows = [
+        [f"`{r['protocol']}`", short(r["estimator"], names), str(r["n"]), f"{r['median_ms']:.1f}",
+         f"{r['p90_ms']:.1f}", f"{r['ratio_to_reference']:.2f}"]
+        for r in d["results"]
+    ]  # fmt: skip
+    head = ["protocol", "estimator", "views", "median ms", "p90 ms", f"÷ `{d['reference']}`"]
+    return table(head, rows)
+
+
+def env_memory() -> str:
+    d = read("env_memory.json")
+    rows = []
+    for name, r in d["results"].items():
+        rows.append(
+            [
+                f"`{name}`",
+                f"{r['rss_mb']['after_make']:.0f} / {r['rss_mb']['after_catalogue_pass']:.0f}",
+                f"{r['cold_start_s']['first_resets_total']:.2f}",
+                f"{r['steady_reset_ms']['median']:.2f} / {r['steady_reset_ms']['p90']:.2f}",
+                f"{r['steady_reset_cpu_ms']['median']:.2f}",
+            ]
+        )
+    head = ["configuration", "RSS MB after make / after every object", "first resets (s)",
+            "reset ms median / p90", "reset CPU ms"]  # fmt: skip
+    return table(head, rows)
+
+
+def vector_env() -> str:
+    """env steps/s (÷ the plain env) per configuration (rows) and setting (columns)."""
+    d = read("vector_env.json")
+    settings = list(d["results"])
+    configs = list(dict.fromkeys(c for s in settings for c in d["results"][s]))
+    rows = []
+    for config in configs:
+        row = [f"`{config}`"]
+        for s in settings:
+            r = d["results"][s].get(config)
+            ok = r is not None and "error" not in r
+            row.append(
+                f"{r['env_steps_per_second_median']:.0f} ({r['ratio_to_plain']:.2f}×), "
+                f"{r['cpu_ms_per_env_step_median']:.2f} ms CPU"
+                if ok
+                else "—"
+            )
+        rows.append(row)
+    head = ["configuration"] + [f"{s}: env steps/s (÷ plain), CPU per env step" for s in settings]
+    return table(head, rows)
+
+
+def _arms_table(arms: dict, ci_key: str) -> str:
+    rows = [[f"`{k}`", str(a["episodes"]), _rate(a, ci_key=ci_key)] for k, a in arms.items()]
+    return table(["arm", "episodes", "success (95 % CI)"], rows)
+
+
+def learned_policy() -> str:
+    d = read("learned_policy.json")
+    t = d["training"]
+    return _arms_table(d["arms"], "success_rate_ci95") + (
+        f"\nTraining: {t['demonstration_episodes']} demonstrations + {t['dagger_episodes']} "
+        f"DAgger episodes, {t['env_steps']:,} env steps, {t['wall_time_s']:,.0f} s; "
+        f"seeds {d['eval_seeds'][0]}–{d['eval_seeds'][1]}.\n"
+    )
+
+
+def pixel_policy() -> str:
+    d = read("pixel_policy.json")
+    diff = d["paired_differences"]["state_minus_pixel"]
+    t = d["pixel_training"]
+    return _arms_table(d["arms"], "ci95") + (
+        f"\nState − pixel (what the pose estimate buys): {100 * diff['diff']:+.1f} points "
+        f"{ci(diff['ci95'])}, McNemar p = {diff['mcnemar_p']:.2g}. Pixel training: "
+        f"{t['demonstration_episodes']} demonstrations + {t['dagger_episodes']} DAgger "
+        f"episodes, {t['env_steps']:,} env steps, {t['wall_time_s']:,.0f} s on "
+        f"{d['machine'].get('cuda', 'CPU')}.\n"
+    )
+
+
+def finetune() -> str:
+    """The fine-tuned policies against the imitation policy, per pose condition."""
+    d = read("finetune.json")
+    rows = []
+    for x in d["finetuned_vs_imitation"]:
+        rows.append(
+            [
+                f"`{x['pose']}`",
+                f"`{x['a']}` − `{x['b']}`",
+                f"{100 * x['diff']:+.1f} pts {ci(x['ci95'])}",
+                f"{x['mcnemar_p']:.2g}",
+            ]
+        )
+    return table(["pose", "arms", "paired difference (95 % CI)", "McNemar p"], rows)
+
+
+def learning_curves() -> str:
+    d = read("learning_curves.json")
+    rows = []
+    for name, a in d["arms"].items():
+        b = a["by_timesteps"]
+        band = (
+            f" ({100 * b['ci95_low'][-1]:.0f}–{100 * b['ci95_high'][-1]:.0f})"
+            if b.get("ci95_low")
+            else ""
+        )
+        rows.append(
+            [
+                name,
+                str(len(a["seeds"])),
+                f"{int(b['timesteps'][-1]):,}",
+                f"{100 * b['mean'][-1]:.0f} %{band}",
+                f"{a['by_wall_s']['wall_s'][-1]:,.0f} s",
+            ]
+        )
+    head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time"]
+    return table(head, rows)
+
+
+def table_support() -> str:
+    d = read("table_support.json")
+    rows = []
+    for tilt, r in d["tilts"].items():
+        q = r["tilt_deg_quantiles"]
+        rows.append(
+            [
+                f"{tilt}°",
+                str(r["estimates"]),
+                f"{q['p50']:.2f} / {q['p90']:.2f}",
+                " / ".join(f"{100 * v:.0f}" for v in r["share_under_deg"].values()),
+                f"{r['median_abs_height_error_mm']:.2f}",
+            ]
+        )
+    under = "/".join(f"{k}" for k in next(iter(d["tilts"].values()))["share_under_deg"])
+    head = ["true tilt", "estimates", "estimated tilt p50 / p90 (°)",
+            f"share under {under}° (%)", "median height error (mm)"]  # fmt: skip
+    return table(head, rows)
+
+
+def tilted_in_loop() -> str:
+    d = read("tilted_in_loop.json")["loop"]
+    rows = [
+        [
+            f"`{name}`",
+            str(r["episodes"]),
+            f"{pct(r['grasp_success'])} {ci(r['grasp_success_ci95'])}",
+            str(r["estimates_valid"]),
+            pct(r["success_5deg_of_valid_estimates"]),
+        ]
+        for name, r in d["totals"].items()
+    ]
+    head = ["arm", "episodes", "grasp success (95 % CI)", "valid estimates",
+            "success@5° of valid estimates"]  # fmt: skip
+    return table(head, rows)
+
+
+def cli_startup() -> str:
+    d = read("cli_startup.json")
+    rows = [
+        [
+            f"`scorbot-gym {c['argv']}`",
+            f"{c['median_s']:.2f}",
+            f"{c['baseline']['median_s']:.2f}" if c.get("baseline") else "—",
+            ", ".join(c["heavy_imports"]) or "none",
+        ]
+        for c in d["commands"]
+    ]
+    head = ["command", "median s", "before (same run)", "heavy imports"]
+    return f"{d['runs']} fresh processes per command:\n\n" + table(head, rows)
+
+
+def wrapper_step() -> str:
+    d = read("wrapper_step.json")
+    rows = [
+        [f"`{name}`", f"{r['steps_per_second_median']:.0f}",
+         f"{r['steps_per_cpu_second_median']:.0f}", r.get("note", "")]
+        for name, r in d["step"].items()
+        if "steps_per_second_median" in r
+    ]  # fmt: skip
+    table_text = table(["env", "steps/s (wall)", "steps / CPU s", "what"], rows)
+    ratio = d["step"].get("wrapped_over_bare")
+    if ratio:
+        table_text += (
+            f"\nWrapped ÷ bare step time: {ratio['step_time_ratio_median']:.2f}× wall, "
+            f"{ratio['cpu_time_ratio_median']:.2f}× CPU (median of per-repetition ratios).\n"
+        )
+    return table_text
+
+
+#: the keys a result's conditions line quotes where its run has them, with their wording
+CONDITION_KEYS = (
+    ("episodes", "{} episodes"),
+    ("episodes_per_arm", "{} episodes per arm"),
+    ("episodes_per_tilt", "{} episodes per tilt"),
+    ("seed", "seed {}"),
+    ("eval_seeds", "seeds {0[0]}–{0[1]}"),
+    ("repeats", "{} repetitions"),
+    ("resets", "{} resets"),
+    ("runs", "{} runs"),
+)
+
+
+def conditions(name: str) -> Callable[[], str]:
+    """One line under a benchmark's heading: where its main run's figures come from (episodes,
+    seeds, machine, date), read from the file, and the configs it holds beside it."""
+
+    def render() -> str:
+        from pose.fileio import result_configs
+
+        d = read(name)
+        parts = []
+        for key, words in CONDITION_KEYS:
+            value = d.get(key)
+            if isinstance(value, (int, str)) or (key == "eval_seeds" and value):
+                parts.append(words.format(value))
+        machine = d.get("machine") or d.get("environment") or {}
+        if isinstance(machine, dict):
+            cpus = machine.get("cpus") or machine.get("cpu_count") or machine.get("usable_cores")
+            parts += [f"{cpus} CPUs"] if cpus else []
+            parts += [machine["cuda"]] if machine.get("cuda") else []
+        if d.get("date_utc"):
+            parts.append(d["date_utc"][:10])
+        configs = result_configs(RESULTS / name)
+        line = f"Main run: {', '.join(parts) or 'see the file'} (`results/{name}`)"
+        if configs:
+            line += f"; variants beside it: {', '.join(f'`{c}`' for c in configs)}"
+        return line + ".\n"
+
+    return render
+
+
+#: every result file: its script, its figure and the names of its configs
+def results_index() -> str:
+    from pose.fileio import result_configs
+
+    rows = []
+    for path in sorted(RESULTS.iterdir()):
+        if path.suffix == ".png" or path.name.startswith("."):
+            continue
+        stem = path.name.removesuffix(".gz").removesuffix(".json")
+        png = RESULTS / f"{stem}.png"
+        configs = result_configs(path)
+        rows.append(
+            [
+                f"`{stem}.py`",
+                f"[`{path.name}`](results/{path.name})",
+                f"[`{png.name}`](results/{png.name})" if png.is_file() else "—",
+                ", ".join(f"`{c}`" for c in configs) or "—" if len(configs) <= 8
+                else f"{len(configs)} (`{configs[0]}` … `{configs[-1]}`)",
+            ]
+        )  # fmt: skip
+    return table(["script", "result", "figure", "configs (variants)"], rows)
 
 
 TABLES: dict[str, Callable[[], str]] = {
@@ -491,22 +892,40 @@ TABLES: dict[str, Callable[[], str]] = {
     "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP),
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
-    "compare-noise-once": compare_table("compare_noise_once.json"),
-    "compare-heldout": compare_table("compare_heldout_objects.json"),
-    "compare-heldout-training": compare_table("compare_heldout_training_objects.json"),
+    "compare-noise-once": compare_table("noise_once"),
+    "compare-heldout": compare_table("heldout_objects"),
+    "compare-heldout-training": compare_table("heldout_training_objects"),
     "rl-training": rl_training,
     "env-step": env_step,
     "fig3-curves": fig3_curves,
     "select": select_table,
-    "selection-choices": selection_choices,
     "stages": stage_ablation,
     "view-perturbations": view_perturbations,
-    "all-estimators": sweep_table("_all", protocols=PROTOCOLS),
-    "pnp": sweep_table("_pnp", protocols=PROTOCOLS[:4]),
-    "upscale": sweep_table("_upscale", cost=True),
-    "fallback": sweep_table("_fallback", cost=True),
-    "global": sweep_table("_global", cost=True),
-    "keep-margin": keep_margin,
+    "results-index": results_index,
+    **{
+        f"conditions-{p.name.removesuffix('.gz').removesuffix('.json')}": conditions(p.name)
+        for p in sorted(RESULTS.glob("*.json*"))
+        if p.name != "pose_ablation.json.gz"  # no main run: each sweep is a config
+    },
+    "clutter-closed-loop": clutter_closed_loop,
+    "clutter-approach": clutter_approach,
+    "blob-split": blob_split,
+    "segmentation": segmentation,
+    "recognition": recognition,
+    "shape-recognition": shape_recognition,
+    "pose-manifold": pose_manifold,
+    "pose-baselines": pose_baselines,
+    "pose-latency": pose_latency,
+    "env-memory": env_memory,
+    "vector-env": vector_env,
+    "learned-policy": learned_policy,
+    "pixel-policy": pixel_policy,
+    "finetune": finetune,
+    "learning-curves": learning_curves,
+    "table-support": table_support,
+    "tilted-in-loop": tilted_in_loop,
+    "cli-startup": cli_startup,
+    "wrapper-step": wrapper_step,
 }
 
 

@@ -27,7 +27,10 @@ same split by the target's symmetry (``by_symmetry``: ``none`` is the banana alo
 and ``discrete`` the others, ``symmetric`` both), since a symmetric object forgives rotation
 errors that an asymmetric one does not.
 
-Both parts update their own section of ``benchmarks/results/tilted_in_loop.json``; ``loop``
+Both parts update their own section of ``--out`` (default: a new
+``runs/tilted_in_loop-<time>/tilted_in_loop.json``; the committed record is ``--out
+benchmarks/results/tilted_in_loop.json --overwrite``, an existing file being updated only with
+``--overwrite``); ``loop``
 merges its arms into a section of the same episodes, tilts and seed (an arm run again replaces
 its record, the others stay as measured) and recomputes the totals over all of them.
 

@@ -1,7 +1,11 @@
 """Vector-env scaling: env steps/s of 1, 2 and 4 ScorbotGrasp-v0 copies, sync and async, without
 images and with one 320x240 image per step, against one plain env.
 
-Run:  python benchmarks/vector_env.py [--repeats 3] [--out benchmarks/results/vector_env.json]
+Run:  python benchmarks/vector_env.py [--repeats 3] [--out PATH.json] [--overwrite] [--config NAME]
+
+By default the run goes to a new ``runs/vector_env-<time>/``; the committed record is rebuilt
+with ``--out benchmarks/results/vector_env.json --overwrite`` (a variant of it stored with
+``--config NAME``, without a figure, the file's other runs kept).
 
 Every configuration runs in a fresh process (rendering settings are per process), and the
 repetitions interleave the configurations so that a change in the machine's load hits all of
@@ -369,10 +373,15 @@ def main(argv: list[str] | None = None) -> int:
         "file is refused without --overwrite)",
     )
     add_overwrite_option(parser)
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="store the run as this named variant of --out (default: the file's main run)",
+    )
     args = parser.parse_args(argv)
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("vector_env", args.overwrite).path(
-            args.out, "vector_env.json", "--out", companions=[".png"]
+            args.out, "vector_env.json", "--out", companions=[".png"] if args.config is None else []
         )
     except ValueError as exc:
         parser.error(str(exc))
@@ -380,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--repeats, --steps, --image-steps and --counts must be >= 1")
 
     import scorbot_gym
-    from pose.fileio import atomic_write_json
+    from pose.fileio import write_result
 
     configs = configurations(tuple(args.counts), args.ablations)
     steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
@@ -418,8 +427,9 @@ def main(argv: list[str] | None = None) -> int:
             "mujoco_gl": os.environ.get("MUJOCO_GL"),
         },
     }
-    atomic_write_json(args.out, report)
-    plot(report, args.out.with_suffix(".png"))
+    write_result(args.out, report, args.config)
+    if args.config is None:  # the figure is the main run's
+        plot(report, args.out.with_suffix(".png"))
     for setting, res in report["results"].items():
         for config, r in res.items():
             shown = r.get("error") or (
@@ -427,7 +437,8 @@ def main(argv: list[str] | None = None) -> int:
                 f"({r['ratio_to_plain']:.2f}x plain), {r['cpu_ms_per_env_step_median']:.2f} ms CPU"
             )
             print(f"{setting:>14} {config:>12}: {shown}")
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
+    print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0
 
 

@@ -161,3 +161,48 @@ def remove_orphaned_tmp(folder: str | os.PathLike, min_age_s: float = ORPHAN_AGE
         except FileNotFoundError:  # its writer finished or another cleaner got there first
             continue
     return removed
+
+
+# ---- benchmark result files: one per script, variants as named configs ----------------------
+
+#: the key under which a result file keeps its named variants (``{"configs": {name: report}}``)
+CONFIGS = "configs"
+
+
+def read_result(path: str | os.PathLike, config: str | None = None) -> dict:
+    """One run of a benchmark's result file: the default run (the file's top level, without its
+    ``configs``) or, given ``config``, the variant stored under that name.
+
+    A benchmark script keeps everything it measured in one file: the default run at the top level
+    and each variant (another seed, another model set, another object list) under
+    ``configs[name]``, so that one file answers "what did this script measure"."""
+    data = read_json(path)
+    if config is None:
+        return {k: v for k, v in data.items() if k != CONFIGS}
+    configs = data.get(CONFIGS, {})
+    if config not in configs:
+        known = ", ".join(configs) or "none"
+        raise KeyError(f"{path} has no config {config!r}; its configs: {known}")
+    return configs[config]
+
+
+def result_configs(path: str | os.PathLike) -> list[str]:
+    """The names of the variants a result file holds (its default run not counted)."""
+    return list(read_json(path).get(CONFIGS, {})) if Path(path).is_file() else []
+
+
+def write_result(path: str | os.PathLike, report: dict, config: str | None = None) -> Path:
+    """Store ``report`` as the default run of the result file ``path`` (``config`` None) or as
+    its variant ``config``, keeping every other run the file holds: rerunning one variant never
+    drops the others."""
+    if CONFIGS in report:
+        raise ValueError(f"a report may not carry its own {CONFIGS!r} key")
+    data = read_json(path) if Path(path).is_file() else {}
+    configs = dict(data.get(CONFIGS, {}))
+    if config is None:
+        data = dict(report)
+    else:
+        configs[config] = report
+    if configs:
+        data[CONFIGS] = configs
+    return atomic_write_json(path, data)

@@ -18,12 +18,13 @@ from pathlib import Path
 
 import pytest
 
-from pose.fileio import atomic_write_json, read_json
+from pose.fileio import atomic_write_json, read_json, read_result
 from scorbot_gym.data.protocols import protocol_names
 
 ROOT = Path(__file__).resolve().parents[1]
 BENCHMARKS = ROOT / "benchmarks"
 RESULTS = BENCHMARKS / "results"
+ABLATION = RESULTS / "pose_ablation.json.gz"
 SCRIPTS = sorted(p.relative_to(BENCHMARKS).as_posix() for p in BENCHMARKS.rglob("*.py"))
 
 HELP_ALL = """
@@ -104,7 +105,7 @@ def test_every_benchmark_script_imports_and_parses_help():
 )
 def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path):
     out = {  # were an argument wrongly accepted, nothing would be written into results/
-        "pose_ablation.py": ["--out-dir", str(tmp_path)],
+        "pose_ablation.py": ["--out", str(tmp_path / "p.json.gz")],
         "closed_loop.py": ["--out", str(tmp_path / "c.json")],
         "clutter_closed_loop.py": ["--out", str(tmp_path / "c.json")],
         "table_support.py": ["--out", str(tmp_path / "t.json")],
@@ -115,15 +116,21 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
 
 
 def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
-    sweep = tmp_path / "pose_ablation_side-turntable_select.json.gz"
-    shutil.copy(RESULTS / sweep.name, sweep)
+    results = tmp_path / "pose_ablation.json.gz"  # the result file: its figure config
+    shutil.copy(ABLATION, results)
+    proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(results))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "pose_ablation.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert read_json(results) == read_json(ABLATION)  # drawing changes nothing in the file
+
+    sweep = tmp_path / "one_sweep.json.gz"  # a single sweep's record: itself
+    atomic_write_json(sweep, read_result(ABLATION, "side-turntable_select"))
     proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep))
     assert proc.returncode == 0, proc.stderr[-2000:]
-    png = tmp_path / "pose_ablation_side-turntable_select.png"
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "one_sweep.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     foreign = tmp_path / "keep_margin_seed1.json"  # a JSON, but not a sweep's
-    shutil.copy(RESULTS / foreign.name, foreign)
+    atomic_write_json(foreign, read_result(ABLATION, "keep_margin_seed1"))
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(foreign)))
     assert str(foreign) in line and not foreign.with_suffix(".png").exists(), line
     truncated = tmp_path / "truncated.json.gz"  # a compressed record cut short
@@ -133,14 +140,16 @@ def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
 
 
 def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_json(tmp_path):
-    sweep = tmp_path / "pose_ablation_side-turntable_select.json.gz"
-    report = read_json(RESULTS / sweep.name)
+    sweep = tmp_path / "pose_ablation.json.gz"
+    data = read_json(ABLATION)
+    report = data["configs"]["side-turntable_select"]
     report.pop("paired", None)
-    atomic_write_json(sweep, report)
+    atomic_write_json(sweep, data)
     select = next(e for e in report["spec"]["estimators"] if e.startswith("select("))
     proc = _run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(sweep), "--paired", select)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    paired = read_json(sweep)["paired"]
+    paired = read_result(sweep, "side-turntable_select")["paired"]
+    assert read_result(sweep, "top-resting_select") == read_result(ABLATION, "top-resting_select")
     others = set(report["spec"]["estimators"]) - {select}
     assert {(r["versus"], r["occlusion"]) for r in paired} == {
         (e, o) for e in others for o in report["spec"]["occlusions"]
@@ -150,8 +159,8 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
         gap = success[(select, r["occlusion"])] - success[(r["versus"], r["occlusion"])]
         assert r["diff"] == pytest.approx(gap, abs=2e-4)
         assert r["only_estimator"] - r["only_versus"] == round(gap * r["n"])
-    old = tmp_path / "pose_ablation_side-turntable_all.json.gz"  # written before view_errors
-    shutil.copy(RESULTS / old.name, old)
+    old = tmp_path / "side-turntable_all.json.gz"  # written before view_errors
+    atomic_write_json(old, read_result(ABLATION, "side-turntable_all"))
     line = _usage_error(_run(str(BENCHMARKS / "pose_ablation.py"), "--replot", str(old),
                              "--paired", "chance"))  # fmt: skip
     assert "has no view_errors" in line, line
@@ -161,7 +170,7 @@ def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_
 
 
 #: the protocols with a committed 0-95 % Fig. 3 and stage sweep; ``clutter`` (bins of measured
-#: occlusion, not 5 % steps) has its own sweep, pose_ablation_clutter_small.json.gz
+#: occlusion, not 5 % steps) has its own sweep, the config clutter_small
 SWEPT = tuple(p for p in protocol_names() if p != "clutter")
 FIG3 = [f"{protocol}_fig3" for protocol in SWEPT] + [
     f"{protocol}_fig3_fallback"
@@ -175,7 +184,7 @@ def test_the_committed_stage_ablations_follow_from_their_cells(protocol):
     the file's own cells give, over 0-95 %, for the whole catalogue of variants."""
     from scorbot_gym.experiments.aggregate import stage_ablation
 
-    report = read_json(RESULTS / f"pose_ablation_{protocol}_stages.json.gz")
+    report = read_result(ABLATION, f"{protocol}_stages")
     assert len(report["spec"]["occlusions"]) == 20
     assert set(report["spec"]["estimators"]) == {
         "manifold", "manifold-no-bunches", "manifold-no-shape", "manifold-no-words",
@@ -191,7 +200,7 @@ def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name)
     must be what the file's own cells and view errors give."""
     from scorbot_gym.experiments.aggregate import curve_summary, paired_differences
 
-    report = read_json(RESULTS / f"pose_ablation_{name}.json.gz")
+    report = read_result(ABLATION, name)
     assert len(report["spec"]["occlusions"]) == 20  # 0-95 % in 5 % steps, as in the seed
     assert report["curves"] == curve_summary(report["results"], report["chance"])
     selection = report["paired"][0]["estimator"]
@@ -211,8 +220,8 @@ def test_the_committed_fig3_curves_and_paired_rows_follow_from_their_cells(name)
 def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
     """The perturbation table's first row is read as the unperturbed baseline of every other
     row: its cells must be the Fig. 3 file's (same protocol, models, views and estimators)."""
-    report = read_json(RESULTS / "pose_ablation_side-turntable_perturbations.json.gz")
-    fig3 = read_json(RESULTS / "pose_ablation_side-turntable_fig3.json.gz")
+    report = read_result(ABLATION, "side-turntable_perturbations")
+    fig3 = read_result(ABLATION, "side-turntable_fig3")
     assert report["perturbations"][0] == "none" and len(report["perturbations"]) == 5
     keys = ("n", "success_5deg", "success_5deg_asymmetric", "median_rot_err_deg", "valid_rate")
     cells = {(r["estimator"], r["occlusion"]): r for r in fig3["results"]}
@@ -228,7 +237,7 @@ def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
 def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(tmp_path):
     """A batch split by ``--arms`` over several commands joins into the report one run writes:
     the committed report cut in two parts and merged gives back its arms and curves."""
-    whole = json.loads((RESULTS / "closed_loop_resting_models.json").read_text())  # all arms
+    whole = read_result(RESULTS / "closed_loop.json", "resting_models")  # all arms
     labels = list(whole["arms"])
     first = {**whole, "arms": {k: whole["arms"][k] for k in labels[1::2]}}
     second = {**whole, "arms": {k: whole["arms"][k] for k in labels[::2]}}
@@ -246,6 +255,13 @@ def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(
     for key in ("arms", "robustness", "loop_timing_320x240_one_thread", "seed"):
         assert merged[key] == whole[key]
     assert out.with_suffix(".png").read_bytes()[:4] == b"\x89PNG"
+    again = ("--merge", *map(str, parts), "--out", str(out), "--config", "again")
+    line = _usage_error(_run(script, *again))  # an existing result file: only with --overwrite
+    assert "exists; add --overwrite" in line, line
+    proc = _run(script, *again, "--overwrite")
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert read_result(out, "again")["arms"] == merged["arms"]  # a named variant beside it
+    assert read_result(out) == merged  # the main run untouched
     line = _usage_error(_run(script, "--merge", str(parts[0]), str(parts[0]), "--out", str(out)))
     assert "arms in more than one part" in line, line
 
@@ -253,8 +269,8 @@ def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(
 @pytest.mark.parametrize(
     ("perturbations", "closed_loop"),
     [
-        ("closed_loop_perturbations.json", "closed_loop.json"),  # the default models
-        ("closed_loop_perturbations_resting_models.json", "closed_loop_resting_models.json"),
+        ("perturbations", None),  # the default models
+        ("perturbations_resting_models", "resting_models"),
     ],
 )
 def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm(
@@ -263,11 +279,38 @@ def test_the_committed_closed_loop_perturbations_start_from_the_main_runs_arm(
     """The in-loop perturbation table reads every row against its unperturbed one: that row
     must be the ``manifold`` arm of the closed-loop run with the same models, episode for
     episode."""
-    report = json.loads((RESULTS / perturbations).read_text())
-    main_run = json.loads((RESULTS / closed_loop).read_text())
+    report = read_result(RESULTS / "closed_loop.json", perturbations)
+    main_run = read_result(RESULTS / "closed_loop.json", closed_loop)
     assert report["perturbations"][0] == "none" and report["seed"] == main_run["seed"]
     keys = ("episodes", "successes", "failure_causes", "per_object")
     unperturbed, manifold = report["arms"]["none"], main_run["arms"]["manifold"]
     assert {k: unperturbed[k] for k in keys} == {k: manifold[k] for k in keys}
     for label in report["perturbations"][1:]:
         assert report["arms"][label]["config"]["perturbation"] == label
+
+
+def test_every_result_file_is_named_after_the_script_that_writes_it():
+    """One JSON (and at most one figure) per script: variants are configs inside it, so the
+    folder answers "what did each script measure" at a glance (issue 51)."""
+    files = sorted(p.name for p in RESULTS.iterdir() if not p.name.startswith("."))
+    scripts = {Path(s).stem for s in SCRIPTS if "/" not in s}
+    stems = [f.removesuffix(".gz").removesuffix(".json").removesuffix(".png") for f in files]
+    assert set(stems) <= scripts, set(stems) - scripts
+    assert len(stems) == len(files) and all(stems.count(s) <= 2 for s in stems), files
+    assert len(files) <= 80
+    assert sum((RESULTS / f).stat().st_size for f in files) <= 10 * 2**20
+
+
+def test_a_result_file_keeps_its_other_runs_when_one_is_written(tmp_path):
+    from pose.fileio import result_configs, write_result
+
+    path = tmp_path / "bench.json.gz"
+    write_result(path, {"arms": 1})
+    write_result(path, {"arms": 2}, "seed1")
+    write_result(path, {"arms": 3})  # the main run again: the variant stays
+    assert read_result(path) == {"arms": 3} and read_result(path, "seed1") == {"arms": 2}
+    assert result_configs(path) == ["seed1"]
+    with pytest.raises(KeyError, match="no config 'seed2'; its configs: seed1"):
+        read_result(path, "seed2")
+    with pytest.raises(ValueError, match="may not carry its own 'configs'"):
+        write_result(path, {"configs": {}})

@@ -40,3 +40,21 @@ def test_a_changed_figure_is_noticed():
     block = TABLES["BLOCK"].search(text)
     edited = text[: block.start(3)] + "99.9 %\n" + text[block.start(3) :]
     assert TABLES["render"](edited) == text
+
+
+def test_the_benchmarks_readme_is_short_and_has_a_section_per_script():
+    """benchmarks/README.md is read in a quarter of an hour (issue 51: at most 800 lines); every
+    script that writes a result has a section heading naming it, and every result file has its
+    generated "Main run" line there."""
+    text = (ROOT / "benchmarks" / "README.md").read_text()
+    assert len(text.splitlines()) <= 800
+    headings = "\n".join(line for line in text.splitlines() if line.startswith("## "))
+    scripts = sorted(p.name for p in (ROOT / "benchmarks").glob("*.py") if p.name != "tables.py")
+    assert [s for s in scripts if f"`{s}`" not in headings] == []
+    results = sorted((ROOT / "benchmarks" / "results").glob("*.json*"))
+    for path in results:
+        stem = path.name.removesuffix(".gz").removesuffix(".json")
+        if stem != "pose_ablation":  # no main run: each sweep is a config, in its tables
+            assert f"<!-- table:conditions-{stem} -->" in text, stem
+    for png in (ROOT / "benchmarks" / "results").glob("*.png"):  # every figure is shown
+        assert f"results/{png.name}" in text or png.name == "camera_views.png", png.name

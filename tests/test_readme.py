@@ -99,3 +99,65 @@ def test_shell_block_commands_are_valid(index):
             assert (ROOT / argv[1]).is_file(), f"README runs {argv[1]}, which does not exist"
         else:
             assert argv[0] in ("pip", "pytest", "pdoc"), argv
+
+
+def _api_rows() -> list[tuple[str, list[str], list[str]]]:
+    """The rows of the README's "The API in brief" table: (the row's text, the modules its
+    second column names, the backticked entries of its first column). ``.x`` in the second
+    column is a submodule of the first module named there."""
+    section = README.split("## The API in brief", 1)[1].split("\n## ", 1)[0]
+    rows = []
+    for line in section.splitlines():
+        cells = [c.strip() for c in re.split(r"(?<!\\)\|", line)[1:-1]]
+        if len(cells) != 2 or cells[0] in ("what", "---"):
+            continue
+        where = re.findall(r"`([\w.]+)`", cells[1])
+        base = where[0]
+        modules = [base + m if m.startswith(".") else m for m in where]
+        rows.append((line, modules, re.findall(r"`([^`]+)`", cells[0])))
+    return rows
+
+
+API_ROWS = _api_rows()
+
+
+def test_the_api_table_parses():
+    assert len(API_ROWS) >= 10, API_ROWS  # the table is there and was read
+    assert all(modules for _, modules, _ in API_ROWS)
+
+
+@pytest.mark.parametrize("row", API_ROWS, ids=[r[1][0] for r in API_ROWS])
+def test_the_api_table_names_import_from_the_modules_it_gives(row):
+    """Each name in the table imports from one of the modules its row gives (``from MODULE
+    import NAME``), an attribute path (``ScriptedGraspPolicy.for_env``) resolves, and a call
+    written with literal arguments only (``RolloutConfig(pose="manifold", estimator="chance")``)
+    runs as written."""
+    import ast
+    import importlib
+    import inspect
+
+    line, modules, entries = row
+    loaded = [importlib.import_module(m) for m in modules]
+    for entry in entries:
+        m = re.match(r"^([A-Za-z_]\w*(?:\.[A-Za-z_]\w*)*)(\(.*\))?$", entry.replace("\\|", "|"))
+        if m is None:  # an env id, a keyword value: not a name
+            continue
+        head, *attrs = m.group(1).split(".")
+        # a submodule of the same name (``evaluation.compare``) is not the function named
+        owners = [mod for mod in loaded if not inspect.ismodule(getattr(mod, head, inspect))]
+        assert owners, f"{head!r} imports from none of {modules} (README row: {line})"
+        obj = getattr(owners[0], head)
+        for attr in attrs:
+            obj = getattr(obj, attr)
+        try:
+            call = ast.parse(entry.replace("\\|", "|"), mode="eval").body
+        except SyntaxError:  # `name(a="x"|"y", ...)`: a signature sketch, not a call
+            continue
+        if not isinstance(call, ast.Call):
+            continue
+        values = [*call.args, *(k.value for k in call.keywords)]
+        literal = all(
+            isinstance(v, ast.Constant) and v.value is not Ellipsis for v in values
+        ) and all(k.arg is not None for k in call.keywords)
+        if values and literal:  # as written, it must run
+            obj(*[v.value for v in call.args], **{k.arg: k.value.value for k in call.keywords})

@@ -58,8 +58,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
         "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
         "images, no privileged input: background masks, recognised identity), chance (the "
-        "image-blind chance level: manifold with the estimator swapped for a constant "
-        "rotation, fitted on the default models' views) (default oracle)",
+        "rotation-blind chance level: manifold with the estimator swapped for a constant "
+        "rotation fitted on the default models' views; the position still comes from the "
+        "image) (default oracle)",
     )
     p.add_argument(
         "--noise",

@@ -57,8 +57,9 @@ class RolloutConfig:
     ``support`` is the image-based sources' table-top prior (``"table"``: estimates near a
     resting pose are put on the table, :mod:`scorbot_gym.perception.support`; ``"none"``).
     ``estimator`` swaps the ``manifold`` source's trained models for a :mod:`pose.registry`
-    baseline fitted on the same views (``"chance"``: the image-blind answer, which every
-    estimator figure reports beside it; :mod:`scorbot_gym.perception.baseline_models`), with
+    baseline fitted on the same views (``"chance"``: a constant rotation placed at the mask's
+    position, the rotation-blind answer every estimator figure reports beside it;
+    :mod:`scorbot_gym.perception.baseline_models`), with
     segmentation and recognition unchanged; ``"manifold"`` (default) keeps the trained ones.
     """
 

@@ -4,8 +4,8 @@ A sweep of the main estimator and the fallback on the same views records, per vi
 estimate's validity and confidence and both rotation errors; the gated answer for any
 threshold follows from those without refitting anything. :func:`gate_curve` scores every
 threshold per (protocol, occlusion) cell, so the threshold can be chosen on one seed's trials
-and the composition measured on another's (``fallback_threshold_seed1.json`` in
-``benchmarks/results/`` was chosen this way).
+and the composition measured on another's (the config ``fallback_threshold_seed1`` of
+``benchmarks/results/pose_ablation.json.gz`` was chosen this way).
 """
 
 from __future__ import annotations

@@ -27,6 +27,7 @@ _WHERE = {
     "Segmenter": "segmenters",
     "make_segmenter": "segmenters",
     "segmenter_names": "segmenters",
+    "baseline_source_kwargs": "baseline_models",
 }
 
 __all__ = [
@@ -40,6 +41,7 @@ __all__ = [
     "PrivilegedSegmenter",
     "Segmenter",
     "WorldPose",
+    "baseline_source_kwargs",
     "make_pose_source",
     "make_recognizer",
     "make_segmenter",
@@ -50,6 +52,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+    from scorbot_gym.perception.baseline_models import baseline_source_kwargs
     from scorbot_gym.perception.model_set import ModelSetPoseSource
     from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
     from scorbot_gym.perception.recognizers import make_recognizer

@@ -94,7 +94,7 @@ class IdentityOnlyRecognizer:
 
     An appearance recogniser returns the winning class's pose estimate, which the pose source
     then uses instead of estimating again. Where the estimator is swapped for a baseline (the
-    image-blind ``chance`` arm of :mod:`scorbot_gym.evaluation.compare`) but recognition must
+    rotation-blind ``chance`` arm of :mod:`scorbot_gym.evaluation.compare`) but recognition must
     stay the same, that estimate would smuggle the trained models' pose into the baseline's
     answer: this wrapper keeps the label, costs and margin and drops the estimates.
     """

@@ -20,10 +20,10 @@ demonstrations and of every DAgger round) runs under ``poses[i % len(poses)]``: 
 ``pose_valid``, ``pose_confidence`` and ``pose_age``: trained on the oracle alone they never
 vary and the policy ignores them (a stale estimate held while the gripper hides the object
 then looks like an object left behind); trained on estimates it can learn when to trust them.
-Measured (``benchmarks/results/compare_noise_augmented.json``): per-step independent noise
-(``noisy@...``) does *not* teach this policy robustness. It sees one estimate and no history of
-estimates, so under such noise the oracle labels are not a function of its input; the fit
-averages them, the learner drifts, and short DAgger fine-tunes of the shipped policy fell to
+Measured (``benchmarks/results/compare.json``, config ``noise_augmented``): per-step independent
+noise (``noisy@...``) does *not* teach this policy robustness. It sees one estimate and no
+history of estimates, so under such noise the oracle labels are not a function of its input; the
+fit averages them, the learner drifts, and short DAgger fine-tunes of the shipped policy fell to
 14-16 % (the same recipe on the oracle: 90-92 %). Noise that persists, as an estimator's does,
 or a pose history in the features are what such training needs: ``HistorySpec.pose_window``
 gives the policy the summary of its last fresh estimates
