@@ -71,28 +71,50 @@ def short(spec: str, names: dict[str, str]) -> str:
 # ---- closed loop and policies -------------------------------------------------------------
 
 
+#: the blind arms of ``closed_loop.json``, each found by its configuration (not its label, which
+#: lives in closed_loop.py alone): (words in the headline, config keys and values, what to run)
+BLIND_ARMS = (
+    ("rotation-blind with the image's position (the trained models swapped for a constant "
+     "rotation; masks, recognition and prior unchanged)", {"pose": "manifold",
+     "estimator": "chance"}, "rotation-blind (image position, constant rotation)"),
+    ("rotation-blind with the true position (a constant rotation)",
+     {"pose": "oracle_position"}, "rotation-blind (true position, constant rotation)"),
+    ("image-blind (a constant pose, the identity given)", {"pose": "constant"},
+     "image-blind (constant pose, identity given)"),
+)  # fmt: skip
+
+
+def _arm_by_config(arms: dict, want: dict) -> str | None:
+    """The label of the undisturbed arm whose configuration has ``want``'s values."""
+    for label, arm in arms.items():
+        config = arm.get("config", {})
+        if config.get("disturbance") is None and all(config.get(k) == v for k, v in want.items()):
+            return label
+    return None
+
+
 def headline_closed_loop() -> str:
     d = read("closed_loop.json")
-    # the image-blind arm is the one whose config swaps the estimator for ``chance``; found by
-    # that, not by its label, so the label lives in closed_loop.py alone
-    chance = [k for k, v in d["arms"].items() if v.get("config", {}).get("estimator") == "chance"]
-    missing = [k for k in ("manifold", "oracle") if k not in d["arms"]]
-    missing += [] if chance else ["chance (image-blind estimator)"]
-    if missing:  # the headline states the chance level beside the estimator, or nothing
+    arms = d["arms"]
+    blind = [(words, _arm_by_config(arms, want), run) for words, want, run in BLIND_ARMS]
+    missing = [k for k in ("manifold", "oracle") if k not in arms]
+    missing += [run for _, label, run in blind if label is None]
+    if missing:  # the headline states the blind levels beside the estimator, or nothing
         sys.exit(
             f"closed_loop.json lacks the arms {missing}: run benchmarks/closed_loop.py --arms "
             f"'{';'.join(missing)}' --out PART.json and --merge it"
         )
-    a, o, c = d["arms"]["manifold"], d["arms"]["oracle"], d["arms"][chance[0]]
+    a, o = arms["manifold"], arms["oracle"]
+    levels = ", ".join(f"{words} {pct(arms[label]['success_rate'])}" for words, label, _ in blind)
+    names = ", ".join(f"`{label}`" for _, label, _ in blind)
     return (
         f"**{pct(a['success_rate'])}** of {a['episodes']} seeded grasps "
         f"(95 % CI {ci(a['success_rate_ci95'])[1:-1]}) with the pose estimated from the camera "
         f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
         f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
-        f"{pct(o['success_rate'])}, with the image-blind chance estimator (a constant rotation) "
-        f"{pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms `manifold`, "
-        f"`oracle` and `{chance[0]}`).\n"
+        f"(the upper bound) {pct(o['success_rate'])}; blind to part of the pose: {levels} "
+        f"(`benchmarks/results/closed_loop.json`, arms `manifold`, `oracle`, {names}).\n"
     )
 
 
@@ -221,8 +243,8 @@ def _condition_words(cond: dict) -> str:
         return "with the true pose"
     if cond.get("estimator") == "chance":  # the manifold source, but not its estimator
         return (
-            "at the chance level (the same masks and recognised identity, an image-blind "
-            "constant rotation for the pose)"
+            "rotation-blind (the same masks and recognised identity: the position from the "
+            "images, a constant rotation)"
         )
     if cond["source"] == "manifold" and cond.get("identity") == "recognize":
         return (
@@ -279,38 +301,70 @@ def rl_training() -> str:
 # ---- environment --------------------------------------------------------------------------
 
 
+def _render(settings: dict) -> str:
+    """An env's render settings as a table cell: MSAA, shadows, reflective materials."""
+    msaa = settings.get("msaa_samples")
+    parts = ["MSAA ?" if msaa is None else (f"MSAA {msaa}×" if msaa else "no MSAA")]
+    parts.append("shadows" if settings.get("shadows_rendered") else "no shadows")
+    reflective = settings.get("reflective_materials")
+    parts.append(
+        "reflections ?"
+        if reflective is None
+        else (f"{reflective} reflective materials" if reflective else "no reflections")
+    )
+    return ", ".join(parts)
+
+
 def env_step() -> str:
     d = read("env_step.json")
     rows = []
     for setting, label in (("no_images", "no images"), ("camera_320x240", "320 × 240 RGB")):
         for env, r in d["results"].get(setting, {}).items():
-            ratio = (
-                r.get("scorbot_ratio_steps_per_second"),
-                r.get("scorbot_ratio_steps_per_cpu_second"),
-            )
+            if "error" in r:
+                continue
+            cpu = r["steps_per_cpu_second_runs"]
             rows.append(
                 [
                     label,
                     env,
+                    f"{r['steps_per_cpu_second_median']:.0f} ({min(cpu):.0f}–{max(cpu):.0f})",
                     f"{r['steps_per_second_median']:.0f}",
-                    f"{r['steps_per_cpu_second_median']:.0f}",
                     f"{r['sim_seconds_per_wall_second_median']:.2g}",
-                    "—" if ratio[0] is None else f"{ratio[0]:.2f}×",
-                    "—" if ratio[1] is None else f"{ratio[1]:.2f}×",
+                    _render(r["render_settings"]) if setting != "no_images" else "—",
                 ]
             )
-    return table(
-        [
-            "setting",
-            "env",
-            "steps/s (wall)",
-            "steps / CPU s",
-            "sim s / wall s",
-            "ScorbotGrasp-v0 ÷ env, wall",
-            "÷ env, CPU",
-        ],
-        rows,
-    )
+    head = ["setting", "env", "steps / CPU s (range)", "steps/s (wall)", "sim s / wall s",
+            "rendering"]  # fmt: skip
+    return table(head, rows)
+
+
+def env_step_ratios() -> str:
+    """The paired ratios of ``env_step.json`` (``ratios``): per CPU second, median and range."""
+    d = read("env_step.json")
+    rows = []
+    for r in d["ratios"]:
+        if not r["pairs"]:
+            continue
+        rs = r["render_settings"]
+        rendering = (
+            "—"
+            if r["setting"] == "no_images"
+            else f"{_render(rs['numerator'])} / {_render(rs['denominator'])}"
+        )
+        rows.append(
+            [
+                r["comparison"],
+                "no images" if r["setting"] == "no_images" else "320 × 240 RGB",
+                str(r["pairs"]),
+                f"**{r['cpu_ratio_median']:.2f}×** ({r['cpu_ratio_min']:.2f}–"
+                f"{r['cpu_ratio_max']:.2f})",
+                f"{r['wall_ratio_median']:.2f}×",
+                rendering,
+            ]
+        )
+    head = ["ratio", "setting", "pairs", "per CPU second, median (range)", "wall, median",
+            "rendering (numerator / denominator)"]  # fmt: skip
+    return table(head, rows)
 
 
 # ---- pose estimation sweeps ---------------------------------------------------------------
@@ -496,6 +550,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "compare-heldout-training": compare_table("compare_heldout_training_objects.json"),
     "rl-training": rl_training,
     "env-step": env_step,
+    "env-step-ratios": env_step_ratios,
     "fig3-curves": fig3_curves,
     "select": select_table,
     "selection-choices": selection_choices,

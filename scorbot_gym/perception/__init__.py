@@ -14,6 +14,7 @@ _WHERE = {
     "PerceptionFrame": "base",
     "PoseSource": "base",
     "WorldPose": "base",
+    "ConstantPoseSource": "constant",
     "ModelSetPoseSource": "model_set",
     "NoisyOraclePoseSource": "oracle",
     "OraclePoseSource": "oracle",
@@ -31,6 +32,7 @@ _WHERE = {
 
 __all__ = [
     "BackgroundSegmenter",
+    "ConstantPoseSource",
     "FunctionPoseSource",
     "ModelSetPoseSource",
     "NoisyOraclePoseSource",
@@ -50,6 +52,7 @@ __all__ = [
 
 if TYPE_CHECKING:
     from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+    from scorbot_gym.perception.constant import ConstantPoseSource
     from scorbot_gym.perception.model_set import ModelSetPoseSource
     from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
     from scorbot_gym.perception.recognizers import make_recognizer
