@@ -2,13 +2,14 @@
 step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-place-v3 and
 robosuite Lift (Panda) in the same run.
 
-Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...]] [--repeats 5] [--cpu 0]
-      [--out PATH.json]
+Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...] [--peer-venvs DIR]]
+      [--repeats 5] [--cpu 0] [--out PATH.json]
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
-environment under ``~/.cache/scorbot-gym/peer-venvs/<name>`` (built on first use with
-``python3 -m venv`` + pip from PyPI, reused while its pinned requirements are unchanged). The
+environment under ``--peer-venvs`` (default ``~/.cache/scorbot-gym/peer-venvs/<name>``; built
+on first use with ``python3 -m venv`` + pip from PyPI, reused while its pinned requirements are
+unchanged). The
 peers need mujoco 3.x; scorbot-gym runs on mujoco 4, so they cannot share one environment.
 
 Repetitions interleave the environments (A, B, C, D, then D, C, B, A, ...) so that a change in

@@ -74,12 +74,12 @@ def short(spec: str, names: dict[str, str]) -> str:
 #: the blind arms of ``closed_loop.json``, each found by its configuration (not its label, which
 #: lives in closed_loop.py alone): (words in the headline, config keys and values, what to run)
 BLIND_ARMS = (
-    ("rotation-blind with the image's position (the trained models swapped for a constant "
-     "rotation; masks, recognition and prior unchanged)", {"pose": "manifold",
-     "estimator": "chance"}, "rotation-blind (image position, constant rotation)"),
-    ("rotation-blind with the true position (a constant rotation)",
-     {"pose": "oracle_position"}, "rotation-blind (true position, constant rotation)"),
-    ("image-blind (a constant pose, the identity given)", {"pose": "constant"},
+    ("rotation-blind (a constant rotation) at the image's position",
+     {"pose": "manifold", "estimator": "chance"},
+     "rotation-blind (image position, constant rotation)"),
+    ("at the true position", {"pose": "oracle_position"},
+     "rotation-blind (true position, constant rotation)"),
+    ("image-blind (one constant pose, the identity given)", {"pose": "constant"},
      "image-blind (constant pose, identity given)"),
 )  # fmt: skip
 
@@ -113,7 +113,7 @@ def headline_closed_loop() -> str:
         f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
         f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
-        f"(the upper bound) {pct(o['success_rate'])}; blind to part of the pose: {levels} "
+        f"(the upper bound) {pct(o['success_rate'])}; {levels} "
         f"(`benchmarks/results/closed_loop.json`, arms `manifold`, `oracle`, {names}).\n"
     )
 
