@@ -243,8 +243,8 @@ def _condition_words(cond: dict) -> str:
         return "with the true pose"
     if cond.get("estimator") == "chance":  # the manifold source, but not its estimator
         return (
-            "rotation-blind (the same masks and recognised identity: the position from the "
-            "images, a constant rotation)"
+            "at the rotation-blind chance level (the same masks and recognised identity: the "
+            "position from the images, a constant rotation)"
         )
     if cond["source"] == "manifold" and cond.get("identity") == "recognize":
         return (

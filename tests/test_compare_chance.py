@@ -169,7 +169,8 @@ def test_the_figure_and_headline_put_the_chance_level_beside_the_estimator(tmp_p
     head = cmp.headline(report).splitlines()
     assert head[0].startswith("manifold, 40 paired episodes") and len(head) == 4
     assert head[-1] == (
-        "chance level (image-blind pose): scripted 5.0 % (1.4–16.5), learned 5.0 % (1.4–16.5)"
+        "chance level (rotation-blind: a constant rotation): scripted 5.0 % (1.4–16.5), "
+        "learned 5.0 % (1.4–16.5)"
     )
     assert len(cmp.headline(report, pose="chance").splitlines()) == 3  # not beside itself
     assert cmp.plot_comparison(report, tmp_path / "f.png") == ["arms", "objects"]
@@ -186,3 +187,4 @@ def test_the_readme_tables_do_not_call_the_chance_level_the_estimator():
     assert "pose-manifold estimator" in tables["_condition_words"](manifold)
     words = tables["_condition_words"](chance)
     assert "chance level" in words and "pose-manifold estimator" not in words
+    assert "rotation-blind" in words and "image-blind" not in words  # the position is the image's

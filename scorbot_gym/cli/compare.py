@@ -58,7 +58,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="comma-separated pose conditions: oracle (ground truth), noisy (ground truth + "
         "seeded noise, 1 cm unless --noise), manifold (the pose-manifold estimator on camera "
         "images, no privileged input: background masks, recognised identity), chance (the "
-        "image-blind chance level: manifold with the estimator swapped for a constant "
+        "rotation-blind level: manifold with the estimator swapped for a constant "
         "rotation, fitted on the default models' views) (default oracle)",
     )
     p.add_argument(

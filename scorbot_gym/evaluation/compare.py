@@ -24,7 +24,7 @@ models of the top camera, trained on first use and cached, as ``scorbot-gym roll
 **no privileged input**, as the main arm of ``benchmarks/closed_loop.py``: masks from background
 subtraction (:data:`MANIFOLD_SEGMENTER`) and the object's identity recognised
 (:data:`MANIFOLD_RECOGNIZER`, fused over :data:`MANIFOLD_CAMERAS`), never given; ``chance``
-(the image-blind chance level beside it, the project's rule for every estimator figure):
+(the rotation-blind level beside it, the project's rule for every estimator figure):
 exactly ``manifold`` with the default models - same cameras, masks and recognition (the default
 models recognise; the pose estimates their appearance check makes are dropped) - but the
 estimator swapped for :class:`pose.baselines.ChanceEstimator` (one constant rotation, the
@@ -43,7 +43,7 @@ them). It is always beside the *default* models: ``pose_model`` changes ``manifo
   estimator}]`` in run order (``identity``: ``given`` to the pose source, or ``recognize``d by
   it; ``segmenter``: where the estimator's masks come from, ``null`` for the oracle sources;
   ``estimator``: what answers the pose from the image, ``manifold`` (the trained models) or
-  ``chance`` (the image-blind constant rotation), ``null`` for the oracle sources);
+  ``chance`` (a constant rotation: rotation-blind), ``null`` for the oracle sources);
 - ``arms``: ``{policy: {label, training}}`` where ``training`` is :func:`training_record`:
   ``trained_from`` (``scripted``: the hand-written controller itself; ``residual``: a learned
   correction on top of it; ``demonstrations``: imitation of scripted demonstrations, perhaps
@@ -617,7 +617,8 @@ def headline(report: dict[str, Any], pose: str | None = None) -> str:
     """The headline numbers under the first (or the given) pose condition, one line per
     policy: success with its interval and, for the others, the paired difference to the
     reference with McNemar's p; then, where the report has the ``chance`` condition, the
-    chance level beside them (each policy's success with the image-blind pose)."""
+    rotation-blind level beside them (each policy's success with the position and identity
+    from the images and a constant rotation)."""
     pose = pose or report["results"][0]["pose"]
     seeds = report["seeds"]
     lines = [f"{pose}, {report['episodes']} paired episodes (seeds {seeds[0]}–{seeds[-1]})"]
@@ -631,7 +632,7 @@ def headline(report: dict[str, Any], pose: str | None = None) -> str:
     chance = [r for r in report["results"] if r["pose"] == "chance"]
     if chance and pose != "chance":
         levels = ", ".join(f"{r['label']} {_pct_ci(r['success_rate'], r['ci95'])}" for r in chance)
-        lines.append(f"chance level (image-blind pose): {levels}")
+        lines.append(f"chance level (rotation-blind: a constant rotation): {levels}")
     return "\n".join(lines)
 
 
