@@ -9,10 +9,14 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
   recognition; the table-top prior): no privileged input. Variants swap one component: no
   table-top prior (estimates as the models answer them), FLR alone or appearance alone as the
   recogniser, the ``side`` camera's own pose models where the top view is hidden;
-- ``rotation-blind (image position, constant rotation)``: the ``manifold`` arm with the trained
-  models swapped for a constant rotation fitted on their views (``RolloutConfig.estimator=
-  "chance"``), masks, recognition and prior unchanged, so the position and identity still come
-  from the image and only the rotation ignores it: the chance level beside the estimator;
+- the blind arms, each named for what it ignores, beside the estimator: ``rotation-blind (image
+  position, constant rotation)``, the ``manifold`` arm with the trained models swapped for a
+  constant rotation fitted on their views (``RolloutConfig.estimator="chance"``), masks,
+  recognition and prior unchanged: the position (and the identity) still from the images;
+  ``rotation-blind (true position, constant rotation)``, the ``oracle_position`` source (the
+  true position, one rotation: heading 0 on the first resting face); ``image-blind (constant
+  pose, identity given)``, the ``constant`` source (that rotation at the centre of the
+  placement region, whatever the cameras see: the floor);
 - ``push``: a seeded push + turn of the object during the approach, for the servoing controller
   (re-estimating every step) and the estimate-once controller, with oracle and manifold poses;
   ``silhouette motion`` arms add ``motion="silhouette"`` to the side-fallback source;
@@ -63,9 +67,14 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 #: the ``--arms`` name of the noise curves (the ``robustness`` section of the report)
 ROBUSTNESS = "robustness"
-#: the rotation-blind arm: the ``manifold`` arm with its models swapped for a constant rotation
-#: (the position and identity still come from the image)
-CHANCE_ARM = "rotation-blind (image position, constant rotation)"
+#: the ``manifold`` arm with its models swapped for a constant rotation (``estimator="chance"``)
+ROTATION_BLIND_ARM = "rotation-blind (image position, constant rotation)"
+#: the ``oracle_position`` source: the true position, a constant rotation
+TRUE_POSITION_ARM = "rotation-blind (true position, constant rotation)"
+#: the ``constant`` source: one pose, whatever the cameras see
+IMAGE_BLIND_ARM = "image-blind (constant pose, identity given)"
+#: the labels earlier reports gave arms, and the label each has now (``--merge`` reads old files)
+RENAMED_ARMS = {"chance (image-blind estimator)": ROTATION_BLIND_ARM}
 #: the config its ``--perturbations`` runs are stored under by default
 PERTURBATIONS = "perturbations"
 YAW_SIGMAS = (0.0, 5.0, 10.0, 20.0, 30.0)
@@ -221,11 +230,12 @@ def main(argv: list[str] | None = None) -> int:
 
     cv2.setNumThreads(1)  # the estimator's figures are for one core
     t0 = time.perf_counter()
-    default_pose_models("top", 320, 240, progress=args.progress)
+    arms = {k: v for k, v in _arm_configs(args).items() if only is None or k in only}
+    # trained here, once, not by every worker at the same time (none for arms without images)
+    if labels or any(c.pose == "manifold" for c in arms.values()):
+        default_pose_models("top", 320, 240, progress=args.progress)
     if labels:
         return _perturbation_arms(args, labels, time.perf_counter() - t0)
-    arms = {k: v for k, v in _arm_configs(args).items() if only is None or k in only}
-    # trained here, once, not by every worker at the same time
     if any(c.fallback_cameras for c in arms.values()):
         default_pose_models("side", 320, 240, progress=args.progress)
     if any(c.pose_cameras[0] == "eye_in_hand" for c in arms.values()):
@@ -285,7 +295,9 @@ def _arm_configs(args) -> dict:
         "manifold, no table prior": RolloutConfig(
             **manifold, support="none", episodes=n, seed=seed
         ),
-        CHANCE_ARM: RolloutConfig(**manifold, estimator="chance", episodes=n, seed=seed),
+        TRUE_POSITION_ARM: RolloutConfig(pose="oracle_position", episodes=n, seed=seed),
+        ROTATION_BLIND_ARM: RolloutConfig(**manifold, estimator="chance", episodes=n, seed=seed),
+        IMAGE_BLIND_ARM: RolloutConfig(pose="constant", episodes=n, seed=seed),
         "manifold, FLR recognition": RolloutConfig(
             **manifold, recognizer="flr", episodes=n, seed=seed
         ),
@@ -351,7 +363,8 @@ def _machine(jobs: int) -> dict:
 
 def _merge(parser: argparse.ArgumentParser, args) -> int:
     """Join the reports of runs of disjoint ``--arms`` (or ``--perturbations``) of the same
-    episodes into one, as one run over them all would have written it."""
+    episodes into one, as one run over them all would have written it (arms of earlier reports
+    under their labels of now, :data:`RENAMED_ARMS`)."""
     from pose.fileio import write_result
 
     parts = []
@@ -364,6 +377,11 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
     if len(kinds) != 1 or not kinds <= {"closed_loop", "closed_loop_perturbations"}:
         parser.error(f"--merge: parts must all be closed_loop or all perturbation runs: {kinds}")
     (kind,) = kinds
+    if kind == "closed_loop":  # an arm an earlier report named otherwise gets its label of now
+        for part in parts:
+            part["arms"] = {RENAMED_ARMS.get(k, k): a for k, a in part["arms"].items()}
+            for label, arm in part["arms"].items():
+                arm["label"] = label
     same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm")
     for key in same:
         if len({json.dumps(p.get(key)) for p in parts}) > 1:

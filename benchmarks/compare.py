@@ -9,9 +9,10 @@ issue's two: heading σ 20° alone (``0:20``) and position σ 2 cm alone (``0.02
 the scripted controller grasped 95 % and 82 % of 44 episodes in ``closed_loop.json``.
 ``--poses oracle,manifold`` adds the pose-manifold estimator with no privileged input
 (background-subtraction masks, recognised identity: the main arm of ``closed_loop.py``; the
-default top-camera models, or ``--pose-model``); ``chance`` adds its image-blind chance level
-(the same source, masks and recognition with the estimator swapped for a constant rotation
-fitted on the default models' views); ``--noise ""`` runs no noise level.
+default top-camera models, or ``--pose-model``); ``chance`` adds its rotation-blind chance
+level (the same source, masks and recognition with the estimator swapped for a constant rotation
+fitted on the default models' views: the position still from the image); ``--noise ""`` runs
+no noise level.
 Writes ``compare.json`` (the report documented in :mod:`scorbot_gym.evaluation.compare`, plus
 the machine) and the figure ``compare.png``, into a new ``runs/compare-<time>/`` unless ``--out``
 names the file (an existing one only with ``--overwrite``); ``--config NAME`` stores the run as

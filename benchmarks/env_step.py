@@ -2,8 +2,8 @@
 step; with ``--peers``, side by side with FetchPickAndPlace-v4, Meta-World pick-place-v3 and
 robosuite Lift (Panda) in the same run.
 
-Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...]] [--repeats 5] [--cpu 0]
-      [--out PATH.json] [--config NAME]
+Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...] [--peer-venvs DIR]]
+      [--repeats 5] [--cpu 0] [--out PATH.json] [--overwrite] [--config NAME]
 
 By default the run is written to a new ``runs/env_step-<time>/env_step.json`` (and ``.png``);
 ``--out`` names another file, which is refused if it exists unless ``--overwrite`` is given.
@@ -14,14 +14,26 @@ rebuilt with ``python benchmarks/env_step.py --peers --out benchmarks/results/en
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
-environment under ``~/.cache/scorbot-gym/peer-venvs/<name>`` (built on first use with
-``python3 -m venv`` + pip from PyPI, reused while its pinned requirements are unchanged). The
+environment under ``--peer-venvs`` (default ``~/.cache/scorbot-gym/peer-venvs/<name>``; built
+on first use with ``python3 -m venv`` + pip from PyPI, reused while its pinned requirements are
+unchanged). The
 peers need mujoco 3.x; scorbot-gym runs on mujoco 4, so they cannot share one environment.
 
 Repetitions interleave the environments (A, B, C, D, then D, C, B, A, ...) so that a change in
 the machine's load hits all of them alike; every subprocess is pinned to the same core (the
 affinity is inherited) and Mesa's llvmpipe is asked for one rendering thread. Medians over
 repetitions are reported, with the load average before and after the run.
+
+Every ratio is taken on CPU time (``time.process_time`` of the timing process, all its
+threads: the rasterizer's too), within each repetition, then its median and range over the
+repetitions are reported (``ratios``; the wall-clock ratio beside it): on a shared machine CPU
+time moves much less with the load than wall time. Each frame's cost depends on what the
+renderer draws, so the JSON records for every env its render settings (MSAA samples per pixel,
+shadows, reflective materials), and the image ratio against FetchPickAndPlace is given as
+shipped (ScorbotGrasp-v0 renders without MSAA, Fetch with MuJoCo's default 4x) and at matched
+settings both ways (``FetchPickAndPlace-v4/msaa0``: Fetch's MSAA off; ``ScorbotGrasp-v0/msaa4``:
+ours on). Neither renders shadows or reflections by default (``ScorbotGrasp-v0/shadows`` times
+ours with its shadow map).
 
 scorbot-gym is also timed with Cartesian actions (``ScorbotGrasp-v0/cartesian``: IK every
 step; without images), paired with joint actions in the same repetitions; and ``profile``
@@ -47,6 +59,23 @@ SCORBOT = "ScorbotGrasp-v0"
 # Its default renders without shadows; the peers render theirs (see render_settings in the JSON).
 SCORBOT_SHADOWS = "ScorbotGrasp-v0/shadows"
 SCORBOT_CARTESIAN = "ScorbotGrasp-v0/cartesian"
+# Fetch renders with MuJoCo's default 4x MSAA, ours without: each matched to the other
+SCORBOT_MSAA4 = "ScorbotGrasp-v0/msaa4"
+FETCH = "FetchPickAndPlace-v4"
+FETCH_MSAA0 = "FetchPickAndPlace-v4/msaa0"
+# variants that change what is rendered only: timed with an image alone
+IMAGE_ONLY = (SCORBOT_SHADOWS, SCORBOT_MSAA4, FETCH_MSAA0)
+# a peer's variants run in that peer's venv
+PEER_VARIANTS = {FETCH_MSAA0: FETCH}
+# The ratios the README quotes: (setting, comparison, numerator env, denominator env); each
+# is the numerator's steps per CPU second over the denominator's, paired per repetition.
+RATIOS = (
+    ("no_images", "ScorbotGrasp-v0 / Fetch", SCORBOT, FETCH),
+    ("camera_320x240", "ScorbotGrasp-v0 / Fetch, as shipped", SCORBOT, FETCH),
+    ("camera_320x240", "ScorbotGrasp-v0 / Fetch, MSAA off in both", SCORBOT, FETCH_MSAA0),
+    ("camera_320x240", "ScorbotGrasp-v0 / Fetch, 4x MSAA in both", SCORBOT_MSAA4, FETCH),
+    ("no_images", "Cartesian / joint actions", SCORBOT_CARTESIAN, SCORBOT),
+)
 # (env, setting) pairs profiled stage by stage
 PROFILED = ((SCORBOT, "no_images"), (SCORBOT_CARTESIAN, "no_images"), (SCORBOT, "camera_320x240"))
 VENV_ROOT = Path.home() / ".cache" / "scorbot-gym" / "peer-venvs"
@@ -70,12 +99,13 @@ SETTINGS = {"no_images": False, "camera_320x240": True}
 MARKER = "scorbot-peer-requirements.txt"
 
 
-def peer_python(name: str, rebuild: bool = False) -> Path:
-    """The interpreter of ``name``'s venv, built if missing or built from other pins.
+def peer_python(name: str, rebuild: bool = False, root: Path = VENV_ROOT) -> Path:
+    """The interpreter of ``name``'s venv under ``root``, built if missing or built from other
+    pins.
 
     The marker holding the pins is written last, so an interrupted build is never reused."""
     spec = PEERS[name]
-    venv = VENV_ROOT / spec["venv"]
+    venv = root / spec["venv"]
     wanted = "\n".join(spec["requirements"]) + "\n"
     marker = venv / MARKER
     python = venv / "bin" / "python"
@@ -122,22 +152,29 @@ def _median(xs: list[float]) -> float:
     return s[n // 2] if n % 2 else 0.5 * (s[n // 2 - 1] + s[n // 2])
 
 
-def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
-    """Time every env in every setting, interleaved; return per-setting, per-env records."""
+def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> tuple[dict, list]:
+    """Time every env in every setting, interleaved; return per-setting, per-env records and
+    the :data:`RATIOS` the run has both envs of (:func:`paired_ratio`)."""
     runs: dict[str, dict[str, list[dict]]] = {s: {e: [] for e in envs} for s in SETTINGS}
     order = list(envs)
     for rep in range(repeats):
         for setting, image in SETTINGS.items():
             for env in order if rep % 2 == 0 else order[::-1]:
-                if env == SCORBOT_SHADOWS and not image:
-                    continue  # identical to SCORBOT when nothing is rendered
+                if env in IMAGE_ONLY and not image:
+                    continue  # identical to its base env when nothing is rendered
                 if env == SCORBOT_CARTESIAN and image:
                     continue  # the IK's cost is measured where it is not drowned by rendering
                 r = time_once(envs[env], env, image, steps[setting], seed=rep)
                 runs[setting][env].append(r)
-                rate = r.get("steps_per_second")
-                shown = f"{rate:8.1f} steps/s" if rate else r.get("error")
-                print(f"rep {rep} {setting:>14} {env:>26}: {shown}", flush=True)
+                rate = r.get("steps_per_cpu_second")
+                shown = f"{rate:8.1f} steps/CPU s" if rate else r.get("error")
+                print(f"rep {rep} {setting:>14} {env:>28}: {shown}", flush=True)
+    ratios = [
+        {"setting": setting, "comparison": what, "numerator": a, "denominator": b,
+         **paired_ratio(runs[setting][a], runs[setting][b])}
+        for setting, what, a, b in RATIOS
+        if runs[setting].get(a) and runs[setting].get(b)
+    ]  # fmt: skip
     results: dict[str, dict] = {}
     for setting, per_env in runs.items():
         results[setting] = {}
@@ -155,21 +192,14 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> dict:
                 "sim_seconds_per_step": ok[0]["sim_seconds_per_step"],
                 "sim_seconds_per_wall_second_median": med * ok[0]["sim_seconds_per_step"],
                 "steps_per_cpu_second_median": _median([r["steps_per_cpu_second"] for r in ok]),
+                "steps_per_cpu_second_runs": [r["steps_per_cpu_second"] for r in ok],
                 "steps_per_run": steps[setting],
                 "failed_runs": len(rs) - len(ok),
                 "note": ok[0]["note"],
                 "render_settings": ok[0]["render_settings"],
                 "versions": ok[0]["versions"],
             }
-        for ours_name, prefix in ((SCORBOT, "scorbot"), (SCORBOT_SHADOWS, "scorbot_shadows")):
-            for env, r in results[setting].items():
-                if not env.startswith(SCORBOT) and "steps_per_second_median" in r:
-                    r.update(_paired_ratios(per_env.get(ours_name, []), per_env[env], prefix))
-        cartesian = results[setting].get(SCORBOT_CARTESIAN, {})
-        if "steps_per_second_median" in cartesian:  # Cartesian over joint actions
-            pairs = _paired_ratios(per_env[SCORBOT_CARTESIAN], per_env[SCORBOT], "vs_joint")
-            cartesian.update(pairs)
-    return results
+    return results, ratios
 
 
 def profile(python: Path, repeats: int, steps: dict[str, int]) -> dict:
@@ -200,25 +230,31 @@ def profile(python: Path, repeats: int, steps: dict[str, int]) -> dict:
     return out
 
 
-def _paired_ratios(ours: list[dict], theirs: list[dict], prefix: str) -> dict:
-    """Ratios of runs taken in the same repetition (next to each other in time, so under about
-    the same load), then their median: steadier than a ratio of medians on a busy machine."""
+def paired_ratio(ours: list[dict], theirs: list[dict]) -> dict:
+    """``ours`` over ``theirs`` in steps per CPU second, run against run of the same repetition
+    (next to each other in time, so under about the same load): the median, range and every
+    pair; the wall-clock ratio beside it, and each side's render settings."""
     pairs = [
         (a, b)
         for a, b in zip(ours, theirs, strict=False)
-        if "steps_per_second" in a and "steps_per_second" in b
+        if "steps_per_cpu_second" in a and "steps_per_cpu_second" in b
     ]
     if not pairs:
-        return {}
-    ratios = [a["steps_per_second"] / b["steps_per_second"] for a, b in pairs]
+        return {"pairs": 0}
     cpu = [a["steps_per_cpu_second"] / b["steps_per_cpu_second"] for a, b in pairs]
-    dt = pairs[0][0]["sim_seconds_per_step"] / pairs[0][1]["sim_seconds_per_step"]
+    wall = [a["steps_per_second"] / b["steps_per_second"] for a, b in pairs]
     return {
-        f"{prefix}_ratio_steps_per_second": _median(ratios),
-        f"{prefix}_ratio_steps_per_second_runs": ratios,
-        f"{prefix}_ratio_sim_seconds_per_wall_second": _median(ratios) * dt,
-        f"{prefix}_ratio_steps_per_cpu_second": _median(cpu),
-        f"{prefix}_ratio_steps_per_cpu_second_runs": cpu,
+        "pairs": len(pairs),
+        "cpu_ratio_median": _median(cpu),
+        "cpu_ratio_min": min(cpu),
+        "cpu_ratio_max": max(cpu),
+        "cpu_ratio_runs": cpu,
+        "wall_ratio_median": _median(wall),
+        "wall_ratio_runs": wall,
+        "render_settings": {
+            "numerator": pairs[0][0]["render_settings"],
+            "denominator": pairs[0][1]["render_settings"],
+        },
     }
 
 
@@ -260,6 +296,12 @@ def main(argv: list[str] | None = None) -> int:
         "--only-peers", nargs="+", choices=sorted(PEERS), help="with --peers: just these peers"
     )
     parser.add_argument("--rebuild-peers", action="store_true", help="rebuild the peer venvs")
+    parser.add_argument(
+        "--peer-venvs",
+        type=Path,
+        default=VENV_ROOT,
+        help=f"where the peers' venvs are built and kept (default {VENV_ROOT})",
+    )
     parser.add_argument("--steps", type=int, default=2000, help="timed steps without images")
     parser.add_argument("--image-steps", type=int, default=200, help="timed steps with images")
     parser.add_argument("--repeats", type=int, default=5)
@@ -295,14 +337,15 @@ def main(argv: list[str] | None = None) -> int:
     from pose.fileio import write_result
 
     ours = Path(sys.executable)
-    envs = {SCORBOT: ours, SCORBOT_CARTESIAN: ours, SCORBOT_SHADOWS: ours}
+    envs = {SCORBOT: ours, SCORBOT_CARTESIAN: ours, SCORBOT_SHADOWS: ours, SCORBOT_MSAA4: ours}
     if args.peers:
         peers = args.only_peers or list(PEERS)
-        envs.update({name: peer_python(name, args.rebuild_peers) for name in peers})
+        envs.update({n: peer_python(n, args.rebuild_peers, args.peer_venvs) for n in peers})
+        envs.update({v: envs[base] for v, base in PEER_VARIANTS.items() if base in envs})
     load_before = os.getloadavg()
     t0 = time.time()
     steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
-    results = run(envs, args.repeats, steps)
+    results, ratios = run(envs, args.repeats, steps)
     profiles = profile(ours, args.repeats, steps)
     report = {
         "benchmark": "env_step",
@@ -313,6 +356,10 @@ def main(argv: list[str] | None = None) -> int:
         "pinned_cpu": args.cpu,
         "repeats": args.repeats,
         "interleaved": "A,B,C,D then D,C,B,A ... per setting",
+        "ratios_how": "steps per CPU second (time.process_time of the timing process, all its "
+        "threads) of the numerator over the denominator, run against run of the same "
+        "repetition; median and range over the repetitions (wall-clock ratio beside it)",
+        "ratios": ratios,
         "results": results,
         "profile": {
             "how": "benchmarks/peers/time_env.py --profile: the env's stages timed in place, "
@@ -327,6 +374,7 @@ def main(argv: list[str] | None = None) -> int:
             "note": "the machine is shared; loadavg counts other users' processes too",
         },
         "peer_requirements": {n: PEERS[n]["requirements"] for n in envs if n in PEERS},
+        "peer_variants": {v: b for v, b in PEER_VARIANTS.items() if v in envs},
         "machine": {
             "platform": platform.platform(),
             "python": sys.version.split()[0],
@@ -340,16 +388,13 @@ def main(argv: list[str] | None = None) -> int:
         plot(report, args.out.with_suffix(".png"))
     for setting, per_env in results.items():
         for env, r in per_env.items():
-            ratio = r.get("scorbot_ratio_steps_per_second") or r.get(
-                "vs_joint_ratio_steps_per_second"
-            )
-            cpu = r.get("scorbot_ratio_steps_per_cpu_second") or r.get(
-                "vs_joint_ratio_steps_per_cpu_second"
-            )
-            who = "cartesian/joint" if env == SCORBOT_CARTESIAN else "scorbot"
-            extra = f"  ({who} {ratio:.2f}x, per CPU second {cpu:.2f}x)" if ratio else ""
-            shown = r.get("error") or f"{r['steps_per_second_median']:8.1f} steps/s"
-            print(f"{setting:>14} {env:>26}: {shown}{extra}")
+            shown = r.get("error") or f"{r['steps_per_cpu_second_median']:8.1f} steps/CPU s"
+            print(f"{setting:>14} {env:>28}: {shown}")
+    for r in ratios:
+        if r["pairs"]:
+            print(f"{r['setting']:>14} {r['comparison']}: {r['cpu_ratio_median']:.2f}x per CPU "
+                  f"second ({r['cpu_ratio_min']:.2f}-{r['cpu_ratio_max']:.2f}, {r['pairs']} "
+                  f"pairs; wall {r['wall_ratio_median']:.2f}x)")  # fmt: skip
     figure = f" and {args.out.with_suffix('.png')}" if args.config is None else ""
     print(f"written {args.out}{figure}" + (f" (config {args.config!r})" if args.config else ""))
     return 0

@@ -80,29 +80,51 @@ def short(spec: str, names: dict[str, str]) -> str:
 # ---- closed loop and policies -------------------------------------------------------------
 
 
+#: the blind arms of ``closed_loop.json``, each found by its configuration (not its label, which
+#: lives in closed_loop.py alone): (words in the headline, config keys and values, what to run)
+BLIND_ARMS = (
+    ("rotation-blind (a constant rotation) at the image's position",
+     {"pose": "manifold", "estimator": "chance"},
+     "rotation-blind (image position, constant rotation)"),
+    ("at the true position", {"pose": "oracle_position"},
+     "rotation-blind (true position, constant rotation)"),
+    ("image-blind (one constant pose, the identity given)", {"pose": "constant"},
+     "image-blind (constant pose, identity given)"),
+)  # fmt: skip
+
+
+def _arm_by_config(arms: dict, want: dict) -> str | None:
+    """The label of the undisturbed arm whose configuration has ``want``'s values."""
+    for label, arm in arms.items():
+        config = arm.get("config", {})
+        if config.get("disturbance") is None and all(config.get(k) == v for k, v in want.items()):
+            return label
+    return None
+
+
 def headline_closed_loop() -> str:
     d = read("closed_loop.json")
-    # the rotation-blind arm is the one whose config swaps the estimator for ``chance``; found
-    # by that, not by its label, so the label lives in closed_loop.py alone
-    chance = [k for k, v in d["arms"].items() if v.get("config", {}).get("estimator") == "chance"]
-    missing = [k for k in ("manifold", "oracle") if k not in d["arms"]]
-    missing += [] if chance else ["rotation-blind (image position, constant rotation)"]
-    if missing:  # the headline states the chance level beside the estimator, or nothing
+    arms = d["arms"]
+    blind = [(words, _arm_by_config(arms, want), run) for words, want, run in BLIND_ARMS]
+    missing = [k for k in ("manifold", "oracle") if k not in arms]
+    missing += [run for _, label, run in blind if label is None]
+    if missing:  # the headline states the blind levels beside the estimator, or nothing
         sys.exit(
             f"closed_loop.json lacks the arms {missing}: run benchmarks/closed_loop.py --arms "
-            f"'{';'.join(missing)}' --out PART.json and --merge it"
+            f"'{';'.join(missing)}' --out PART.json, then --merge it with the file's main run "
+            "(--out benchmarks/results/closed_loop.json --overwrite)"
         )
-    a, o, c = d["arms"]["manifold"], d["arms"]["oracle"], d["arms"][chance[0]]
+    a, o = arms["manifold"], arms["oracle"]
+    levels = ", ".join(f"{words} {pct(arms[label]['success_rate'])}" for words, label, _ in blind)
+    names = ", ".join(f"`{label}`" for _, label, _ in blind)
     return (
         f"**{pct(a['success_rate'])}** of {a['episodes']} seeded grasps "
         f"(95 % CI {ci(a['success_rate_ci95'])[1:-1]}) with the pose estimated from the camera "
         f"images alone (background subtraction, recognition on `top` + `side`, pose manifold, "
         f"table-top prior; "
         f"whole catalogue, scripted controller, seeds from {d['seed']}); with the true pose "
-        f"{pct(o['success_rate'])}, rotation-blind (the position from the image, a constant "
-        f"rotation) {pct(c['success_rate'])} (`benchmarks/results/closed_loop.json`, arms "
-        f"`manifold`, "
-        f"`oracle` and `{chance[0]}`).\n"
+        f"(the upper bound) {pct(o['success_rate'])}; {levels} "
+        f"(`benchmarks/results/closed_loop.json`, arms `manifold`, `oracle`, {names}).\n"
     )
 
 
@@ -292,38 +314,70 @@ def rl_training() -> str:
 # ---- environment --------------------------------------------------------------------------
 
 
+def _render(settings: dict) -> str:
+    """An env's render settings as a table cell: MSAA, shadows, reflective materials."""
+    msaa = settings.get("msaa_samples")
+    parts = ["MSAA ?" if msaa is None else (f"MSAA {msaa}×" if msaa else "no MSAA")]
+    parts.append("shadows" if settings.get("shadows_rendered") else "no shadows")
+    reflective = settings.get("reflective_materials")
+    parts.append(
+        "reflections ?"
+        if reflective is None
+        else (f"{reflective} reflective materials" if reflective else "no reflections")
+    )
+    return ", ".join(parts)
+
+
 def env_step() -> str:
     d = read("env_step.json")
     rows = []
     for setting, label in (("no_images", "no images"), ("camera_320x240", "320 × 240 RGB")):
         for env, r in d["results"].get(setting, {}).items():
-            ratio = (
-                r.get("scorbot_ratio_steps_per_second"),
-                r.get("scorbot_ratio_steps_per_cpu_second"),
-            )
+            if "error" in r:
+                continue
+            cpu = r["steps_per_cpu_second_runs"]
             rows.append(
                 [
                     label,
                     env,
+                    f"{r['steps_per_cpu_second_median']:.0f} ({min(cpu):.0f}–{max(cpu):.0f})",
                     f"{r['steps_per_second_median']:.0f}",
-                    f"{r['steps_per_cpu_second_median']:.0f}",
                     f"{r['sim_seconds_per_wall_second_median']:.2g}",
-                    "—" if ratio[0] is None else f"{ratio[0]:.2f}×",
-                    "—" if ratio[1] is None else f"{ratio[1]:.2f}×",
+                    _render(r["render_settings"]) if setting != "no_images" else "—",
                 ]
             )
-    return table(
-        [
-            "setting",
-            "env",
-            "steps/s (wall)",
-            "steps / CPU s",
-            "sim s / wall s",
-            "ScorbotGrasp-v0 ÷ env, wall",
-            "÷ env, CPU",
-        ],
-        rows,
-    )
+    head = ["setting", "env", "steps / CPU s (range)", "steps/s (wall)", "sim s / wall s",
+            "rendering"]  # fmt: skip
+    return table(head, rows)
+
+
+def env_step_ratios() -> str:
+    """The paired ratios of ``env_step.json`` (``ratios``): per CPU second, median and range."""
+    d = read("env_step.json")
+    rows = []
+    for r in d["ratios"]:
+        if not r["pairs"]:
+            continue
+        rs = r["render_settings"]
+        rendering = (
+            "—"
+            if r["setting"] == "no_images"
+            else f"{_render(rs['numerator'])} / {_render(rs['denominator'])}"
+        )
+        rows.append(
+            [
+                r["comparison"],
+                "no images" if r["setting"] == "no_images" else "320 × 240 RGB",
+                str(r["pairs"]),
+                f"**{r['cpu_ratio_median']:.2f}×** ({r['cpu_ratio_min']:.2f}–"
+                f"{r['cpu_ratio_max']:.2f})",
+                f"{r['wall_ratio_median']:.2f}×",
+                rendering,
+            ]
+        )
+    head = ["ratio", "setting", "pairs", "per CPU second, median (range)", "wall, median",
+            "rendering (numerator / denominator)"]  # fmt: skip
+    return table(head, rows)
 
 
 # ---- pose estimation sweeps ---------------------------------------------------------------
@@ -801,21 +855,29 @@ def cli_startup() -> str:
 
 
 def wrapper_step() -> str:
+    """Bare and oracle-wrapped step, without images and with the top camera's image, and the
+    wrapped-over-bare ratio of CPU time per step (median and range over the paired runs)."""
     d = read("wrapper_step.json")
-    rows = [
-        [f"`{name}`", f"{r['steps_per_second_median']:.0f}",
-         f"{r['steps_per_cpu_second_median']:.0f}", r.get("note", "")]
-        for name, r in d["step"].items()
-        if "steps_per_second_median" in r
-    ]  # fmt: skip
-    table_text = table(["env", "steps/s (wall)", "steps / CPU s", "what"], rows)
-    ratio = d["step"].get("wrapped_over_bare")
-    if ratio:
-        table_text += (
-            f"\nWrapped ÷ bare step time: {ratio['step_time_ratio_median']:.2f}× wall, "
-            f"{ratio['cpu_time_ratio_median']:.2f}× CPU (median of per-repetition ratios).\n"
-        )
-    return table_text
+    rows, ratios = [], []
+    for setting, label in (("no_images", "no images"), ("camera_320x240", "320 × 240 RGB")):
+        for name, r in d["step"].get(setting, {}).items():
+            if "steps_per_cpu_second_median" not in r:
+                continue
+            cpu = r["steps_per_cpu_second_runs"]
+            rows.append([label, f"`{name}`",
+                         f"{r['steps_per_cpu_second_median']:.0f} ({min(cpu):.0f}–{max(cpu):.0f})",
+                         f"{r['steps_per_second_median']:.0f}"])  # fmt: skip
+        ratio = d["step"].get(setting, {}).get("wrapped_over_bare")
+        if ratio:
+            ratios.append(
+                f"{label} {ratio['cpu_time_ratio_median']:.2f}× "
+                f"({ratio['cpu_time_ratio_min']:.2f}–{ratio['cpu_time_ratio_max']:.2f}, "
+                f"{ratio['pairs']} pairs)"
+            )
+    text = table(["setting", "env", "steps / CPU s (range)", "steps/s (wall)"], rows)
+    if ratios:
+        text += f"\nWrapped ÷ bare CPU time per step: {'; '.join(ratios)}.\n"
+    return text
 
 
 #: the keys a result's conditions line quotes where its run has them, with their wording
@@ -897,6 +959,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "compare-heldout-training": compare_table("heldout_training_objects"),
     "rl-training": rl_training,
     "env-step": env_step,
+    "env-step-ratios": env_step_ratios,
     "fig3-curves": fig3_curves,
     "select": select_table,
     "stages": stage_ablation,

@@ -1,12 +1,19 @@
-"""What ``PoseEstimateObservation`` with the oracle source costs per step, next to the bare env;
-and, with ``--train-steps``, SAC's training throughput on the oracle-wrapped env (1 and 2 envs).
+"""What ``PoseEstimateObservation`` with the oracle source costs per step, next to the bare env,
+without images and with the ``top`` camera's 320x240 RGB in the observation; and, with
+``--train-steps``, SAC's training throughput on the oracle-wrapped env (1 and 2 envs).
 
 Run:  python benchmarks/wrapper_step.py [--repeats 7] [--train-steps 3000] [--out PATH.json]
+      [--overwrite]
+
+By default the report goes to a new ``runs/wrapper_step-<time>/wrapper_step.json``; the
+committed record is rebuilt with ``--out benchmarks/results/wrapper_step.json --overwrite`` (an
+existing ``--out`` is refused without ``--overwrite``).
 
 The step timing is ``benchmarks/env_step.py``'s: the loop of ``benchmarks/peers/time_env.py``
-(uniform random actions, resets untimed), one fresh process per env and repetition, all pinned
-to one core, the two envs interleaved (bare, wrapped, then wrapped, bare, ...); the ratio is
-taken within each repetition, then its median reported. The wrapped env scores its estimate
+(uniform random actions, resets untimed), one fresh process per env, setting and repetition,
+all pinned to one core, the two envs interleaved (bare, wrapped, then wrapped, bare, ...); the
+ratio of CPU time per step is taken within each repetition, then its median and range
+reported. The wrapped env scores its estimate
 against the truth at every step (``info["perception"]``: rotation error over the object's
 symmetries, ADD-S), as in training and evaluation. ``profile`` breaks the wrapped step into
 stages (``time_env.py --profile``).
@@ -36,57 +43,73 @@ BARE = "ScorbotGrasp-v0"
 WRAPPED = "ScorbotGrasp-v0/pose-oracle"
 
 
-def time_pair(repeats: int, steps: int) -> dict:
-    """Bare and wrapped env, interleaved in each repetition; medians and paired ratios."""
+def time_pair(repeats: int, steps: dict[str, int]) -> dict:
+    """Bare and wrapped env, interleaved in each repetition, without an image and with the
+    ``top`` camera's 320x240 RGB in the observation (``env_step.SETTINGS``); per setting each
+    env's medians and the wrapped step's CPU time over the bare one's, paired per repetition."""
     python = Path(sys.executable)
-    runs: dict[str, list[dict]] = {BARE: [], WRAPPED: []}
-    for rep in range(repeats):
-        for env in (BARE, WRAPPED) if rep % 2 == 0 else (WRAPPED, BARE):
-            r = env_step.time_once(python, env, False, steps, seed=rep)
-            runs[env].append(r)
-            rate = r.get("steps_per_second")
-            print(f"rep {rep} {env:>28}: " + (f"{rate:8.1f} steps/s" if rate else r["error"]))
     out: dict = {}
-    for env, rs in runs.items():
-        ok = [r for r in rs if "steps_per_second" in r]
-        if not ok:
-            raise SystemExit(f"{env}: every run failed ({rs[-1]['error']})")
-        med = env_step._median([r["steps_per_second"] for r in ok])
-        out[env] = {
-            "steps_per_second_median": med,
-            "step_us_median": 1e6 / med,
-            "steps_per_second_runs": [r["steps_per_second"] for r in ok],
-            "steps_per_cpu_second_median": env_step._median(
-                [r["steps_per_cpu_second"] for r in ok]
-            ),
-            "failed_runs": len(rs) - len(ok),
-            "note": ok[0]["note"],
+    for setting, image in env_step.SETTINGS.items():
+        runs: dict[str, list[dict]] = {BARE: [], WRAPPED: []}
+        for rep in range(repeats):
+            for env in (BARE, WRAPPED) if rep % 2 == 0 else (WRAPPED, BARE):
+                r = env_step.time_once(python, env, image, steps[setting], seed=rep)
+                runs[env].append(r)
+                rate = r.get("steps_per_cpu_second")
+                shown = f"{rate:8.1f} steps/CPU s" if rate else r["error"]
+                print(f"rep {rep} {setting:>14} {env:>28}: {shown}", flush=True)
+        per_env: dict = {}
+        for env, rs in runs.items():
+            ok = [r for r in rs if "steps_per_second" in r]
+            if not ok:
+                raise SystemExit(f"{env} ({setting}): every run failed ({rs[-1]['error']})")
+            cpu = env_step._median([r["steps_per_cpu_second"] for r in ok])
+            per_env[env] = {
+                "steps_per_cpu_second_median": cpu,
+                "cpu_us_per_step_median": 1e6 / cpu,
+                "steps_per_cpu_second_runs": [r["steps_per_cpu_second"] for r in ok],
+                "steps_per_second_median": env_step._median([r["steps_per_second"] for r in ok]),
+                "steps_per_run": steps[setting],
+                "failed_runs": len(rs) - len(ok),
+                "note": ok[0]["note"],
+                "render_settings": ok[0]["render_settings"],
+            }
+        # wrapped step time over bare step time = bare steps per CPU s over wrapped ones
+        paired = env_step.paired_ratio(runs[BARE], runs[WRAPPED])
+        per_env["wrapped_over_bare"] = {
+            "cpu_time_ratio_median": paired["cpu_ratio_median"],
+            "cpu_time_ratio_min": paired["cpu_ratio_min"],
+            "cpu_time_ratio_max": paired["cpu_ratio_max"],
+            "cpu_time_ratio_runs": paired["cpu_ratio_runs"],
+            "wall_time_ratio_median": paired["wall_ratio_median"],
+            "pairs": paired["pairs"],
         }
-    # wrapped step time over bare step time = bare steps/s over wrapped steps/s, per repetition
-    paired = env_step._paired_ratios(runs[BARE], runs[WRAPPED], "wrapped_step_cost")
-    out["wrapped_over_bare"] = {
-        "step_time_ratio_median": paired["wrapped_step_cost_ratio_steps_per_second"],
-        "step_time_ratio_runs": paired["wrapped_step_cost_ratio_steps_per_second_runs"],
-        "cpu_time_ratio_median": paired["wrapped_step_cost_ratio_steps_per_cpu_second"],
-    }
+        out[setting] = per_env
     return out
 
 
-def profile_wrapped(repeats: int, steps: int) -> dict:
+def profile_wrapped(repeats: int, steps: dict[str, int]) -> dict:
+    """The wrapped step's stages (``time_env.py --profile``), per setting: medians over
+    ``repeats`` fresh processes."""
     python = Path(sys.executable)
-    runs = []
-    for rep in range(repeats):
-        r = env_step.time_once(python, WRAPPED, False, steps, seed=rep, profile=True)
-        if "error" not in r:
-            runs.append(r)
-    if not runs:
-        return {}
-    keys = runs[0]["parts_us"]
-    return {
-        "step_us_median": env_step._median([r["step_us"] for r in runs]),
-        "parts_us_median": {k: env_step._median([r["parts_us"][k] for r in runs]) for k in keys},
-        "runs": len(runs),
-    }
+    out = {}
+    for setting, image in env_step.SETTINGS.items():
+        runs = []
+        for rep in range(repeats):
+            r = env_step.time_once(python, WRAPPED, image, steps[setting], rep, profile=True)
+            if "error" not in r:
+                runs.append(r)
+        if not runs:
+            continue
+        keys = runs[0]["parts_us"]
+        out[setting] = {
+            "step_us_median": env_step._median([r["step_us"] for r in runs]),
+            "parts_us_median": {
+                k: env_step._median([r["parts_us"][k] for r in runs]) for k in keys
+            },
+            "runs": len(runs),
+        }
+    return out
 
 
 def train_throughput(n_envs: int, steps: int, learning_starts: int, seed: int) -> dict:
@@ -137,7 +160,8 @@ def train_throughput(n_envs: int, steps: int, learning_starts: int, seed: int) -
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--steps", type=int, default=2000, help="timed env steps per run")
+    parser.add_argument("--steps", type=int, default=2000, help="timed steps without images")
+    parser.add_argument("--image-steps", type=int, default=200, help="timed steps with images")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--cpu", type=int, default=0, help="core to pin the step timing to")
     parser.add_argument(
@@ -161,8 +185,8 @@ def main(argv: list[str] | None = None) -> int:
         )
     except ValueError as exc:
         parser.error(str(exc))
-    if args.steps < 1 or args.repeats < 1 or args.train_steps < 0:
-        parser.error("--steps and --repeats must be >= 1, --train-steps >= 0")
+    if args.steps < 1 or args.image_steps < 1 or args.repeats < 1 or args.train_steps < 0:
+        parser.error("--steps, --image-steps and --repeats must be >= 1, --train-steps >= 0")
     if args.train_steps and not 0 < args.learning_starts < args.train_steps:
         parser.error("--learning-starts must be in (0, --train-steps)")
 
@@ -174,8 +198,9 @@ def main(argv: list[str] | None = None) -> int:
     if cores is not None:
         os.sched_setaffinity(0, {args.cpu})  # inherited by the timing subprocesses
     t0 = time.time()
-    step = time_pair(args.repeats, args.steps)
-    prof = profile_wrapped(min(3, args.repeats), args.steps)
+    steps = {"no_images": args.steps, "camera_320x240": args.image_steps}
+    step = time_pair(args.repeats, steps)
+    prof = profile_wrapped(min(3, args.repeats), steps)
     if cores is not None:
         os.sched_setaffinity(0, cores)  # training uses every core it was given
     training = []
@@ -196,7 +221,9 @@ def main(argv: list[str] | None = None) -> int:
         "step": step,
         "profile_wrapped": prof,
         "timing": {
-            "steps_per_run": args.steps,
+            "steps_per_run": steps,
+            "ratio": "wrapped over bare CPU time per step (time.process_time of the timing "
+            "process), run against run of the same repetition; median and range",
             "repeats": args.repeats,
             "pinned_cpu": args.cpu,
             "loop": "benchmarks/peers/time_env.py, one fresh process per env and repetition",
@@ -218,11 +245,14 @@ def main(argv: list[str] | None = None) -> int:
         },
     }
     atomic_write_json(args.out, report)
-    ratio = step["wrapped_over_bare"]["step_time_ratio_median"]
-    print(
-        f"bare {step[BARE]['step_us_median']:.0f} us/step, oracle-wrapped "
-        f"{step[WRAPPED]['step_us_median']:.0f} us/step: {ratio:.2f}x (paired median)"
-    )
+    for setting, per_env in step.items():
+        r = per_env["wrapped_over_bare"]
+        print(
+            f"{setting}: bare {per_env[BARE]['cpu_us_per_step_median']:.0f} CPU us/step, "
+            f"oracle-wrapped {per_env[WRAPPED]['cpu_us_per_step_median']:.0f}: "
+            f"{r['cpu_time_ratio_median']:.2f}x ({r['cpu_time_ratio_min']:.2f}-"
+            f"{r['cpu_time_ratio_max']:.2f}, {r['pairs']} pairs)"
+        )
     print(f"written {args.out}")
     return 0
 

@@ -15,11 +15,13 @@ from __future__ import annotations
 POLICIES = ("scripted", "random", "rl", "learned", "finetuned")
 #: the pose sources :mod:`scorbot_gym.perception.registry` registers itself (sorted)
 POSE_SOURCES = (
+    "constant",
     "largest_blob",
     "manifold",
     "manifold_clutter",
     "noisy_oracle",
     "oracle",
+    "oracle_position",
     "random_blob",
 )
 #: short pose-source names the command line accepts, and the registered source each stands for

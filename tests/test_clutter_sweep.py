@@ -59,6 +59,27 @@ def test_winners_name_the_best_baseline_and_a_selection_is_no_baseline():
     assert "best baseline" in table and "BASELINE WINS: pca-nn" in table
 
 
+def test_a_level_where_every_estimator_scored_0_names_no_winner():
+    rows = [_row("manifold", 0.0, 0.5), _row("pca-nn", 0.0, 0.7),
+            _row("manifold", 0.9, 0.0, blind=0.0), _row("pca-nn", 0.9, 0.0, blind=0.0),
+            _row("manifold", 0.95, 0.0, blind=0.1),
+            _row("pca-nn", 0.95, 0.2, blind=0.1)]  # fmt: skip
+    w = {r["occlusion"]: r for r in winners(rows)}
+    assert (w[0.0]["best"], w[0.0]["best_manifold"]) == ("pca-nn", "manifold")
+    nobody = w[0.9]
+    assert nobody["best"] is None and nobody["best_success_5deg"] == 0.0
+    assert nobody["best_manifold"] is None and nobody["best_baseline"] is None
+    assert nobody["manifold_success_5deg"] == 0.0 and not nobody["baseline_wins"]
+    # the manifold's side at 0 names nobody, the baseline above it is named and wins
+    assert w[0.95]["best_manifold"] is None and w[0.95]["best"] == "pca-nn"
+    assert w[0.95]["baseline_wins"] and w[0.95]["won_by"] == "pca-nn"
+    lines = format_winners(list(w.values())).splitlines()
+    row_90 = next(line for line in lines if line.split()[:1] == ["90"])
+    assert "none" in row_90 and "manifold" not in row_90 and "pca-nn" not in row_90
+    row_0 = next(line for line in lines if line.split()[:1] == ["0"])
+    assert "pca-nn" in row_0
+
+
 # --- the figure of a dozen curves -----------------------------------------------------------------
 BASELINES = ("pca-nn", "pca-rbf", "least-squares", "part-based", "n3m", "nearest-view",
              "sift-pnp", "sift-pnp(upscale=2)")  # fmt: skip

@@ -194,3 +194,4 @@ def test_the_readme_tables_do_not_call_the_chance_level_the_estimator():
     assert "pose-manifold estimator" in tables["_condition_words"](manifold)
     words = tables["_condition_words"](chance)
     assert "chance level" in words and "pose-manifold estimator" not in words
+    assert "rotation-blind" in words and "image-blind" not in words  # the position is the image's

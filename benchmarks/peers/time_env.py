@@ -37,13 +37,19 @@ class Timed:
 
 
 def render_settings(model, shadows: bool | None = None) -> dict:
-    """What makes a frame expensive in a software rasterizer: shadow maps and reflections."""
+    """What makes a frame expensive in a software rasterizer: multisampling (MSAA: the
+    offscreen buffer's samples per pixel, ``visual/quality/offsamples``), shadow maps and
+    reflections. Read when the renderer is made (the first frame): a change after it is not
+    what was timed."""
     casting = int(sum(model.light_castshadow))
+    reflectance = [float(r) for r in model.mat_reflectance]
     return {
+        "msaa_samples": int(model.vis.quality.offsamples),
         "shadow_casting_lights": casting,
         "shadows_rendered": bool(casting) if shadows is None else bool(shadows and casting),
         "shadow_map_size": int(model.vis.quality.shadowsize),
-        "max_material_reflectance": float(max(model.mat_reflectance, default=0.0)),
+        "reflective_materials": sum(r > 0 for r in reflectance),
+        "max_material_reflectance": max(reflectance, default=0.0),
     }
 
 
@@ -65,10 +71,15 @@ def _gym_env(env, dt: float, image: bool, packages: tuple[str, ...], note: str) 
 
 
 def scorbot(
-    image: bool, shadows: bool = False, action_type: str = "joint", pose: str | None = None
+    image: bool,
+    shadows: bool = False,
+    action_type: str = "joint",
+    pose: str | None = None,
+    msaa: int | None = None,
 ) -> Timed:
     """``ScorbotGrasp-v0`` as ``gym.make`` gives it; ``pose="oracle"`` wraps it in
-    ``PoseEstimateObservation`` with that source (scoring ``info["perception"]`` every step)."""
+    ``PoseEstimateObservation`` with that source (scoring ``info["perception"]`` every step);
+    ``msaa`` samples per pixel instead of the scene's (none), set before the first frame."""
     import gymnasium as gym
 
     import scorbot_gym  # noqa: F401  (registers the ids)
@@ -81,14 +92,21 @@ def scorbot(
         action_type=action_type,
         **kw,
     )
-    note = "image = the 'top' camera's RGB in the observation (rendered inside step)"
+    model = env.unwrapped.sim.model
+    if msaa is not None:  # the render context is made at the first frame (the reset's)
+        model.vis.quality.offsamples = msaa
+    note = (
+        "image = the 'top' camera's RGB in the observation (rendered inside step)"
+        if image
+        else "no image (no camera in the observation, nothing rendered)"
+    )
     if pose is not None:
         from scorbot_gym.wrappers import PoseEstimateObservation
 
         env = PoseEstimateObservation(env, pose, keep_images=True)
         note += f"; wrapped in PoseEstimateObservation({pose!r})"
     timed = _gym_env(env, env.unwrapped.dt, False, ("scorbot-gym", "mujoco", "gymnasium"), note)
-    timed.render_settings = render_settings(env.unwrapped.sim.model, shadows)
+    timed.render_settings = render_settings(model, shadows)
     timed.env = env
     return timed
 
@@ -138,17 +156,26 @@ def profile_scorbot(timed: Timed, steps: int, seed: int, warmup: int) -> dict:
     }
 
 
-def fetch(image: bool) -> Timed:
+def fetch(image: bool, msaa: int | None = None) -> Timed:
+    """``FetchPickAndPlace-v4``; ``msaa`` samples per pixel instead of its model's (MuJoCo's
+    default, 4), set before its renderer is made (at the first ``render()``)."""
     import gymnasium as gym
     import gymnasium_robotics
 
     gym.register_envs(gymnasium_robotics)
     kw = {"render_mode": "rgb_array", "width": WIDTH, "height": HEIGHT} if image else {}
     env = gym.make("FetchPickAndPlace-v4", **kw)
-    note = "image = env.render() after each step (its default external camera)"
+    if msaa is not None:
+        env.unwrapped.model.vis.quality.offsamples = msaa
+    note = (
+        "image = env.render() after each step (its default external camera)"
+        if image
+        else "no image (nothing rendered)"
+    )
     pkgs = ("gymnasium-robotics", "mujoco", "gymnasium")
     timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
     timed.render_settings = render_settings(env.unwrapped.model)
+    timed.env = env
     return timed
 
 
@@ -158,7 +185,7 @@ def metaworld(image: bool) -> Timed:
 
     kw = {"render_mode": "rgb_array", "width": WIDTH, "height": HEIGHT} if image else {}
     env = gym.make("Meta-World/MT1", env_name="pick-place-v3", camera_name="corner", **kw)
-    note = "image = env.render() after each step ('corner' camera)"
+    note = "image = env.render() after each step ('corner' camera)" if image else "no image"
     pkgs = ("metaworld", "mujoco", "gymnasium")
     timed = _gym_env(env, env.unwrapped.dt, image, pkgs, note)
     timed.render_settings = render_settings(env.unwrapped.model)
@@ -194,7 +221,8 @@ def robosuite_lift(image: bool) -> Timed:
         rng.bit_generator.state = np.random.default_rng(seed).bit_generator.state
         env.reset()
 
-    note = "image = 'agentview' RGB in the observation (use_camera_obs); default OSC controller"
+    note = "image = 'agentview' RGB in the observation (use_camera_obs)" if image else "no image"
+    note += "; default OSC controller"
     timed = Timed(
         step,
         reset,
@@ -212,7 +240,10 @@ ENVS: dict[str, Callable[[bool], Timed]] = {
     "ScorbotGrasp-v0/shadows": lambda image: scorbot(image, shadows=True),
     "ScorbotGrasp-v0/cartesian": lambda image: scorbot(image, action_type="cartesian"),
     "ScorbotGrasp-v0/pose-oracle": lambda image: scorbot(image, pose="oracle"),
+    # Fetch's multisampling: the render settings matched both ways
+    "ScorbotGrasp-v0/msaa4": lambda image: scorbot(image, msaa=4),
     "FetchPickAndPlace-v4": fetch,
+    "FetchPickAndPlace-v4/msaa0": lambda image: fetch(image, msaa=0),
     "Meta-World/pick-place-v3": metaworld,
     "robosuite/Lift-Panda": robosuite_lift,
 }

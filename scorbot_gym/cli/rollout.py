@@ -71,7 +71,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "noisy/noisy_oracle (ground truth + seeded noise), manifold (the pose-manifold "
         "estimator on camera images; with --distractors it runs manifold_clutter); with "
         "--distractors: manifold_clutter (every blob recognised, the target's estimated), "
-        "largest_blob / random_blob (a blob taken without recognition: the baselines)",
+        "largest_blob / random_blob (a blob taken without recognition: the baselines); the "
+        "image-blind answers, identity given: constant (one pose, position and rotation), "
+        "oracle_position (the true position, a constant rotation)",
     )
     p.add_argument(
         "--pose-model",

@@ -23,6 +23,9 @@ from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 #: the pose sources that split a cluttered table into blobs and estimate the named target on
 #: one of them (one camera, the default models of every class)
 CLUTTER_POSE_SOURCES = ("manifold_clutter", "largest_blob", "random_blob")
+#: the pose sources that answer without looking (:mod:`scorbot_gym.perception.constant`): the
+#: object's identity must be given
+IMAGE_BLIND_POSE_SOURCES = ("constant", "oracle_position")
 
 
 @dataclass
@@ -131,6 +134,11 @@ class RolloutConfig:
         if self.noise and self.pose != "noisy_oracle":
             raise ValueError(
                 f"noise parameters only apply to pose 'noisy_oracle', not {self.pose!r}"
+            )
+        if self.pose in IMAGE_BLIND_POSE_SOURCES and self.recognize:
+            raise ValueError(
+                f"pose {self.pose!r} reads no image and cannot recognise the object: drop "
+                "recognize (the identity is given)"
             )
         if self.pose in CLUTTER_POSE_SOURCES and self.recognize:
             raise ValueError(

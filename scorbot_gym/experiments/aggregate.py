@@ -268,12 +268,17 @@ def curve_summary(results: Sequence[dict], chance: dict) -> list[dict]:
     return out
 
 
+#: the ``best`` cell of a level where every estimator scored 0
+NO_WINNER = "none (every one 0 %)"
+
+
 def winners(results: Sequence[dict]) -> list[dict]:
     """Per (protocol, occlusion), the estimator with the highest success@5° beside the best
     estimator built on the pose manifold (:func:`builds_on_manifold`), the best baseline and
     the image-blind answer, and whether a baseline wins (``baseline_wins``: an estimator not
-    built on the manifold, or the image-blind answer, strictly above every one that is). A
-    curve of one method cannot say where another beats it; this row does. Views differ between
+    built on the manifold, or the image-blind answer, strictly above every one that is); a
+    name is ``None`` where its group's best scored 0: nothing won there. A curve of one method
+    cannot say where another beats it; this row does. Views differ between
     levels (the ``clutter`` protocol bins measured occlusion), so ``n`` goes with every row."""
     cells: dict[tuple, list[dict]] = defaultdict(list)
     for r in results:
@@ -299,10 +304,10 @@ def winners(results: Sequence[dict]) -> list[dict]:
                 beaten_by = "image-blind answer"
         out.append({
             "protocol": protocol, "occlusion": occlusion, "n": best["n"],
-            "best": best["estimator"], "best_success_5deg": best["success_5deg"],
-            "best_manifold": mine["estimator"] if mine else None,
+            "best": _leader(best), "best_success_5deg": best["success_5deg"],
+            "best_manifold": _leader(mine),
             "manifold_success_5deg": top,
-            "best_baseline": base["estimator"] if base else None,
+            "best_baseline": _leader(base),
             "baseline_success_5deg": base["success_5deg"] if base else None,
             "image_blind_success_5deg": blind,
             "baseline_wins": beaten_by is not None, "won_by": beaten_by,
@@ -310,9 +315,16 @@ def winners(results: Sequence[dict]) -> list[dict]:
     return out
 
 
+def _leader(row: dict | None) -> str | None:
+    """The estimator of the highest-scoring ``row``, or ``None`` where it scored 0: where every
+    one failed there is no best to name (the first of a tie at 0 is no winner)."""
+    return row["estimator"] if row is not None and row["success_5deg"] > 0 else None
+
+
 def format_winners(rows: Sequence[dict]) -> str:
-    """The winners table (empty string for no rows or no manifold composition swept)."""
-    if not rows or all(r["best_manifold"] is None for r in rows):
+    """The winners table (empty string for no rows or no manifold composition swept); a level
+    where every estimator scored 0 names none."""
+    if not rows or all(r["manifold_success_5deg"] is None for r in rows):
         return ""
     lines = [
         "best per level (ok@5 %): overall, best built on the manifold, best baseline, image-blind",
@@ -322,7 +334,7 @@ def format_winners(rows: Sequence[dict]) -> str:
     for r in rows:
         note = f"BASELINE WINS: {r['won_by']}" if r["baseline_wins"] else ""
         lines.append(
-            f"{100 * r['occlusion']:>6.0f}{r['n']:>6}  {r['best'][:29]:<30}"
+            f"{100 * r['occlusion']:>6.0f}{r['n']:>6}  {(r['best'] or NO_WINNER)[:29]:<30}"
             f"{_pct(r['best_success_5deg']):>6}{_pct(r['manifold_success_5deg']):>10}"
             f"{_pct(r.get('baseline_success_5deg')):>10}"
             f"{_pct(r['image_blind_success_5deg']):>7}  {note}"

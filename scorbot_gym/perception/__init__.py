@@ -14,6 +14,7 @@ _WHERE = {
     "PerceptionFrame": "base",
     "PoseSource": "base",
     "WorldPose": "base",
+    "ConstantPoseSource": "constant",
     "ModelSetPoseSource": "model_set",
     "NoisyOraclePoseSource": "oracle",
     "OraclePoseSource": "oracle",
@@ -32,6 +33,7 @@ _WHERE = {
 
 __all__ = [
     "BackgroundSegmenter",
+    "ConstantPoseSource",
     "FunctionPoseSource",
     "ModelSetPoseSource",
     "NoisyOraclePoseSource",
@@ -53,6 +55,7 @@ __all__ = [
 if TYPE_CHECKING:
     from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
     from scorbot_gym.perception.baseline_models import baseline_source_kwargs
+    from scorbot_gym.perception.constant import ConstantPoseSource
     from scorbot_gym.perception.model_set import ModelSetPoseSource
     from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
     from scorbot_gym.perception.recognizers import make_recognizer

@@ -1,4 +1,5 @@
 """One registry of pose sources, by name: ``oracle``, ``noisy_oracle``, ``manifold``, ...
+(``constant`` and ``oracle_position``: the image-blind answers, :mod:`.constant`).
 
 An ablation swaps the pose source by name (``make_pose_source("noisy_oracle",
 yaw_sigma_deg=10)``) or by passing an object. Users add their own with
@@ -15,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
+from scorbot_gym.perception.constant import ConstantPoseSource, true_position_source
 from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
 
 
@@ -72,6 +74,8 @@ def _blob_choice_source(choice: str) -> Callable[..., PoseSource]:
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
+    "oracle_position": true_position_source,
+    "constant": ConstantPoseSource,
     "manifold": _model_set_source,
     "manifold_clutter": _clutter_source,
     "largest_blob": _blob_choice_source("largest"),

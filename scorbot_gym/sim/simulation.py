@@ -82,6 +82,20 @@ def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
+def resting_pose(
+    spec: ObjectSpec, xy: Sequence[float], yaw: float, resting_index: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of object ``spec`` resting on the table on its face ``resting_index`` at ``xy`` with
+    heading ``yaw`` (radians): its lowest point half a millimetre above the table top. The env
+    places objects so, and the image-blind pose sources answer so without looking."""
+    rests = spec.resting_quats
+    if not 0 <= resting_index < len(rests):
+        raise ValueError(f"resting_index must be in [0, {len(rests)}), got {resting_index}")
+    quat = quat_mul(quat_from_yaw(yaw), np.asarray(rests[resting_index], float))
+    lowest = (spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
+    return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
+
+
 @dataclass(frozen=True)
 class SceneObject:
     """Where one free object of a compiled scene lives in ``qpos``/``qvel`` and its geoms;
@@ -228,12 +242,7 @@ class Simulation:
         """Pose of the object (or object ``name``) resting on the table at ``xy`` with heading
         ``yaw`` (radians)."""
         spec = self.object_spec if name is None else self.objects[name].spec
-        rests = spec.resting_quats
-        if not 0 <= resting_index < len(rests):
-            raise ValueError(f"resting_index must be in [0, {len(rests)}), got {resting_index}")
-        quat = quat_mul(quat_from_yaw(yaw), np.asarray(rests[resting_index], float))
-        lowest = (spec.mesh_vertices() @ quat_to_mat(quat).T)[:, 2].min()
-        return np.array([xy[0], xy[1], TABLE_HEIGHT - lowest + 5e-4]), quat
+        return resting_pose(spec, xy, yaw, resting_index)
 
     # --- several objects ---------------------------------------------------------------------
     def pose_of(self, name: str) -> tuple[np.ndarray, np.ndarray]:
