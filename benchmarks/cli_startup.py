@@ -13,7 +13,8 @@ context, where triton is installed) is timed in its own fresh processes, with th
 torch).
 
     python benchmarks/cli_startup.py              # writes runs/cli_startup-<time>/cli_startup.json
-    python benchmarks/cli_startup.py --out benchmarks/results/cli_startup.json --overwrite  # record
+    python benchmarks/cli_startup.py --runs 9 --baseline DIR_OF_AN_OLDER_CHECKOUT \\
+        --out benchmarks/results/cli_startup.json --overwrite   # the committed record
     python benchmarks/cli_startup.py --runs 3 --out /tmp/cli.json
     mkdir /tmp/before && git archive febf072 | tar -x -C /tmp/before
     python benchmarks/cli_startup.py --baseline /tmp/before   # the same commands, side by side

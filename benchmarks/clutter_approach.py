@@ -19,9 +19,10 @@ than a metre after the hand met a neighbour), ``target_pushed`` (the target move
 during the descent. Writes ``clutter_approach.json`` (into a new ``runs/clutter_approach-<time>/``
 unless ``--out`` names a file; ``--config NAME`` stores a variant under ``configs[NAME]``): per
 controller the success rate (95 % interval), failure causes, classes, how many episodes met a
-neighbour during the descent, and one line per failed episode. The committed record:
+neighbour during the descent, and one line per failed episode. The committed record holds
+configs only (``100``, ``5100``, ``single_object``), e.g.:
 
-    python benchmarks/clutter_approach.py --episodes 200 --jobs 16 \\
+    python benchmarks/clutter_approach.py --episodes 100 --seed 5100 --jobs 2 --config 5100 \\
         --out benchmarks/results/clutter_approach.json --overwrite
 """
 

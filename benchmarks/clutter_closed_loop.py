@@ -25,8 +25,10 @@ recognition, errors, the in-loop cost per estimate and per stage), one line per 
 (seed, target, cause) to find the failures behind a number, the issue's targets met or not, and
 (for the main run) a PNG.
 
-    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16 \\
-        --out benchmarks/results/clutter_closed_loop.json --overwrite   # the committed record
+    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 0 2 4 --jobs 16
+    python benchmarks/clutter_closed_loop.py --episodes 200 --distractors 2 --jobs 2 \\
+        --arms oracle manifold_clutter --out benchmarks/results/clutter_closed_loop.json \\
+        --overwrite   # the committed main run
 
 ``--splitter`` swaps the stage that splits blobs several objects share (``none``, the default:
 left whole; ``keypoints``; ``distance``) in every arm that reads blobs; run once per splitter

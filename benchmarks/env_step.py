@@ -8,9 +8,9 @@ Run:  python benchmarks/env_step.py [--peers [--only-peers NAME ...] [--peer-ven
 By default the run is written to a new ``runs/env_step-<time>/env_step.json`` (and ``.png``);
 ``--out`` names another file, which is refused if it exists unless ``--overwrite`` is given.
 ``--config NAME`` stores the run as the variant ``configs[NAME]`` of ``--out`` (e.g. every peer,
-another machine), without a figure; the file's other runs are kept. The committed record is
-rebuilt with ``python benchmarks/env_step.py --peers --out benchmarks/results/env_step.json
---overwrite`` (a variant of it: ``--config NAME`` added).
+another machine), without a figure; the file's other runs are kept. The committed main run is
+rebuilt with ``python benchmarks/env_step.py --peers --only-peers FetchPickAndPlace-v4 --repeats
+7 --out benchmarks/results/env_step.json --overwrite`` (a variant: ``--config NAME`` added).
 
 Every environment is timed by the same loop, ``benchmarks/peers/time_env.py``, in a fresh
 subprocess per repetition: scorbot-gym in this interpreter, each peer in its own virtual
