@@ -13,7 +13,9 @@ default top-camera models, or ``--pose-model``); ``chance`` adds its image-blind
 (the same source, masks and recognition with the estimator swapped for a constant rotation
 fitted on the default models' views); ``--noise ""`` runs no noise level.
 Writes ``benchmarks/results/compare.json`` (the report documented in
-:mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``.
+:mod:`scorbot_gym.evaluation.compare`, plus the machine) and the figure ``compare.png``;
+``--replot`` redraws the figure from the JSON (``--out``, ``.json`` or ``.json.gz``) without
+running an episode.
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned] [--episodes 200] \
         [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
@@ -58,7 +60,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
     )
+    parser.add_argument(
+        "--replot", action="store_true", help="redraw the figure of --out, run nothing"
+    )
     args = parser.parse_args(argv)
+    png = args.out.with_name(args.out.name.split(".json")[0] + ".png")
+    if args.replot:
+        from pose.fileio import read_json
+        from scorbot_gym.evaluation.compare_plot import plot_comparison
+
+        plot_comparison(read_json(args.out), png)
+        print(f"written {png}")
+        return 0
 
     import scorbot_gym
     from pose.fileio import atomic_write_json
@@ -84,9 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         "scorbot_gym": scorbot_gym.__version__,
     }
     atomic_write_json(args.out, report)
-    plot_comparison(report, args.out.with_suffix(".png"))
+    plot_comparison(report, png)
     print(format_report(report))
-    print(f"written {args.out} and {args.out.with_suffix('.png')}")
+    print(f"written {args.out} and {png}")
     return 0
 
 

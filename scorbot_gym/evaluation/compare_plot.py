@@ -65,9 +65,9 @@ def condition_title(pose: str, noise: tuple[float, float] | None, short: bool = 
     """A pose condition in words (``noisy@0.02:0`` -> ``position noise σ 2 cm``, ``short``:
     ``position 2 cm``)."""
     if pose == "manifold":
-        return "estimated pose" if short else "pose estimated from the images"
+        return "estimated pose" if short else "pose from the images"
     if pose == "chance":
-        return "image-blind pose" if short else "image-blind pose (chance level)"
+        return "image-blind pose" if short else "image-blind (chance)"
     if noise is None:
         return pose
     pos, yaw = noise
@@ -167,6 +167,9 @@ def _draw_success_and_differences(fig, spec, report, ref, colors, diffs) -> list
         for pose, policy in rows
     ]
     ax_s.set_yticks(ys, ticks, fontsize=8.5)
+    # room on the left for the longest label (bold, about 0.075 inch a character at 8.5 pt)
+    longest = max([len(t) for t in ticks] + [16])  # 16: the object names below
+    fig.subplots_adjust(left=min(0.35, (0.25 + 0.075 * longest) / fig.get_figwidth()))
     for tick, (_, policy) in zip(ax_s.get_yticklabels(), rows, strict=True):
         if policy is None:
             tick.set_fontweight("bold")
@@ -200,25 +203,25 @@ def _draw_success_and_differences(fig, spec, report, ref, colors, diffs) -> list
 
 
 def _draw_objects(ax, report, colors) -> None:
+    from matplotlib.transforms import blended_transform_factory
+
     res = report["results"]
     deg_per_m = float(report.get("noise_heading_deg_per_m", 500.0))
     objects = sorted({o for r in res for o in r.get("per_object", {})})
     rates = np.full((len(objects), len(res)), np.nan)
+    counts = {}
     for j, r in enumerate(res):
         for i, o in enumerate(objects):
             v = r["per_object"].get(o)
-            if not v or not v.get("episodes"):
-                continue
-            rates[i, j] = v["successes"] / v["episodes"]
-            good = rates[i, j] >= 0.5
-            ax.text(
-                j, i, f"{v['successes']}/{v['episodes']}", ha="center", va="center",
-                fontsize=6, color="black" if good else "white",
-            )  # fmt: skip
-    low = float(np.nanmin(rates)) if np.isfinite(rates).any() else 0.0
-    image = ax.imshow(
-        np.ma.masked_invalid(rates), cmap="RdYlGn", vmin=min(low, 0.5), vmax=1.0, aspect="auto"
-    )
+            if v and v.get("episodes"):
+                rates[i, j] = v["successes"] / v["episodes"]
+                counts[(i, j)] = f"{v['successes']}/{v['episodes']}"
+    low = min(float(np.nanmin(rates)) if counts else 0.0, 0.5)
+    image = ax.imshow(np.ma.masked_invalid(rates), cmap="RdYlGn", vmin=low, vmax=1.0, aspect="auto")
+    for (i, j), text in counts.items():  # white on the dark red end of the scale
+        dark = (rates[i, j] - low) / (1.0 - low) < 0.2
+        ax.text(j, i, text, ha="center", va="center", fontsize=6,
+                color="white" if dark else "black")  # fmt: skip
     ax.set_yticks(range(len(objects)), objects, fontsize=8)
     ax.set_xticks(range(len(res)), [_label(r) for r in res], fontsize=7.5, rotation=45,
                   ha="right", rotation_mode="anchor")  # fmt: skip
@@ -226,10 +229,12 @@ def _draw_objects(ax, report, colors) -> None:
         tick.set_color(colors[r["policy"]])
     # the conditions over their columns
     poses = list(dict.fromkeys(r["pose"] for r in res))
+    above = blended_transform_factory(ax.transData, ax.transAxes)
     for pose in poses:
         cols = [j for j, r in enumerate(res) if r["pose"] == pose]
         title = condition_title(pose, _noise(res[cols[0]], deg_per_m), short=True)
-        ax.text((cols[0] + cols[-1]) / 2, -0.7, title, ha="center", va="bottom", fontsize=7.5)
+        ax.text((cols[0] + cols[-1]) / 2, 1.01, title, ha="center", va="bottom", fontsize=7.5,
+                transform=above)  # fmt: skip
         if cols[0] > 0:
             ax.axvline(cols[0] - 0.5, color="white", lw=2.5)
     ax.set_title("per object: successes / episodes", fontsize=9, pad=16)
@@ -292,6 +297,19 @@ def _draw_noise(axes: Sequence, curves, report, colors) -> list[str]:
     return [f"noise_{kind}" for kind in curves]
 
 
+def _caption(res: list[dict[str, Any]], trained_from: dict[str, str]) -> str:
+    """What each policy was trained from, policies with the same answer together, wrapped."""
+    import textwrap
+
+    groups: dict[str, list[str]] = {}
+    for r in res:
+        t = (r.get("training") or {}).get("trained_from")
+        if t and _label(r) not in groups.get(trained_from.get(t, t), []):
+            groups.setdefault(trained_from.get(t, t), []).append(_label(r))
+    text = "; ".join(f"{', '.join(names)}: {what}" for what, names in groups.items())
+    return "\n".join(textwrap.wrap(text, 170))
+
+
 def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
     """Draw the comparison figure of ``report`` (:func:`~scorbot_gym.evaluation.compare.compare`'s
     result, or its JSON) to the PNG ``path``; returns the panels drawn, in order, from
@@ -318,17 +336,30 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
     n_rows = len(_rows(list(dict.fromkeys(r["pose"] for r in res)), policies,
                        {(r["policy"], r["pose"]): r for r in res}))  # fmt: skip
     n_objects = len({o for r in res for o in r.get("per_object", {})})
-    top_h = 0.9 + 0.24 * n_rows
-    bottom_h = (1.9 + 0.22 * n_objects) if (has_objects or curves) else 0.0
-    fig = plt.figure(figsize=(12.0, 0.5 + top_h + bottom_h))
-    grid = fig.add_gridspec(
-        2 if bottom_h else 1, 1, height_ratios=[top_h, bottom_h] if bottom_h else [1.0],
-        hspace=0.42,
-    )  # fmt: skip
+    caption = _caption(res, TRAINED_FROM)
+    # every height in inches: the title, the forest rows, room for the x labels and the next
+    # panel's titles, the per-object rows, the rotated column labels and the caption
+    width = 12.0
+    top_margin, top_h = 0.45, 0.3 + 0.24 * (n_rows + 1)
+    bottom = has_objects or bool(curves)
+    gap = 1.2 if bottom else 0.0
+    bottom_h = (0.3 + 0.26 * max(n_objects, 6)) if bottom else 0.0
+    longest = max(len(_label(r)) for r in res) if has_objects else 0
+    bottom_margin = 0.55 + 0.05 * longest + 0.16 * caption.count("\n") + (0.2 if caption else 0)
+    height = top_margin + top_h + gap + bottom_h + bottom_margin
+    fig = plt.figure(figsize=(width, height))
+    heights = [top_h, gap, bottom_h] if bottom else [top_h]
+    grid = fig.add_gridspec(len(heights), 1, height_ratios=heights, hspace=0.0)
     panels = _draw_success_and_differences(fig, grid[0], report, ref, colors, diffs)
-    if bottom_h:
-        widths = ([0.8 + 0.12 * len(res)] if has_objects else []) + [1.0] * len(curves)
-        sub = grid[1].subgridspec(1, len(widths), width_ratios=widths, wspace=0.35)
+    if bottom:
+        # the table's columns about half an inch wide, each noise axis 2.6 inches, the rest
+        # left empty (a wide table of a few columns says no more)
+        widths = ([1.0 + 0.5 * len(res)] if has_objects else []) + [2.6] * len(curves)
+        spare = 0.8 * width - sum(widths) - 0.9 * (len(widths) - 1)
+        sub = grid[2].subgridspec(
+            1, len(widths) + (spare > 0), width_ratios=widths + ([spare] if spare > 0 else []),
+            wspace=0.35,
+        )  # fmt: skip
         k = 0
         if has_objects:
             _draw_objects(fig.add_subplot(sub[0]), report, colors)
@@ -342,21 +373,16 @@ def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
     seeds = report.get("seeds") or [None, None]
     objects = report.get("objects")
     scope = "whole catalogue" if not objects else ", ".join(objects)
+    actions = f", {report['action_type']} actions" if report.get("action_type") else ""
     fig.suptitle(
-        f"{report['episodes']} paired episodes per arm (seeds {seeds[0]}–{seeds[-1]}), {scope}, "
-        f"{report.get('action_type', '')} actions".replace(",  actions", ""),
-        fontsize=10, y=0.995,
+        f"{report['episodes']} paired episodes per arm (seeds {seeds[0]}–{seeds[-1]}), "
+        f"{scope}{actions}",
+        fontsize=10, y=1 - 0.12 / height,
     )  # fmt: skip
-    trained = {}
-    for r in res:
-        t = (r.get("training") or {}).get("trained_from")
-        if t:
-            trained.setdefault(_label(r), TRAINED_FROM.get(t, t))  # the table's words
-    if trained:
-        caption = "; ".join(f"{k}: {v}" for k, v in trained.items())
-        fig.text(0.5, 0.003, caption, ha="center", va="bottom", fontsize=7.5, color="0.3")
-    fig.subplots_adjust(left=0.13, right=0.985, top=1 - 0.45 / fig.get_figheight(),
-                        bottom=0.55 / fig.get_figheight() + 0.04)  # fmt: skip
+    if caption:
+        fig.text(0.5, 0.08 / height, caption, ha="center", va="bottom", fontsize=7.5,
+                 color="0.3")  # fmt: skip
+    fig.subplots_adjust(right=0.985, top=1 - top_margin / height, bottom=bottom_margin / height)
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=120)
     plt.close(fig)
