@@ -89,7 +89,7 @@ def run_train_defaults(args: argparse.Namespace) -> int:
             f"--defaults builds the models the main job uses (into $SCORBOT_GYM_CACHE or "
             f"~/.cache/scorbot-gym) and takes only --jobs and --quiet, got {flags}"
         )
-    entries = defaults.build(defaults.MAIN_JOB, jobs=args.jobs, progress=not args.quiet)
+    entries = defaults.build(jobs=args.jobs, progress=not args.quiet)
     print(f"default models ready in {default_cache_dir()}:")
     print("\n".join(defaults.status_lines(entries)))
     return 0

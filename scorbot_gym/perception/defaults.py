@@ -68,8 +68,16 @@ def _names(spec: DefaultModels) -> list[str]:
     return _objects(spec.objects)
 
 
-def cache_entries(spec: DefaultModels = MAIN_JOB) -> list[CacheEntry]:
-    """Where ``spec``'s pose models and recognition silhouettes are (or will be) cached."""
+def _recognised(names: list[str]) -> list[str]:
+    """The objects, in the order the recogniser renders their silhouettes (that of
+    :attr:`pose.model_set.PoseModelSet.object_names`; the order is part of the cache key)."""
+    return sorted(names)
+
+
+def cache_entries(spec: DefaultModels | None = None) -> list[CacheEntry]:
+    """Where ``spec``'s (default :data:`MAIN_JOB`'s) pose models and recognition silhouettes
+    are (or will be) cached."""
+    spec = spec or MAIN_JOB
     from scorbot_gym.data.shapes import silhouettes_path
     from scorbot_gym.perception.training import default_models_path
 
@@ -79,7 +87,7 @@ def cache_entries(spec: DefaultModels = MAIN_JOB) -> list[CacheEntry]:
         spec.camera, spec.width, spec.height, names, training=spec.training
     )
     silhouettes = silhouettes_path(
-        names, spec.silhouettes_per_object, spec.width, spec.height, 0, "scene"
+        _recognised(names), spec.silhouettes_per_object, spec.width, spec.height, 0, "scene"
     )
     cams = "+".join(spec.recognition_cameras)
     return [
@@ -89,11 +97,12 @@ def cache_entries(spec: DefaultModels = MAIN_JOB) -> list[CacheEntry]:
 
 
 def build(
-    spec: DefaultModels = MAIN_JOB, jobs: int | None = None, progress: bool = True
+    spec: DefaultModels | None = None, jobs: int | None = None, progress: bool = True
 ) -> list[CacheEntry]:
-    """Build (or find in the cache) exactly what ``spec`` needs, as the main job would on
-    first use; ``jobs`` objects are trained at a time (default one per core). Returns the
-    cache entries, all present."""
+    """Build (or find in the cache) exactly what ``spec`` (default :data:`MAIN_JOB`) needs,
+    as the main job would on first use; ``jobs`` objects are trained at a time (default one
+    per core). Returns the cache entries, all present."""
+    spec = spec or MAIN_JOB
     from scorbot_gym.data.shapes import render_catalogue_silhouettes
     from scorbot_gym.perception.training import default_pose_models
 
@@ -103,7 +112,7 @@ def build(
         training=spec.training,
     )  # fmt: skip
     render_catalogue_silhouettes(
-        names, spec.silhouettes_per_object, spec.width, spec.height, seed=0,
+        _recognised(names), spec.silhouettes_per_object, spec.width, spec.height, seed=0,
         viewpoints="scene", progress=progress,
     )  # fmt: skip
     return cache_entries(spec)
