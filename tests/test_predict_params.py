@@ -18,6 +18,7 @@ def test_with_param_writes_the_value_into_the_canonical_spec():
     )
 
 
+@pytest.mark.slow
 def test_one_fit_answers_like_a_fit_per_value(tmp_path):
     """Each value's trial equals the trial of a sweep that fits the estimator with that value
     (the margin is read at predict time only), and the records aggregate like a sweep's."""
