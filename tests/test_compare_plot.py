@@ -120,3 +120,18 @@ def test_the_published_comparison_redraws_from_its_json(tmp_path):
     assert panels[:3] == ["success", "differences", "objects"]
     assert {"noise_position", "noise_heading"} <= set(panels)
     assert np.isfinite(imread(tmp_path / "compare.png")).all()
+
+
+def test_the_benchmark_redraws_a_gzipped_report_without_running_episodes(tmp_path, capsys):
+    import gzip
+    import runpy
+
+    from pose.fileio import atomic_write_json
+
+    out = tmp_path / "compare_copy.json.gz"
+    atomic_write_json(out, json.loads((RESULTS / "compare.json").read_text()))
+    script = RESULTS.parent / "compare.py"
+    main = runpy.run_path(str(script), run_name="benchmark_under_test")["main"]
+    assert main(["--replot", "--out", str(out)]) == 0
+    assert (tmp_path / "compare_copy.png").read_bytes()[:4] == b"\x89PNG"
+    assert "written" in capsys.readouterr().out and gzip.open(out).read(1) == b"{"
