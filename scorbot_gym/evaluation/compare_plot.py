@@ -293,7 +293,7 @@ def _draw_noise(axes: Sequence, curves, report, colors) -> list[str]:
     bottom = max(0.0, np.floor(min(lows) / 5.0) * 5.0 - 2.5)
     axes[0].set_ylim(bottom, 101.0)
     axes[0].set_ylabel("success, % (95 % Wilson)", fontsize=9)
-    axes[0].legend(fontsize=7.5, loc="lower left", frameon=False)
+    axes[0].legend(fontsize=7.5, loc="best", frameon=True, framealpha=0.85)
     return [f"noise_{kind}" for kind in curves]
 
 
