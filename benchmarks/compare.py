@@ -19,6 +19,8 @@ names the file (an existing one only with ``--overwrite``); ``--config NAME`` st
 the variant ``configs[NAME]`` of that file instead (e.g. held-out objects, another pose model),
 without a figure, the file's other runs kept. The committed record is rebuilt with ``--out
 benchmarks/results/compare.json --overwrite`` (and a variant of it with ``--config NAME`` too).
+``--replot`` redraws the figure of ``--out`` (``.json`` or ``.json.gz``) without running an
+episode.
 
     nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned] [--episodes 200] \
         [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
@@ -77,13 +79,27 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
     )
+    parser.add_argument(
+        "--replot", action="store_true", help="redraw the figure of --out, run nothing"
+    )
     args = parser.parse_args(argv)
+    if args.replot:
+        from pose.fileio import read_json
+        from scorbot_gym.evaluation.compare_plot import plot_comparison
+
+        if args.out is None:
+            parser.error("--replot needs --out: the report whose figure to redraw")
+        png = args.out.with_name(args.out.name.split(".json")[0] + ".png")
+        plot_comparison(read_json(args.out), png)
+        print(f"written {png}")
+        return 0
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("compare", args.overwrite).path(
             args.out, "compare.json", companions=[".png"] if args.config is None else []
         )
     except ValueError as exc:
         parser.error(str(exc))
+    png = args.out.with_name(args.out.name.split(".json")[0] + ".png")
 
     import scorbot_gym
     from pose.fileio import write_result
@@ -111,8 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     write_result(args.out, report, args.config)
     print(format_report(report))
     if args.config is None:  # the figure is the main run's
-        plot_comparison(report, args.out.with_suffix(".png"))
-        print(f"written {args.out} and {args.out.with_suffix('.png')}")
+        plot_comparison(report, png)
+        print(f"written {args.out} and {png}")
     else:
         print(f"written {args.out} (config {args.config!r})")
     return 0

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.rl
 #: the report's keys at each level, as the module docstring documents them
 TOP = {
     "seeds", "episodes", "objects", "action_type", "estimate_every", "reference",
-    "difference_method", "noise_heading_deg_per_m", "min_per_object_episodes", "wall_s",
+    "difference_method", "noise_heading_deg_per_m", "wall_s",
     "conditions", "arms", "results", "differences", "noise_curves",
 }  # fmt: skip
 RECORD = {
@@ -172,32 +172,6 @@ def test_training_record_reads_imitation_and_from_scratch_metadata(tmp_path):
     t = cmp.training_record(tmp_path / "scratch", scratch)
     assert t["trained_from"] == "none" and t["uses_scripted_controller"] is False
     assert (t["env_steps"], t["wall_time_s"], t["seeds"]) == (3000, None, None)
-
-
-def _record(policy, pose, per_object, noise=None):
-    n = sum(v[0] for v in per_object.values())
-    k = sum(v[1] for v in per_object.values())
-    return {
-        "policy": policy, "label": policy, "pose": pose, "episodes": n, "successes": k,
-        "success_rate": k / n, "ci95": list(cmp.wilson_interval(k, n)),
-        "noise_pos_m": noise[0] if noise else None, "noise_yaw_deg": noise[1] if noise else None,
-        "per_object": {o: {"episodes": e, "successes": s} for o, (e, s) in per_object.items()},
-        "training": {"trained_from": "scripted"}, "vs_reference": None,
-    }  # fmt: skip
-
-
-def test_figure_pools_small_objects_and_draws_noise_only_when_there_is_noise(tmp_path):
-    many = {"box": (25, 24), "banana": (5, 3), "golf_ball": (4, 4)}
-    few = {"box": (3, 3), "banana": (5, 3)}
-    results = [_record("scripted", "oracle", many), _record("rl", "oracle", many)]
-    report = {"episodes": 34, "seeds": [0, 33], "reference": "scripted", "results": results}
-    assert cmp._pooled_objects(results, 20) == (["box"], ["banana", "golf_ball"])
-    assert cmp.plot_comparison(report, tmp_path / "a.png") == ["arms", "objects"]
-    results = [_record(p, "oracle", few, (0.0, 0.0)) for p in ("scripted", "rl")]
-    results += [_record(p, "noisy@0.01", few, (0.01, 5.0)) for p in ("scripted", "rl")]
-    report = {**report, "episodes": 8, "results": results}
-    report["noise_curves"] = cmp.noise_curves(results)
-    assert cmp.plot_comparison(report, tmp_path / "b.png") == ["arms", "noise"]
 
 
 @pytest.mark.slow

@@ -152,7 +152,7 @@ def test_a_compare_run_with_the_chance_condition_writes_the_documented_keys(
     assert report["noise_curves"] == {}  # chance is no noise level
     assert "`chance`" in cmp.markdown_table(report)
     assert cmp.headline(report).startswith("chance, 1 paired episodes")
-    assert cmp.plot_comparison(report, tmp_path / "c.png") == ["arms"]
+    assert cmp.plot_comparison(report, tmp_path / "c.png") == ["success", "objects"]
     assert os.path.getsize(tmp_path / "c.png") > 0
     assert np.isfinite(rec["success_rate"])
 
@@ -180,7 +180,7 @@ def test_the_figure_and_headline_put_the_chance_level_beside_the_estimator(tmp_p
         "scripted 5.0 % (1.4–16.5), learned 5.0 % (1.4–16.5)"
     )
     assert len(cmp.headline(report, pose="chance").splitlines()) == 3  # not beside itself
-    assert cmp.plot_comparison(report, tmp_path / "f.png") == ["arms", "objects"]
+    assert cmp.plot_comparison(report, tmp_path / "f.png") == ["success", "objects"]
 
 
 def test_the_readme_tables_do_not_call_the_chance_level_the_estimator():

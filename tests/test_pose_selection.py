@@ -55,6 +55,7 @@ def test_picks_the_candidate_that_validates_better(fitted, can_views):
     assert fitted.score([lv.view for lv in test], [lv.camera_from_object for lv in test]) >= 0.5
 
 
+@pytest.mark.slow
 def test_folds_share_each_views_sift_and_answer_as_without_sharing(can_views, monkeypatch):
     import contextlib
 
@@ -227,6 +228,7 @@ def test_too_few_views_to_split_is_refused(can_views):
         make_from_spec("select(estimators='pca-rbf')")
 
 
+@pytest.mark.slow
 def test_sweep_job_fits_the_selection_with_the_objects_symmetry(tmp_path, monkeypatch):
     """In a sweep the manifold cannot be fitted on the golf ball in the overview camera (too
     few keypoints): the selection passes it over, answers with the other candidate, and gets

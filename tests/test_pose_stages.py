@@ -42,6 +42,7 @@ def fitted(cards):
     return PoseManifoldEstimator().set_params(**SMALL).fit(*cards[:2])
 
 
+@pytest.mark.slow
 def test_swapping_the_regressor_changes_the_coarse_rotation(tmp_path_factory):
     """On rendered views of a brick's three resting faces (the card's relative rotation is the
     same in every view, so every regressor would answer the same)."""
@@ -97,6 +98,7 @@ def test_deep_params_list_every_stage():
     assert params["featurizer__blocks"] == ("bunches", "shape", "words")
 
 
+@pytest.mark.slow
 def test_grid_search_sweeps_stages(cards):
     views, poses, _, _ = cards
     grid = GridSearchCV(

@@ -139,6 +139,7 @@ def test_passes_gymnasium_and_sb3_env_checkers():
     env.close()
 
 
+@pytest.mark.slow
 def test_async_vector_env_with_the_wrapper():
     envs = gym.make_vec(
         "ScorbotGrasp-v0",
@@ -154,6 +155,7 @@ def test_async_vector_env_with_the_wrapper():
     envs.close()
 
 
+@pytest.mark.slow
 def test_sync_vector_env_and_sb3_subproc_vec_env_with_the_wrapper():
     from stable_baselines3.common.vec_env import SubprocVecEnv
 

@@ -18,6 +18,7 @@ def test_with_param_writes_the_value_into_the_canonical_spec():
     )
 
 
+@pytest.mark.slow
 def test_one_fit_answers_like_a_fit_per_value(tmp_path):
     """Each value's trial equals the trial of a sweep that fits the estimator with that value
     (the margin is read at predict time only), and the records aggregate like a sweep's."""
@@ -37,6 +38,17 @@ def test_one_fit_answers_like_a_fit_per_value(tmp_path):
     keep_all = by_label[with_param(ESTIMATOR, PARAM, 1e6)]["views"]["R"]
     assert keep_all != full["views"]["R"]
     assert {r["estimator"] for r in aggregate(run["trials"])} == set(by_label)
+
+
+def test_one_fit_answers_every_value(tmp_path):
+    """The fast tier's run of the sweep (the comparison with a fit per value is slow): one fit,
+    a trial per value, each labelled with its value and scored on every test view."""
+    spec = sweep("side-turntable", [ESTIMATOR], "0", **SIZE)
+    run = sweep_predict_param(spec, PARAM, [0.0, 2.0], cache_dir=str(tmp_path))
+    assert (run["stats"]["fits"], run["stats"]["trials_run"]) == (1, 2)
+    labels = [t["estimator"] for t in run["trials"]]
+    assert sorted(labels) == sorted(with_param(ESTIMATOR, PARAM, v) for v in (0.0, 2.0))
+    assert all(len(t["views"]["rot_err_deg"]) == SIZE["test_views"] for t in run["trials"])
 
 
 def test_a_parameter_the_estimator_lacks_is_refused(tmp_path):

@@ -85,6 +85,7 @@ def test_train_refuses_to_overwrite_a_run(trained_run):
 
 
 @pytest.mark.parametrize("algo", ["tqc", "ppo"])
+@pytest.mark.slow
 def test_other_algorithms_train_and_export(algo, tmp_path):
     hp = {"n_steps": 32, "batch_size": 32} if algo == "ppo" else {"learning_starts": 32}
     cfg = tiny_config(algo=algo, timesteps=64, hyperparams={"net_arch": [32, 32], **hp})
@@ -99,6 +100,7 @@ def test_other_algorithms_train_and_export(algo, tmp_path):
     assert env.action_space.contains(policy.act(obs))
 
 
+@pytest.mark.slow
 def test_same_seed_same_first_updates():
     def params(seed):
         hp = {"learning_starts": 50, "batch_size": 64, "buffer_size": 2000, "net_arch": [32, 32]}
@@ -282,6 +284,7 @@ def test_corrupt_or_incomplete_policy_files_give_clear_errors(tmp_path):
     assert main(["train", "--resume", str(tmp_path / "empty")]) == 2  # no checkpoint
 
 
+@pytest.mark.slow
 def test_compare_writes_json_and_png_with_the_documented_keys(tmp_path):
     js, png = tmp_path / "cmp.json", tmp_path / "cmp.png"
     argv = ["compare", "--policies", "scripted,rl", "--pose", "oracle", "--noise", "0.02"]

@@ -58,6 +58,7 @@ def one_run(two_seeds):
 
 
 # --- #36 item 4: the workflow ------------------------------------------------------------------
+@pytest.mark.slow
 def test_seeds_give_one_run_each_with_the_overrides_recorded(two_seeds):
     assert sorted(p.name for p in two_seeds.iterdir()) == [
         ".scorbot-gym-run.json",  # the marker: a run of this tool
@@ -92,6 +93,7 @@ def test_seeds_give_one_run_each_with_the_overrides_recorded(two_seeds):
     assert not np.array_equal(pa, pb), "the two seeds trained differently"
 
 
+@pytest.mark.slow
 def test_resuming_a_seeds_folder_continues_every_seed(two_seeds, tmp_path, capsys):
     out = tmp_path / "runs"
     shutil.copytree(two_seeds, out)
@@ -104,6 +106,7 @@ def test_resuming_a_seeds_folder_continues_every_seed(two_seeds, tmp_path, capsy
         assert state["timesteps"] == 240 and state["config"]["seed"] == seed
 
 
+@pytest.mark.slow
 def test_monitor_csvs_and_every_evaluation_in_tensorboard(one_run):
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -119,6 +122,7 @@ def test_monitor_csvs_and_every_evaluation_in_tensorboard(one_run):
     assert steps == [e["timesteps"] for e in state["eval"]], "the last evaluation reached TB too"
 
 
+@pytest.mark.slow
 def test_rollout_replays_a_training_run_with_a_video_of_every_episode(one_run, tmp_path):
     import imageio.v2 as imageio
 
@@ -138,6 +142,7 @@ def test_rollout_replays_a_training_run_with_a_video_of_every_episode(one_run, t
     assert main(["rollout", "--policy", str(one_run.parent), "--episodes", "1"]) == 2  # which seed?
 
 
+@pytest.mark.slow
 def test_learning_curves_over_seeds(two_seeds, tmp_path):
     report = learning_curves({"sac": [two_seeds]})
     arm = report["sac"]
@@ -153,6 +158,7 @@ def test_learning_curves_over_seeds(two_seeds, tmp_path):
     assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_the_learning_curves_benchmark_reads_run_folders(two_seeds, tmp_path, capsys):
     import runpy
     from pathlib import Path
@@ -173,6 +179,7 @@ def test_the_learning_curves_benchmark_reads_run_folders(two_seeds, tmp_path, ca
     assert bench(["--arm", f"sac={two_seeds}", "--out", str(out), "--overwrite"]) == 0
 
 
+@pytest.mark.slow
 def test_updates_per_env_step_do_not_depend_on_n_envs():
     one, two = (tiny(n_envs=n).schedule() for n in (1, 2))
     assert one["updates_per_env_step"] == two["updates_per_env_step"] == 1.0
@@ -189,6 +196,7 @@ def test_updates_per_env_step_do_not_depend_on_n_envs():
     assert ppo[0]["updates_per_env_step"] == ppo[1]["updates_per_env_step"]
 
 
+@pytest.mark.slow
 def test_same_seed_same_parameters_after_the_first_updates(tmp_path):
     def actor_after_training(seed: int, name: str) -> np.ndarray:
         train(
@@ -323,6 +331,7 @@ def _damage(run, name: str) -> None:
         ('config.json:eval_episodes="many"', "eval_episodes must be an integer"),
     ],
 )
+@pytest.mark.slow
 def test_resume_refuses_damaged_files_naming_them(one_run, tmp_path, damage, message, capsys):
     run = tmp_path / "run"
     shutil.copytree(one_run, run)
@@ -334,6 +343,7 @@ def test_resume_refuses_damaged_files_naming_them(one_run, tmp_path, damage, mes
         resume(run, timesteps=240)
 
 
+@pytest.mark.slow
 def test_resume_starts_a_monitor_segment_and_clears_killed_writes(one_run, tmp_path):
     """A resumed run logs to a Monitor file of its own (its own header and t_start), so the
     first segment's file is left as it was and SB3's ``load_results`` orders every episode by
@@ -352,6 +362,7 @@ def test_resume_starts_a_monitor_segment_and_clears_killed_writes(one_run, tmp_p
     assert not orphan.exists()
 
 
+@pytest.mark.slow
 def test_resume_names_the_settings_an_older_run_lacks(one_run, tmp_path):
     """A run written before a setting existed resumes with today's default for it, and says so
     (that default need not be what the older version did)."""
@@ -367,6 +378,7 @@ def test_resume_names_the_settings_an_older_run_lacks(one_run, tmp_path):
     assert state["timesteps"] == 320
 
 
+@pytest.mark.slow
 def test_a_policy_without_its_normalisation_is_refused(one_run, tmp_path):
     policy = tmp_path / "policy"
     shutil.copytree(one_run / "policy", policy)

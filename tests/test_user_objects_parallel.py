@@ -5,6 +5,7 @@ from __future__ import annotations
 import pickle
 
 import numpy as np
+import pytest
 
 from scorbot_gym.objects import CATALOGUE, install_objects, user_objects
 from scorbot_gym.perception.training import train_models
@@ -18,6 +19,7 @@ def test_user_objects_lists_registrations_only(user_object):
     assert CATALOGUE["user_block"] == user_object
 
 
+@pytest.mark.slow
 def test_train_models_in_parallel_with_a_user_object(user_object, tmp_path):
     models, info = train_models(
         ["user_block", "box"], n_views=12, jobs=2, progress=False, cache_dir=str(tmp_path)

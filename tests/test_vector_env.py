@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import gymnasium as gym
 import numpy as np
+import pytest
 
 import scorbot_gym  # noqa: F401  (registers the ids)
 
@@ -30,6 +31,7 @@ def _roll(vec: gym.vector.VectorEnv, steps: int = 3) -> tuple[dict, dict, list[d
     return obs, reset_info, infos
 
 
+@pytest.mark.slow
 def test_async_make_vec_with_image_steps_inside_its_space():
     vec = gym.make_vec("ScorbotGrasp-v0", 2, **ASYNC, object_name="tomato_soup_can", **IMAGE)
     try:

@@ -21,7 +21,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "rollout": ("scorbot_gym.cli.rollout", "run seeded grasping episodes and summarize them"),
     "doctor": (
         "scorbot_gym.cli.doctor",
-        "check headless rendering and measure frames per second",
+        "check headless rendering, frames per second and the default models",
     ),
     "pose": ("scorbot_gym.cli.pose_cmd", "train and evaluate the pose-manifold estimator"),
     "shapes": (

@@ -38,7 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "print each arm's success rate (95% Wilson interval), its difference from scripted "
         "(paired 95% interval, McNemar's test), steps to success (median and quartiles), failure "
         "causes and how each policy was trained. --json writes the report (keys documented in "
-        "scorbot_gym.evaluation.compare), --png the figure with the headline numbers.",
+        "scorbot_gym.evaluation.compare), --png the figure (success per arm, the paired "
+        "differences as a forest plot, per object, one axis per kind of pose noise).",
     )
     from scorbot_gym.objects import CATALOGUE  # the valid names, for this sub-command only
 

@@ -1,4 +1,5 @@
-"""``scorbot-gym doctor``: which GL backend is in use, whether rendering works, how fast."""
+"""``scorbot-gym doctor``: which GL backend is in use, whether rendering works, how fast, and
+whether the models the main job builds on first use are in the cache yet."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ from scorbot_gym import _gl
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("doctor", help="check headless rendering and measure frames per second")
+    p = sub.add_parser(
+        "doctor", help="check headless rendering, frames per second and the default models"
+    )
     p.add_argument("--frames", type=int, default=30, help="frames to time per size")
     p.set_defaults(func=run)
 
@@ -45,4 +48,23 @@ def run(args: argparse.Namespace) -> int:
         med = float(np.median(times))
         print(f"{w}x{h}: {1.0 / med:7.1f} frames/s (median {med * 1e3:.1f} ms over {len(times)})")
     sim.close()
+    _report_default_models()
     return 0 if ok else 1
+
+
+def _report_default_models() -> None:
+    """Whether the main job's first run will train (missing models are no failure)."""
+    from scorbot_gym.data import default_cache_dir
+    from scorbot_gym.perception.defaults import cache_entries, status_lines
+
+    entries = cache_entries()
+    print(
+        "default models (rollout --pose manifold [--recognize], compare; cache "
+        f"{default_cache_dir()}):"
+    )
+    print("\n".join(status_lines(entries)))
+    if not all(e.present for e in entries):
+        print(
+            "  missing ones are built on the main job's first run (minutes); build them now "
+            "with: scorbot-gym pose train --defaults"
+        )

@@ -50,6 +50,8 @@ def run_train(args: argparse.Namespace) -> int:
     from scorbot_gym.outputs import check_output_file
     from scorbot_gym.perception.training import train_models
 
+    if args.defaults:
+        return run_train_defaults(args)
     check_output_file(args.out, "--out", (".npz",))  # before any view is rendered or fitted
     objects = [o for part in (args.objects or []) for o in part.split(",") if o]
     params = {"bunches__n_bunches": args.n_bunches}
@@ -65,6 +67,33 @@ def run_train(args: argparse.Namespace) -> int:
         timing = f"render {i['render_s']:.1f} s  fit {i['fit_s']:.1f} s"
         print(f"{name:<18} {i['views']:>5} views  {timing}")
     print(f"wrote {args.out} ({len(models.object_names)} objects, {info['total_s']:.1f} s)")
+    return 0
+
+
+#: ``pose train`` options that choose what is trained: ``--defaults`` builds what the main job
+#: uses, so it takes none of them (their values when not given)
+_TRAIN_CHOICES = {
+    "objects": None, "views": None, "out": DEFAULT_MODEL, "camera": "top", "width": 640,
+    "height": 480, "seed": 0, "n_bunches": 8, "no_refine": False, "cache_dir": None,
+}  # fmt: skip
+
+
+def run_train_defaults(args: argparse.Namespace) -> int:
+    """``pose train --defaults``: build, into the cache, what the main job builds on first
+    use (:mod:`scorbot_gym.perception.defaults`), and say where it is."""
+    from scorbot_gym.data import default_cache_dir
+    from scorbot_gym.perception import defaults
+
+    given = [k for k, v in _TRAIN_CHOICES.items() if getattr(args, k) != v]
+    if given:
+        flags = ", ".join("--" + k.replace("_", "-") for k in given)
+        raise ValueError(
+            f"--defaults builds the models the main job uses (into $SCORBOT_GYM_CACHE or "
+            f"~/.cache/scorbot-gym) and takes only --jobs and --quiet, got {flags}"
+        )
+    entries = defaults.build(jobs=args.jobs, progress=not args.quiet)
+    print(f"default models ready in {default_cache_dir()}:")
+    print("\n".join(defaults.status_lines(entries)))
     return 0
 
 
@@ -206,6 +235,10 @@ def _add_train_arguments(t: argparse.ArgumentParser) -> None:
     from scorbot_gym.names import FIXED_CAMERAS, MOVING_CAMERAS
 
     _add_common_arguments(t)
+    t.add_argument(
+        "--defaults", action="store_true",
+        help="build the default models that rollout/compare train on first use, into the cache",
+    )  # fmt: skip
     t.add_argument("--views", type=int, default=None, help="training views per object")
     t.add_argument("--out", default=DEFAULT_MODEL, help=f"model file (default {DEFAULT_MODEL})")
     t.add_argument(

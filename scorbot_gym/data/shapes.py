@@ -29,6 +29,7 @@ import numpy as np
 
 from pose.fileio import UNREADABLE, atomic_savez, discard_cache_entry
 from pose.shape.datasets import SilhouetteSet
+from scorbot_gym._progress import ItemProgress
 from scorbot_gym.data.views import default_cache_dir
 from scorbot_gym.objects import CATALOGUE, get_object
 from scorbot_gym.sim.cameras import CameraSpec
@@ -120,6 +121,24 @@ def _render_object(
         sim.close()
 
 
+def silhouettes_path(
+    objects: Sequence[str] | None = None,
+    n_per_object: int = 60,
+    width: int = 240,
+    height: int = 180,
+    seed: int = 0,
+    viewpoints: str = "ring",
+) -> Path:
+    """Where :func:`render_catalogue_silhouettes` caches this set (keyed by all its inputs)."""
+    objects = list(CATALOGUE) if objects is None else [get_object(o).name for o in objects]
+    if n_per_object < 1:
+        raise ValueError(f"n_per_object must be >= 1, got {n_per_object}")
+    if viewpoints not in VIEWPOINTS:
+        raise ValueError(f"viewpoints must be one of {', '.join(VIEWPOINTS)}, got {viewpoints!r}")
+    key = _cache_key(objects, n_per_object, width, height, seed, viewpoints)
+    return default_cache_dir() / f"silhouettes-{key}.npz"
+
+
 def render_catalogue_silhouettes(
     objects: Sequence[str] | None = None,
     n_per_object: int = 60,
@@ -128,6 +147,7 @@ def render_catalogue_silhouettes(
     seed: int = 0,
     use_cache: bool = True,
     viewpoints: str = "ring",
+    progress: bool = False,
 ) -> SilhouetteSet:
     """Render ``n_per_object`` silhouettes of each object (default: the whole catalogue).
 
@@ -135,14 +155,10 @@ def render_catalogue_silhouettes(
     orientation, heading, offset) is drawn from ``seed``. ``viewpoints`` is ``"ring"`` (the
     viewpoint sphere, :func:`viewpoint_cameras`; object near the workspace centre) or
     ``"scene"`` (the scene's top and side cameras; object anywhere in the workspace).
+    ``progress``: a bar (a line per object off a terminal) on stderr while rendering.
     """
+    path = silhouettes_path(objects, n_per_object, width, height, seed, viewpoints)
     objects = list(CATALOGUE) if objects is None else [get_object(o).name for o in objects]
-    if n_per_object < 1:
-        raise ValueError(f"n_per_object must be >= 1, got {n_per_object}")
-    if viewpoints not in VIEWPOINTS:
-        raise ValueError(f"viewpoints must be one of {', '.join(VIEWPOINTS)}, got {viewpoints!r}")
-    key = _cache_key(objects, n_per_object, width, height, seed, viewpoints)
-    path = default_cache_dir() / f"silhouettes-{key}.npz"
     if use_cache and path.is_file():
         try:
             with np.load(path, allow_pickle=False) as z:
@@ -154,13 +170,16 @@ def render_catalogue_silhouettes(
             discard_cache_entry(path, exc)
     rng = np.random.default_rng(seed)
     masks, labels, groups, sources, sizes = [], [], [], [], []
-    for name in objects:
-        m, g, s, z = _render_object(name, n_per_object, width, height, rng, viewpoints)
-        masks += m
-        groups += g
-        sources += s
-        sizes += z
-        labels += [name] * len(m)
+    desc = f"rendering silhouettes ({width}x{height})"
+    with ItemProgress(desc, len(objects), enabled=progress) as bar:
+        for name in objects:
+            m, g, s, z = _render_object(name, n_per_object, width, height, rng, viewpoints)
+            masks += m
+            groups += g
+            sources += s
+            sizes += z
+            labels += [name] * len(m)
+            bar.update(name, f"{len(m)} silhouettes")
     data = SilhouetteSet(
         masks, np.array(labels), np.array(groups), sources, {"metric_size": np.array(sizes)}
     )

@@ -38,8 +38,7 @@ them). It is always beside the *default* models: ``pose_model`` changes ``manifo
 - ``seeds`` ``[first, last]``, ``episodes`` (per arm), ``objects`` (``null``: the catalogue),
   ``action_type``, ``estimate_every``, ``reference`` (the policy differences are taken
   against: ``scripted`` when it is an arm, else the first), ``difference_method``,
-  ``noise_heading_deg_per_m``, ``min_per_object_episodes`` (the figure's threshold for
-  per-object bars), ``wall_s`` (of the whole comparison);
+  ``noise_heading_deg_per_m``, ``wall_s`` (of the whole comparison);
 - ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg, identity, segmenter,
   estimator}]`` in run order (``identity``: ``given`` to the pose source, or ``recognize``d by
   it; ``segmenter``: where the estimator's masks come from, ``null`` for the oracle sources;
@@ -72,7 +71,6 @@ them). It is always beside the *default* models: ``pose_model`` changes ``manifo
 
 from __future__ import annotations
 
-import io
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
@@ -91,9 +89,6 @@ from scorbot_gym.policies.sb3 import SHIPPED_POLICY
 from scorbot_gym.rl import runs
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
-#: per-object success gets its own bar (and interval) only from this many episodes per object;
-#: objects with fewer are pooled (at 2-6 episodes an interval spans most of [0, 1])
-MIN_PER_OBJECT_EPISODES = 20
 REFERENCE = "scripted"
 #: the ``manifold`` condition: no privileged input (the main arm of benchmarks/closed_loop.py)
 MANIFOLD_SEGMENTER = "background"  # masks by background subtraction, not the renderer's
@@ -585,7 +580,6 @@ def compare(
         "difference_method": "Newcombe (1998) method 10 paired-proportion interval; McNemar "
         "exact test",
         "noise_heading_deg_per_m": DEG_PER_M,
-        "min_per_object_episodes": MIN_PER_OBJECT_EPISODES,
         "wall_s": time.perf_counter() - start,
         "conditions": [c.record() for c in conds],
         "arms": {p: {"label": a.label, "training": a.training} for p, a in arms.items()},
@@ -639,136 +633,12 @@ def headline(report: dict[str, Any], pose: str | None = None) -> str:
     return "\n".join(lines)
 
 
-def _pooled_objects(records: list[dict], min_n: int) -> tuple[list[str], list[str]]:
-    """Objects with at least ``min_n`` episodes in every record, and the others (pooled)."""
-    objects = sorted({o for r in records for o in r["per_object"]})
-    own = [
-        o
-        for o in objects
-        if all(r["per_object"].get(o, {}).get("episodes", 0) >= min_n for r in records)
-    ]
-    return own, [o for o in objects if o not in own]
-
-
-def _bar_with_ci(ax, x, successes: int, n: int, width: float, color, **kw) -> float:
-    p = successes / n if n else np.nan
-    lo, hi = wilson_interval(successes, n)
-    err = [[max(0.0, p - lo)], [max(0.0, hi - p)]]
-    ax.bar([x], [p], width, yerr=err, capsize=2, color=color, **kw)
-    return p
-
-
 def plot_comparison(report: dict[str, Any], path: str | Path) -> list[str]:
-    """The comparison figure: (1) success of every arm with its Wilson 95 % interval, each bar
-    labelled with the rate and, for the non-reference policies, the paired difference to the
-    reference with its interval and McNemar p; (2) per-object success under the first pose
-    condition, with a bar of its own only for objects with at least ``min_per_object_episodes``
-    episodes and the rest pooled (an interval from a handful of episodes says nothing); (3)
-    success against pose noise per policy, only when there are noise conditions. Returns the
-    panels drawn (``arms``, ``objects``, ``noise``)."""
-    import matplotlib
+    """The comparison figure (:func:`scorbot_gym.evaluation.compare_plot.plot_comparison`:
+    success per arm, the paired differences as a forest plot, per object, pose noise)."""
+    from scorbot_gym.evaluation.compare_plot import plot_comparison as plot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from pose.fileio import atomic_write_bytes
-
-    res = report["results"]
-    policies = list(dict.fromkeys(r["policy"] for r in res))
-    poses = list(dict.fromkeys(r["pose"] for r in res))
-    by = {(r["policy"], r["pose"]): r for r in res}
-    colors = {p: plt.cm.tab10(i % 10) for i, p in enumerate(policies)}
-    min_n = report.get("min_per_object_episodes", MIN_PER_OBJECT_EPISODES)
-    first = [by[(p, poses[0])] for p in policies]
-    own, pooled = _pooled_objects(first, min_n)
-    curves = {p: c for p, c in report.get("noise_curves", {}).items() if len(c) > 1}
-    panels = ["arms"] + (["objects"] if own else []) + (["noise"] if curves else [])
-    ratios = {"arms": max(2.0, 0.5 * len(res)), "objects": 1 + 0.4 * len(own), "noise": 2.0}
-    fig, axes = plt.subplots(
-        1,
-        len(panels),
-        figsize=(max(8.0, sum(ratios[k] for k in panels) * 1.25 + 1), 5.6),
-        gridspec_kw={"width_ratios": [ratios[k] for k in panels]},
-        squeeze=False,
-    )
-    ax = dict(zip(panels, axes[0], strict=True))
-    width = 0.8 / len(policies)
-
-    a = ax["arms"]
-    for i, name in enumerate(policies):
-        for j, pose in enumerate(poses):
-            r = by.get((name, pose))
-            if r is None:
-                continue
-            x = j + (i - (len(policies) - 1) / 2) * width
-            training = r["training"]["trained_from"]
-            label = f"{r['label']} ({TRAINED_FROM.get(training, training)})" if j == 0 else None
-            p = _bar_with_ci(a, x, r["successes"], r["episodes"], width, colors[name], label=label)
-            text = _pct_ci(p, r["ci95"])
-            if r.get("vs_reference"):
-                text += "\n" + _diff_text(r["vs_reference"])
-            a.text(
-                x, 0.02, text, rotation=90, ha="center", va="bottom", fontsize=6,
-                bbox={"facecolor": "white", "alpha": 0.7, "linewidth": 0, "pad": 1},
-            )  # fmt: skip
-    a.set_xticks(range(len(poses)), poses, rotation=20, ha="right")
-    a.set_ylim(0, 1.12)
-    a.set_ylabel("success rate (95 % Wilson interval)")
-    a.set_title(
-        f"success, {report['episodes']} paired episodes per arm\n"
-        f"Δ vs {report.get('reference', policies[0])}: paired 95 % CI (Newcombe), McNemar p",
-        fontsize=9,
-    )
-    handles, labels = a.get_legend_handles_labels()
-
-    if "objects" in ax:
-        b = ax["objects"]
-        groups = own + (["others (pooled)"] if pooled else [])
-        for i, (name, r) in enumerate(zip(policies, first, strict=True)):
-            for j, g in enumerate(groups):
-                objs = [g] if g in own else pooled
-                n = sum(r["per_object"].get(o, {}).get("episodes", 0) for o in objs)
-                k = sum(r["per_object"].get(o, {}).get("successes", 0) for o in objs)
-                x = j + (i - (len(policies) - 1) / 2) * width
-                _bar_with_ci(b, x, k, n, width, colors[name])
-        b.set_xticks(range(len(groups)), groups, rotation=30, ha="right")
-        b.set_ylim(0, 1.05)
-        note = f"{len(pooled)} objects with < {min_n} episodes pooled" if pooled else ""
-        b.set_title(f"per object, {poses[0]}\n{note}", fontsize=9)
-
-    if "noise" in ax:
-        c = ax["noise"]
-        levels = sorted(
-            {(p["noise_pos_m"], p["noise_yaw_deg"]) for pts in curves.values() for p in pts}
-        )
-        shift = 0.3 / max(1, len(curves))  # side by side: overlapping intervals stay visible
-        for i, (name, pts) in enumerate(curves.items()):
-            offset = (i - (len(curves) - 1) / 2) * shift
-            xs = [levels.index((p["noise_pos_m"], p["noise_yaw_deg"])) + offset for p in pts]
-            ys = np.array([p["success_rate"] for p in pts])
-            lo = ys - np.array([p["ci95"][0] for p in pts])
-            hi = np.array([p["ci95"][1] for p in pts]) - ys
-            c.errorbar(
-                xs, ys, yerr=[lo, hi], marker="o", capsize=3, color=colors[name],
-                label=by[(name, pts[0]["pose"])]["label"],
-            )  # fmt: skip
-        ticks = ["oracle" if pos == 0 and yaw == 0 else f"{100 * pos:g} cm\n{yaw:g}°"
-                 for pos, yaw in levels]  # fmt: skip
-        c.set_xticks(range(len(levels)), ticks, fontsize=8)
-        c.set_xlabel("pose noise σ: position, heading")
-        c.set_ylim(0, 1.05)
-        c.set_title("success vs pose noise\n(95 % Wilson intervals)", fontsize=9)
-
-    head = headline(report)
-    fig.suptitle(head, fontsize=8.5)
-    fig.legend(handles, labels, loc="lower center", ncol=min(3, len(policies)), fontsize=7.5)
-    rows = -(-len(policies) // 3)
-    fig.tight_layout(rect=(0, 0.045 * rows, 1, 1 - 0.026 * (head.count("\n") + 1)))
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
-    return panels
+    return plot(report, path)
 
 
 # ---- the table ----------------------------------------------------------------------------

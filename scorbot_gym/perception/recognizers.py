@@ -32,6 +32,8 @@ from scorbot_gym.names import RECOGNIZERS
 SHORTLIST_LENGTH = 3
 #: FLR settings tuned by the shape-recognition benchmark (ART block weighted 3x)
 FLR_PARAMS = {"vigilance": 0.97, "feature_weights": block_weights(art=3.0)}
+#: rendered silhouettes per object the FLR recogniser is fitted on (cached with the views)
+SILHOUETTES_PER_OBJECT = 120
 
 
 def train_silhouette_recognizer(
@@ -39,7 +41,7 @@ def train_silhouette_recognizer(
     cameras: Sequence[str],
     width: int,
     height: int,
-    n_per_object: int = 120,
+    n_per_object: int = SILHOUETTES_PER_OBJECT,
     seed: int = 0,
     classifier: Any = None,
 ) -> SilhouetteRecognizer:

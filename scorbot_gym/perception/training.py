@@ -18,17 +18,19 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import sys
 import time
 import warnings
 from collections.abc import Sequence
+from concurrent.futures import as_completed
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from pose.manifold.estimator import PoseManifoldEstimator
 from pose.model_set import PoseModelSet
+from scorbot_gym._progress import ItemProgress
 
 N_POSITIONS = 2  # random table positions per (resting face, heading) of the training grid
 
@@ -161,6 +163,10 @@ def train_object(
     return est.to_arrays(), info
 
 
+def _timings(info: dict) -> str:
+    return f"{info['views']} views, render {info['render_s']:.0f} s, fit {info['fit_s']:.0f} s"
+
+
 def train_models(
     objects: Sequence[str] | None = None,
     n_views: int | None = None,
@@ -180,16 +186,24 @@ def train_models(
         (n, n_views, camera, width, height, seed, cache_dir, False, params, training) for n in names
     ]
     t0 = time.perf_counter()
-    if min(jobs, len(names)) > 1:
-        # Spawned, not forked: a forked child of a process that has rendered (EGL context, Mesa
-        # threads) can deadlock on its first render.
-        from scorbot_gym.experiments.workers import worker_pool
+    done: dict[str, tuple[dict, dict]] = {}
+    desc = f"training pose models ({camera} {width}x{height})"
+    with ItemProgress(desc, len(names), enabled=progress) as bar:  # on stderr, per object
+        if min(jobs, len(names)) > 1:
+            # Spawned, not forked: a forked child of a process that has rendered (EGL context,
+            # Mesa threads) can deadlock on its first render.
+            from scorbot_gym.experiments.workers import worker_pool
 
-        with worker_pool(min(jobs, len(names))) as pool:  # die with us, know user objects
-            futures = [pool.submit(train_object, *a) for a in args]
-            results = [f.result() for f in tqdm(futures, desc="train", disable=not progress)]
-    else:
-        results = [train_object(*a[:7], progress, params, training) for a in args]  # bars
+            with worker_pool(min(jobs, len(names))) as pool:  # die with us, know user objects
+                futures = {pool.submit(train_object, *a): a[0] for a in args}
+                for future in as_completed(futures):
+                    done[futures[future]] = future.result()
+                    bar.update(futures[future], _timings(done[futures[future]][1]))
+        else:
+            for a in args:  # the render bars below the objects' bar, on a terminal only
+                done[a[0]] = train_object(*a[:7], bar.interactive, params, training)
+                bar.update(a[0], _timings(done[a[0]][1]))
+    results = [done[n] for n in names]
     models = PoseModelSet(
         {n: PoseManifoldEstimator.from_arrays(r[0]) for n, r in zip(names, results, strict=True)},
         meta={
@@ -274,8 +288,13 @@ def default_pose_models(
             warnings.warn(f"discarding unreadable cached pose model {path}: {exc}", stacklevel=2)
             path.unlink(missing_ok=True)
     jobs = jobs or min(len(names), os.cpu_count() or 1)
-    if progress:
-        print(f"training the default pose models for camera {camera!r} (cached in {path.parent})")
+    if progress:  # once per cache: say what, where, and how to do it ahead next time
+        print(
+            f"training the default pose models for camera {camera!r} ({len(names)} objects, "
+            f"{width}x{height}), first use only, cached in {path.parent} "
+            "(`scorbot-gym pose train --defaults` builds them ahead)",
+            file=sys.stderr,
+        )
     models, _ = train_models(
         names, None, camera, width, height, seed, cache_dir, jobs, progress, None, training
     )

@@ -1,0 +1,52 @@
+"""Learning curves over seeds (:mod:`scorbot_gym.rl.curves`) from evaluation histories written
+by hand: the fast tier's check of the module (the end-to-end one trains two seeds, marked slow
+in ``test_rl_workflow.py``)."""
+
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from scorbot_gym.rl import runs
+from scorbot_gym.rl.curves import learning_curves, plot_learning_curves
+
+
+def _run(folder, seed: int, evals: list[tuple[int, float, float]]):
+    """A run folder with only what the curves read: the checkpoint's evaluation history."""
+    state = {
+        "config": {"seed": seed, "algo": "sac", "timesteps": evals[-1][0]},
+        "eval": [{"timesteps": t, "wall_s": w, "success_rate": s} for t, w, s in evals],
+    }
+    (folder / runs.CHECKPOINT).mkdir(parents=True)
+    (folder / runs.CHECKPOINT / runs.STATE).write_text(json.dumps(state))
+    return folder
+
+
+def test_seeds_are_averaged_on_the_steps_they_all_reached_with_a_t_band(tmp_path):
+    seeds = tmp_path / "seeds"
+    _run(seeds / "seed_0", 0, [(100, 10.0, 0.2), (200, 20.0, 0.4), (300, 30.0, 0.6)])
+    _run(seeds / "seed_1", 1, [(100, 12.0, 0.1), (200, 24.0, 0.2)])  # stopped earlier
+    report = learning_curves({"sac": [seeds]}, points=5)
+    arm = report["sac"]
+    assert arm["seeds"] == [0, 1] and arm["final_success_rate"] == [0.6, 0.2]
+    steps = arm["by_timesteps"]
+    assert steps["timesteps"] == [100.0, 200.0]  # no extrapolation past seed 1's last point
+    np.testing.assert_allclose(steps["mean"], [0.15, 0.3])
+    half = stats.t.ppf(0.975, 1) * np.std([0.2, 0.1], ddof=1) / np.sqrt(2)
+    assert steps["ci95_low"][0] == 0.0  # clipped at 0
+    np.testing.assert_allclose(steps["ci95_high"][0], 0.15 + half)
+    wall = arm["by_wall_s"]
+    assert wall["wall_s"][0] == 12.0 and wall["wall_s"][-1] == 24.0 and len(wall["wall_s"]) == 5
+    plot_learning_curves(report, tmp_path / "c.png")
+    assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp_path):
+    one = _run(tmp_path / "one", 3, [(50, 1.0, 0.5), (100, 2.0, 1.0)])
+    curve = learning_curves({"one": [one]})["one"]["by_timesteps"]
+    assert curve["ci95_low"] is None and curve["mean"] == [0.5, 1.0]
+    empty = _run(tmp_path / "empty", 4, [(1, 1.0, 0.0)])
+    (empty / runs.CHECKPOINT / runs.STATE).write_text(json.dumps({"config": {}, "eval": []}))
+    with pytest.raises(ValueError, match="no evaluations recorded yet"):
+        learning_curves({"empty": [empty]})
