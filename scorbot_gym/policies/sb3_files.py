@@ -369,8 +369,18 @@ def load_model(path: str | Path):
 
 def restore_training_state(model, path: str | Path) -> None:
     """Load a checkpoint :func:`save_model` wrote with ``training=True`` into ``model`` (built
-    from the run's configuration): weights, optimisers, entropy coefficient, counters."""
-    from stable_baselines3.common.save_util import recursive_setattr
+    from the run's configuration): weights, optimisers, entropy coefficient, counters.
+
+    Everything lands on ``model.device`` whatever device wrote the file (the file's tensors are
+    read onto the CPU): the weights and the variables (``log_ent_coef``, ``ent_coef_tensor``)
+    are copied into the model's own tensors, which keeps their device, dtype and identity (the
+    entropy optimiser holds ``log_ent_coef`` itself), and ``Optimizer.load_state_dict`` moves
+    each optimiser state onto its parameter's device. SB3's own ``load`` assigns ``.data``,
+    which is safe there only because it reads the variables onto the model's device first;
+    assigning a CPU tensor's ``.data`` to a CUDA model's ``log_ent_coef`` moves it to the CPU,
+    and the first update then mixes devices.
+    """
+    import torch as th
 
     description, tensors = read_model_file(path)
     mine = describe(model)
@@ -386,11 +396,16 @@ def restore_training_state(model, path: str | Path) -> None:
         raise ValueError(f"{path} holds the states {sorted(stored)}, the model has {states}")
     try:
         params = {name: _decode(stored[name], tensors) for name in states}
-        model.set_parameters(params, exact_match=True, device="cpu")
+        model.set_parameters(params, exact_match=True, device=model.device)
         stored_vars = description.get("variables") or {}
         for name in variables:
-            if name in stored_vars and getattr(model, name, None) is not None:
-                recursive_setattr(model, f"{name}.data", _decode(stored_vars[name], tensors).data)
+            target = getattr(model, name, None)
+            if name in stored_vars and target is not None:
+                value = _decode(stored_vars[name], tensors)
+                if not isinstance(value, th.Tensor) or value.shape != target.shape:
+                    raise ValueError(f"{name} must be a tensor of shape {tuple(target.shape)}")
+                with th.no_grad():
+                    target.copy_(value)
         model.num_timesteps = int(progress["num_timesteps"])
         model._n_updates = int(progress["n_updates"])
         model._episode_num = int(progress["episode_num"])

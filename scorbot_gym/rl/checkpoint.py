@@ -129,7 +129,7 @@ def load_replay_buffer(buffer, path: str | Path) -> None:
                     layout["demos"].get("buffer_size", 0),
                     buffer.observation_space,
                     buffer.action_space,
-                    device="cpu",
+                    device=buffer.device,  # its samples join the online buffer's batches
                     n_envs=1,
                     handle_timeout_termination=False,
                 )
