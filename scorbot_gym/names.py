@@ -26,6 +26,9 @@ POSE_SOURCES = (
 )
 #: short pose-source names the command line accepts, and the registered source each stands for
 POSE_ALIASES = {"noisy": "noisy_oracle"}
+#: what an image-based pose source is told of the object (``make_env``'s ``identity``):
+#: ``recognize`` (it recognises the object; no privileged input) or ``given`` (the true class)
+IDENTITIES = ("recognize", "given")
 
 #: the fixed cameras, in the order of :data:`scorbot_gym.sim.scene.DEFAULT_CAMERAS`
 FIXED_CAMERAS = ("top", "side", "overview")

@@ -14,6 +14,7 @@ from scorbot_gym.cli._args import (
     positive_int,
     seed_list,
 )
+from scorbot_gym.names import IDENTITIES
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.rl import hyperparams as hparams
 
@@ -22,6 +23,7 @@ _NEW_RUN_OPTIONS = (
     "algo",
     "pose",
     "pose_model",
+    "identity",
     "pos_sigma_m",
     "yaw_sigma_deg",
     "residual_gripper",
@@ -96,6 +98,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="model file, with --pose manifold (default: the top camera's default models, "
         "trained on first use and cached)",
+    )
+    p.add_argument(
+        "--identity",
+        choices=IDENTITIES,
+        default=None,
+        help="--pose manifold only: recognize (default: the object is recognised from the top "
+        "and side views, no privileged input, as `rollout --pose manifold`) or given "
+        "(privileged: the estimator is told the true class, for ablations; recorded in "
+        "config.json and policy.json)",
     )
     p.add_argument(
         "--pos-sigma-m",
@@ -262,6 +273,7 @@ def config_from_args(args: argparse.Namespace):
         algo=args.algo,
         pose=args.pose,
         pose_model=str(args.pose_model) if args.pose_model else None,
+        identity=args.identity,
         action_type=args.action_type,
         objects=args.objects,
         timesteps=20_000 if args.timesteps is None else args.timesteps,

@@ -36,6 +36,7 @@ import yaml
 from pose.fileio import atomic_write_bytes, atomic_write_json
 from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.names import IDENTITIES
 from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.policies.sb3 import FORMAT, VERSION, ObservationNormalizer, SB3Policy
 from scorbot_gym.policies.sb3_files import MODEL_FILE, old_format_message, save_model
@@ -78,6 +79,10 @@ class TrainConfig:
     algo: str = "sac"
     pose: str = "oracle"
     pose_model: str | None = None  # model file for pose="manifold" (None: the default models)
+    #: pose="manifold": what its estimator is told of the object: "recognize" (recognised from
+    #: the images, no privileged input: the default, recorded as such by :meth:`resolved`) or
+    #: "given" (privileged: told the true class, for ablations); None for the other poses
+    identity: str | None = None
     noise_pos_m: float = 0.01  # pose="noisy": x-y position noise (std)
     noise_yaw_deg: float = 5.0  # pose="noisy": heading noise (std)
     action_type: str = "cartesian"
@@ -113,6 +118,13 @@ class TrainConfig:
             raise ValueError(f"pose must be one of {POSES}, got {self.pose!r}")
         if self.pose != "manifold" and self.pose_model:
             raise ValueError(f"pose_model only applies to pose 'manifold', not {self.pose!r}")
+        if self.identity not in (None, *IDENTITIES):
+            raise ValueError(f"identity must be one of {IDENTITIES}, got {self.identity!r}")
+        if self.pose != "manifold" and self.identity is not None:
+            raise ValueError(
+                f"identity only applies to pose 'manifold', not {self.pose!r} (the oracle and "
+                "noisy poses read the ground truth)"
+            )
         if self.action_type not in ("cartesian", "joint"):
             raise ValueError(
                 f"action_type must be 'cartesian' or 'joint', got {self.action_type!r}"
@@ -198,6 +210,8 @@ class TrainConfig:
                 kind = "a list of names"
             elif f.name in ("pose_model", "init_policy"):
                 ok, kind = value is None or isinstance(value, str), "a path"
+            elif f.name == "identity":
+                ok, kind = value is None or isinstance(value, str), f"one of {IDENTITIES}"
             elif f.name == "hyperparams_entry":
                 ok, kind = value is None or isinstance(value, str), "an entry name"
             else:
@@ -221,9 +235,19 @@ class TrainConfig:
         return hparams.setting_for(self.residual, self.finetune, self.hyperparams_entry)
 
     def resolved(self) -> TrainConfig:
-        """A copy whose ``hyperparams`` is the full set the run uses."""
+        """A copy whose ``hyperparams`` is the full set the run uses, and whose ``identity`` says
+        what a manifold pose is told (so a run records it, whatever the default becomes)."""
         hp = self.resolved_hyperparams()
-        return dataclasses.replace(self, hyperparams=hp)
+        identity = self.pose_identity if self.pose == "manifold" else None
+        return dataclasses.replace(self, hyperparams=hp, identity=identity)
+
+    @property
+    def pose_identity(self) -> str:
+        """``make_env``'s ``identity``: a manifold pose recognises the object unless the run
+        opted into ``"given"``; the oracle and noisy poses read the ground truth ("given")."""
+        if self.pose != "manifold":
+            return "given"
+        return self.identity or "recognize"
 
     @property
     def env_id(self) -> str:
@@ -240,12 +264,25 @@ class TrainConfig:
             }
         if self.pose == "manifold":
             if self.pose_model:
-                return "manifold", {"models": self.pose_model}
-            from scorbot_gym.perception.training import default_pose_models
+                models: Any = self.pose_model
+            else:
+                from scorbot_gym.perception.training import default_pose_models
 
-            # The top camera's default models, as `scorbot-gym rollout` uses: trained on first
-            # use and cached, so a resumed run and its evaluation read the same ones.
-            return "manifold", {"models": default_pose_models(progress=False)}
+                # The top camera's default models, as `scorbot-gym rollout` uses: trained on
+                # first use and cached, so a resumed run and its evaluation read the same ones.
+                models = default_pose_models(progress=False)
+            if self.pose_identity == "given":  # privileged: the top camera, told the class
+                return "manifold", {"models": models}
+            from scorbot_gym.evaluation import compare  # lazily: evaluation imports rl
+
+            # no privileged input, as `rollout --pose manifold` and compare's manifold: masks
+            # by background subtraction, the identity recognised over the top and side views
+            return "manifold", {
+                "models": models,
+                "segmenter": compare.MANIFOLD_SEGMENTER,
+                "recognizer": compare.MANIFOLD_RECOGNIZER,
+                "cameras": list(compare.MANIFOLD_CAMERAS),
+            }
         return "oracle", {}
 
     def schedule(self) -> dict[str, Any]:
@@ -269,8 +306,10 @@ class TrainConfig:
         """``data`` with the settings a run from before them implies (not today's defaults)."""
         if data.get("residual") and "residual_gripper" not in data:
             data = {**data, "residual_gripper": True}  # the residual corrected the gripper then
-        # runs from before these settings: the kind's entry, updates on the CPU
-        data = {"hyperparams_entry": None, "device": "cpu", **data}
+        # runs from before these settings: the kind's entry, updates on the CPU, and a
+        # manifold pose told the object's class (the estimator recognised nothing then)
+        identity = "given" if data.get("pose") == "manifold" else None
+        data = {"hyperparams_entry": None, "device": "cpu", "identity": identity, **data}
         hp = data.get("hyperparams")
         if isinstance(hp, dict) and hp and "reward_type" not in hp:
             # a resolved set from before reward_type was one: the env's reward then, "dense"
@@ -304,6 +343,7 @@ def make_policy_env(config: TrainConfig, objects: list[str] | None = None) -> gy
         config.env_id,
         pose=pose,
         pose_kwargs=kwargs,
+        identity=config.pose_identity,
         classes=config.class_names(),
         objects=objects if objects is not None else config.objects,
         reward_type=config.resolved_hyperparams()["reward_type"],
@@ -408,6 +448,7 @@ def run_provenance(config: TrainConfig, env: gym.Env) -> dict[str, Any]:
     n_demos = config.bc_demos
     data = {
         "pose": config.pose,
+        **({"identity": config.pose_identity} if config.pose == "manifold" else {}),
         "objects": config.objects or "catalogue",
         "training_env_first_resets": provenance.seed_span(
             seed_ranges.TRAINING_ENVS.block(config.seed, config.n_envs)
