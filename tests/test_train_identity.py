@@ -108,3 +108,30 @@ def test_a_run_records_its_identity_in_config_and_policy_json(box_models, tmp_pa
     meta = json.loads((out / "policy" / "policy.json").read_text())
     assert meta["config"]["identity"] == "recognize"
     assert meta["provenance"]["data"]["identity"] == "recognize"
+
+
+@pytest.mark.slow
+def test_demonstrations_on_the_manifold_pose_recognise_and_record_it(
+    box_models, tmp_path, monkeypatch
+):
+    """``scorbot-gym demos --pose manifold`` (the imitation trainer's datasets) recognises the
+    object by default too, and the dataset's settings say so."""
+    import minari
+
+    from scorbot_gym.rl.datasets import read_dataset, record_demonstrations
+
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path))
+    record_demonstrations(
+        "scorbot/identity-test-v0",
+        episodes=1,
+        pose="manifold",
+        pose_kwargs={"models": box_models},
+        objects=["box"],
+    )
+    assert read_dataset("scorbot/identity-test-v0").settings["identity"] == "recognize"
+    spec = minari.load_dataset("scorbot/identity-test-v0").env_spec
+    assert spec.additional_wrappers[-1].kwargs["identity"] == "recognize"  # what the env did
+    with pytest.raises(ValueError, match="identity only applies to pose 'manifold'"):
+        record_demonstrations("scorbot/identity-oracle-v0", episodes=1, identity="given")
+    with pytest.raises(ValueError, match="identity must be one of"):
+        record_demonstrations("scorbot/identity-bad-v0", 1, pose="manifold", identity="told")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
+from scorbot_gym.names import IDENTITIES
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -24,6 +25,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=("oracle", "manifold"),
         default="oracle",
         help="pose source whose estimates the observations carry (default: oracle)",
+    )
+    p.add_argument(
+        "--identity",
+        choices=IDENTITIES,
+        default=None,
+        help="--pose manifold only: recognize (default: the object is recognised from the top "
+        "and side views, no privileged input) or given (privileged: the estimator is told the "
+        "true class); recorded in the dataset's settings",
     )
     p.add_argument(
         "--out",
@@ -62,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         args.out,
         episodes=args.episodes,
         pose=args.pose,
+        identity=args.identity,
         seed=args.seed,
         dart_sigma=args.dart_sigma,
         progress=progress,

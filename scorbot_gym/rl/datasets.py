@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym import seeds as seed_ranges
+from scorbot_gym.names import IDENTITIES
 from scorbot_gym.outputs import (
     check_dataset_id,
     datasets_root,
@@ -187,18 +188,28 @@ def record_demonstrations(
     dart_sigma: float = 0.0,
     pose_kwargs: dict[str, Any] | None = None,
     progress: Callable[[int, int], None] | None = None,
+    identity: str | None = None,
     **env_kwargs: Any,
 ):
     """Run ``episodes`` scripted episodes (seeds ``seed, seed + 1, ...``; default the start of
     :data:`scorbot_gym.seeds.DEMONSTRATIONS`, and a warning if they lie in an evaluation
     range) on the wrapped env with pose source ``pose`` and store them as a Minari dataset.
     The controller acts on the oracle pose whatever ``pose`` is (it is the demonstrator); the
-    observations carry what the pose source estimated. Returns the ``MinariDataset``."""
+    observations carry what the pose source estimated. ``identity`` (``pose="manifold"``
+    only): ``"recognize"`` (default: the estimator recognises the object from the top and side
+    views, no privileged input, as ``rollout --pose manifold``) or ``"given"`` (privileged: it
+    is told the true class); the settings record it. Returns the ``MinariDataset``."""
     from scorbot_gym.envs.factory import make_env
     from scorbot_gym.rl.provenance import env_pose_models, seed_span
 
     if pose not in POSES:
         raise ValueError(f"pose must be one of {POSES}, got {pose!r}")
+    if identity not in (None, *IDENTITIES):
+        raise ValueError(f"identity must be one of {IDENTITIES}, got {identity!r}")
+    if pose != "manifold" and identity is not None:
+        raise ValueError(f"identity only applies to pose 'manifold', not {pose!r}")
+    if pose == "manifold":
+        identity = identity or "recognize"
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = seed_ranges.DEMONSTRATIONS.start if seed is None else int(seed)
@@ -207,9 +218,12 @@ def record_demonstrations(
         if pose == "manifold" and not pose_kwargs:
             from scorbot_gym.evaluation.rollout import RolloutConfig
 
-            pose_kwargs = RolloutConfig(pose="manifold").pose_kwargs()
+            recognize = identity == "recognize"
+            pose_kwargs = RolloutConfig(pose="manifold", recognize=recognize).pose_kwargs()
         env_kwargs.setdefault("env_id", "ScorbotGraspCartesian-v0")
-        env = make_env(pose=pose, pose_kwargs=pose_kwargs, **env_kwargs)
+        env = make_env(
+            pose=pose, pose_kwargs=pose_kwargs, identity=identity or "given", **env_kwargs
+        )
         rng = np.random.default_rng(seed)
         try:
             data = []
@@ -226,6 +240,7 @@ def record_demonstrations(
             settings = {
                 "env_id": env_kwargs["env_id"],
                 "pose": pose,
+                **({"identity": identity} if pose == "manifold" else {}),
                 "pose_models": env_pose_models(env),
                 "seeds": seed_span(range(seed, seed + episodes)),
                 "dart_sigma": float(dart_sigma),
