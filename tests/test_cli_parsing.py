@@ -95,13 +95,14 @@ from scorbot_gym.perception.support import support_names
 from scorbot_gym.sim.scene import DEFAULT_CAMERAS
 from scorbot_gym.sim.simulation import MOVING_CAMERAS
 from scorbot_gym.tasks.disturbance import DISTURBANCES
+from scorbot_gym.wrappers.pose_observation import IDENTITIES
 
 print(json.dumps({
     "POLICIES": POLICIES, "POSE_ALIASES": POSE_ALIASES, "POSE_SOURCES": pose_source_names(),
     "FIXED_CAMERAS": [c.name for c in DEFAULT_CAMERAS], "MOVING_CAMERAS": MOVING_CAMERAS,
     "SEGMENTERS": segmenter_names(), "RECOGNIZERS": RECOGNIZERS, "MOTIONS": motion_names(),
     "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(), "SPLITTERS": SPLITTERS,
-    "SUPPORTS": support_names(),
+    "SUPPORTS": support_names(), "IDENTITIES": IDENTITIES,
 }))
 """
 

@@ -45,6 +45,7 @@ from pose.camera import CameraModel
 from pose.metrics import add_s, rotation_error_deg
 from scorbot_gym.envs.arguments import name_list
 from scorbot_gym.envs.worker import built_or_failed
+from scorbot_gym.names import IDENTITIES
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.neighbours import MAX_NEIGHBOUR_POINTS, pack_points
@@ -138,8 +139,8 @@ class PoseEstimateObservation(gym.Wrapper, gym.utils.RecordConstructorArgs):
             )
         if rotation not in ROTATION_FORMS:
             raise ValueError(f"rotation must be one of {ROTATION_FORMS}, got {rotation!r}")
-        if identity not in ("given", "recognize"):
-            raise ValueError(f"identity must be 'given' or 'recognize', got {identity!r}")
+        if identity not in IDENTITIES:
+            raise ValueError(f"identity must be one of {IDENTITIES}, got {identity!r}")
         for flag, value in (
             ("timings_in_info", timings_in_info),
             ("neighbours", neighbours),
