@@ -101,3 +101,41 @@ def test_train_records_the_entry_and_the_reward(tmp_path):
     assert config["hyperparams"]["reward_type"] == "normalized_dense"
     policy = json.loads((out / "policy" / "policy.json").read_text())
     assert policy["config"]["hyperparams"]["reward_type"] == "normalized_dense"
+
+
+def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
+    """Two seeds at once (spawned workers), then continued further, two at once again; each
+    evaluation records the return, and the curves carry it with the steps to each level."""
+    import dataclasses
+
+    from scorbot_gym.rl.curves import learning_curves
+    from scorbot_gym.rl.training import resume, train_seeds
+
+    config = TrainConfig(
+        objects=["box"],
+        timesteps=40,
+        hyperparams_entry="scratch",
+        hyperparams={"learning_starts": 20, "batch_size": 8, "buffer_size": 200, "net_arch": [8]},
+        eval_every=40,
+        eval_episodes=1,
+        checkpoint_every=40,
+        progress_bar=False,
+        tensorboard=False,
+        device="cpu",
+    )
+    out = tmp_path / "seeds"
+    with pytest.raises(ValueError, match="processes must be an integer >= 1"):
+        train_seeds(config, out, [0, 1], processes=0)
+    states = train_seeds(config, out, [0, 1], processes=2)["seeds"]
+    assert sorted(states) == [0, 1] and all(s["timesteps"] == 40 for s in states.values())
+    states = resume(out, timesteps=80, processes=2)["seeds"]
+    assert all(s["timesteps"] == 80 for s in states.values())
+    for seed in (0, 1):
+        run = json.loads((out / f"seed_{seed}" / "config.json").read_text())
+        assert run == {**dataclasses.asdict(config.resolved()), "seed": seed, "timesteps": 80}
+        assert all("mean_return" in e for e in states[seed]["eval"])
+    arm = learning_curves({"scratch": [out]})["scratch"]
+    assert arm["seeds"] == [0, 1]
+    assert arm["return_by_timesteps"]["timesteps"] == [0.0, 40.0, 80.0]
+    assert all(0.0 <= r <= 150.0 for r in arm["return_by_timesteps"]["mean"])
+    assert arm["first_reached"]["0.5"]["seeds_reached"] in (0, 1, 2)
