@@ -22,7 +22,7 @@ def test_scratch_entries_are_set_for_learning_not_for_fine_tuning():
         if algo in hparams.OFF_POLICY:
             assert hp["buffer_size"] >= 1_000_000  # holds a 1M-step run
             assert hp["learning_starts"] >= 1000
-            assert hp["ent_coef"] == "auto_0.001"  # sized to the normalised reward
+            assert hp["ent_coef"] == "auto_1e-6"  # sized to the normalised reward
         else:
             assert hp["n_steps"] >= 4096
     # every entry the shipped policies and results came from names the old reward

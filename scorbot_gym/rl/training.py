@@ -726,12 +726,20 @@ def train_seeds(
     config: TrainConfig, out: str | Path, seeds: list[int], processes: int = 1
 ) -> dict[str, Any]:
     """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
-    (each in a process of its own, see :func:`train_seed`; 1: one after another in this
+    (each in a process of its own, see :func:`run_seed_jobs`; 1: one after another in this
     process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
     continues all of them. Returns ``{"seeds": {seed: state}}``."""
+    _check_processes(processes)
+    start_seeds(config, out, seeds)
+    return {"seeds": _by_seed(run_seed_jobs(seed_jobs(out), processes))}
+
+
+def start_seeds(config: TrainConfig, out: str | Path, seeds: list[int]) -> TrainConfig:
+    """Check ``config`` and write ``out/seeds.json`` (seeds and the resolved configuration),
+    training nothing yet: :func:`seed_jobs` then lists the runs to train. Returns the
+    resolved configuration."""
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
-    _check_processes(processes)
     config = config.validate().resolved()
     check_pose_model(config)
     out = Path(out)
@@ -741,7 +749,32 @@ def train_seeds(
         raise ValueError(f"{out} already holds a run; resume it with --resume {out}")
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-    return {"seeds": _train_seeds(config, out, seeds, processes=processes)}
+    return config
+
+
+def seed_jobs(
+    out: str | Path,
+    timesteps: int | None = None,
+    progress_bar: bool | None = None,
+    device: str | None = None,
+) -> dict[Path, dict[str, Any]]:
+    """The runs of the ``--seeds`` folder ``out``: run folder -> its configuration (seed set;
+    ``timesteps``, ``progress_bar``, ``device`` replaced where given), for
+    :func:`run_seed_jobs`; a run folder with a checkpoint is continued, any other started."""
+    out = Path(out)
+    record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
+    seeds = record.get("seeds")
+    if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
+        raise ValueError(f"{out / runs.SEEDS}: 'seeds' must be a list of integers")
+    try:
+        config = TrainConfig.from_json(record.get("config") or {})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
+    changes = {"timesteps": timesteps, "progress_bar": progress_bar, "device": device}
+    config = dataclasses.replace(config, **{k: v for k, v in changes.items() if v is not None})
+    return {
+        out / f"seed_{s}": dataclasses.replace(config, seed=s).validate().to_json() for s in seeds
+    }
 
 
 def _check_processes(processes: int) -> None:
@@ -749,56 +782,58 @@ def _check_processes(processes: int) -> None:
         raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
 
 
-def train_seed(
-    config: dict[str, Any],
-    run: str | Path,
-    progress_bar: bool | None = None,
-    device: str | None = None,
-) -> dict[str, Any]:
+def train_seed(config: dict[str, Any], run: str | Path) -> dict[str, Any]:
     """Train one seed's run (``config`` as in ``config.json``, its ``seed`` set) into ``run``,
-    or continue it from its checkpoint to ``config["timesteps"]``: what a worker process of
-    :func:`train_seeds` does, and what a Ray task or a cluster job can call."""
+    or continue it from its checkpoint to ``config["timesteps"]`` (with its ``progress_bar``
+    and ``device``): what a worker of :func:`run_seed_jobs` does, and what a Ray task or a
+    cluster job can call."""
     run = Path(run)
     if runs.has_checkpoint(run):
-        return resume(run, timesteps=config["timesteps"], progress_bar=progress_bar, device=device)
+        return resume(
+            run,
+            timesteps=config["timesteps"],
+            progress_bar=config["progress_bar"],
+            device=config["device"],
+        )
     return train(TrainConfig.from_json(config), run)
 
 
-def _train_seeds(
-    config: TrainConfig,
-    out: Path,
-    seeds: list[int],
-    progress_bar: bool | None = None,
-    device: str | None = None,
-    processes: int = 1,
-) -> dict[int, dict]:
-    jobs = {seed: dataclasses.replace(config, seed=seed).to_json() for seed in seeds}
-    if processes == 1 or len(seeds) == 1:
-        return {s: train_seed(c, out / f"seed_{s}", progress_bar, device) for s, c in jobs.items()}
+def run_seed_jobs(jobs: dict[Path, dict[str, Any]], processes: int = 1) -> dict[Path, dict]:
+    """Train or continue every run of ``jobs`` (from :func:`seed_jobs`, several folders' may be
+    merged), ``processes`` at a time, each in a spawned process that dies with this one (1: one
+    after another in this process). A failed run does not stop the others; the failures are
+    raised together at the end. Returns run folder -> state."""
+    _check_processes(processes)
+    if processes == 1 or len(jobs) == 1:
+        return {run: train_seed(c, run) for run, c in jobs.items()}
     from scorbot_gym.experiments.workers import worker_pool
 
-    config.pose_args()  # default pose models are trained here once, not by every seed at once
-    quiet = False  # progress bars of several processes would overwrite each other
-    jobs = {s: {**c, "progress_bar": quiet} for s, c in jobs.items()}
-    states: dict[int, dict] = {}
+    for c in jobs.values():  # default pose models are trained here once, not by every worker
+        TrainConfig.from_json(c).pose_args()
+    states: dict[Path, dict] = {}
     errors: list[str] = []
-    with worker_pool(min(processes, len(seeds))) as pool:
+    with worker_pool(min(processes, len(jobs))) as pool:
+        # progress bars of several processes would overwrite each other
         futures = {
-            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device): s
-            for s, c in jobs.items()
+            pool.submit(train_seed, {**c, "progress_bar": False}, str(run)): run
+            for run, c in jobs.items()
         }
         for future in as_completed(futures):
-            seed = futures[future]
+            run = futures[future]
             try:
-                states[seed] = future.result()
+                states[run] = future.result()
             except Exception as exc:  # the others go on; every failure is reported below
-                errors.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+                errors.append(f"{run}: {type(exc).__name__}: {exc}")
     if errors:
         raise RuntimeError(
-            f"{len(errors)} of {len(seeds)} seeds failed ({'; '.join(errors)}); the others are "
-            f"in {out}, and --resume {out} continues every seed"
+            f"{len(errors)} of {len(jobs)} runs failed ({'; '.join(errors)}); the same call, "
+            "or --resume of their folder, continues them"
         )
-    return {s: states[s] for s in seeds}
+    return {run: states[run] for run in jobs}
+
+
+def _by_seed(states: dict[Path, dict]) -> dict[int, dict]:
+    return {int(run.name.removeprefix("seed_")): state for run, state in states.items()}
 
 
 def _read_state(path: Path) -> dict[str, Any]:
@@ -1000,21 +1035,10 @@ def _resume_seeds(
     device: str | None = None,
     processes: int = 1,
 ) -> dict[str, Any]:
-    record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
-    seeds = record.get("seeds")
-    if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
-        raise ValueError(f"{out / runs.SEEDS}: 'seeds' must be a list of integers")
-    try:
-        config = TrainConfig.from_json(record.get("config") or {})
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
-    if timesteps is not None:
-        config.timesteps = int(timesteps)
-    if progress_bar is not None:
-        config.progress_bar = bool(progress_bar)
-    if device is not None:
-        config.device = device
-    return {"seeds": _train_seeds(config, out, seeds, progress_bar, device, processes)}
+    if timesteps is not None and timesteps < 1:
+        raise ValueError(f"timesteps must be >= 1, got {timesteps}")
+    jobs = seed_jobs(out, timesteps, progress_bar, device)
+    return {"seeds": _by_seed(run_seed_jobs(jobs, processes))}
 
 
 __all__ = [
@@ -1026,6 +1050,9 @@ __all__ = [
     "make_policy_env",
     "make_vec_env",
     "resume",
+    "run_seed_jobs",
+    "seed_jobs",
+    "start_seeds",
     "train",
     "train_seed",
     "train_seeds",
