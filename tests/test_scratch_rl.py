@@ -22,7 +22,8 @@ def test_scratch_entries_are_set_for_learning_not_for_fine_tuning():
         if algo in hparams.OFF_POLICY:
             assert hp["buffer_size"] >= 1_000_000  # holds a 1M-step run
             assert hp["learning_starts"] >= 1000
-            assert hp["ent_coef"] == "auto_1e-6"  # sized to the normalised reward
+            assert hp["ent_coef"] == "auto_0.001"
+            assert hp["reward_scale"] == 200  # the learner sees steps of <= 1
         else:
             assert hp["n_steps"] >= 4096
     # every entry the shipped policies and results came from names the old reward
@@ -139,3 +140,27 @@ def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
     assert arm["return_by_timesteps"]["timesteps"] == [0.0, 40.0, 80.0]
     assert all(0.0 <= r <= 150.0 for r in arm["return_by_timesteps"]["mean"])
     assert arm["first_reached"]["0.5"]["seeds_reached"] in (0, 1, 2)
+
+
+def test_the_learner_sees_the_reward_times_reward_scale():
+    """reward_scale multiplies what the learner is given; the env keeps its [0, 1] reward."""
+    import numpy as np
+
+    rewards = {}
+    for scale in (1, 200):
+        config = TrainConfig(
+            objects=["box"],
+            hyperparams_entry="scratch",
+            hyperparams={"reward_scale": scale},
+            normalize=False,
+        ).resolved()
+        venv = make_vec_env(config)
+        try:
+            venv.seed(3)
+            venv.reset()
+            steps = [venv.step(np.zeros((1, 6), np.float32))[1][0] for _ in range(3)]
+        finally:
+            venv.close()
+        rewards[scale] = np.array(steps)
+    assert (rewards[1] > 0).all() and (rewards[1] <= 0.005).all()
+    np.testing.assert_allclose(rewards[200], 200 * rewards[1], rtol=1e-6)

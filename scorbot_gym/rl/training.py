@@ -31,6 +31,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
+from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from pose.fileio import atomic_write_bytes, atomic_write_json
 from scorbot_gym.envs.factory import make_env
@@ -361,9 +362,32 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None):
         for i in range(config.n_envs)
     ]
     venv = DummyVecEnv(fns) if config.n_envs == 1 else SubprocVecEnv(fns, start_method="spawn")
+    if reward_scale(config) != 1.0:
+        venv = ScaledReward(venv, reward_scale(config))
     if config.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv
+
+
+class ScaledReward(VecEnvWrapper):
+    """A VecEnv whose rewards are ``scale`` times its wrapped one's (the ``reward_scale``
+    hyperparameter): what the learner sees; the envs' Monitors log the env's own reward."""
+
+    def __init__(self, venv, scale: float) -> None:
+        super().__init__(venv)
+        self.scale = float(scale)
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        return obs, rewards * self.scale, dones, infos
+
+
+def reward_scale(config: TrainConfig) -> float:
+    """What the learner's rewards are times (``reward_scale``; 1 unless the entry says)."""
+    return float(config.resolved_hyperparams().get("reward_scale", 1.0))
 
 
 def policy_meta(config: TrainConfig, env: gym.Env, timesteps: int) -> dict[str, Any]:
@@ -616,6 +640,7 @@ def _seed_with_demos(run: _Run) -> dict[str, Any]:
     if c.normalize:
         for k, v in demos.obs.items():
             run.venv.obs_rms[k].update(v)
+    demos = dataclasses.replace(demos, rewards=demos.rewards * reward_scale(c))  # as learned
     added = add_to_replay_buffer(run.model, demos) if hasattr(run.model, "replay_buffer") else 0
     losses = behaviour_clone(run.model, demos, run.normalizer(), c.bc_steps, seed=c.seed)
     return {
@@ -642,6 +667,7 @@ def _fill_demo_buffer(run: _Run) -> dict[str, Any]:
         run.eval_env, range(start, start + c.bc_demos), dart_sigma=sigma, rng=rng
     )
     transitions = demo_transitions(episodes, run.init_policy)
+    transitions["rewards"] = transitions["rewards"] * reward_scale(c)  # as the learner sees them
     run.model.replay_buffer.demos = demo_buffer(transitions, run.model)
     return {
         "episodes": c.bc_demos,
