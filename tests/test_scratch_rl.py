@@ -69,6 +69,11 @@ def test_a_run_from_before_reward_type_keeps_the_dense_reward():
     config = TrainConfig.from_json(old)
     assert config.hyperparams["reward_type"] == "dense"
     assert config.device == "cpu" and config.hyperparams_entry is None
+    # a scratch run from before reward_scale learned at scale 1, whatever the entry says now
+    scratch = TrainConfig(hyperparams_entry="scratch").resolved().to_json()
+    del scratch["hyperparams"]["reward_scale"]
+    assert TrainConfig.from_json(scratch).resolved_hyperparams()["reward_scale"] == 1.0
+    assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_scale"] == 200
 
 
 def test_updates_run_where_the_device_says():

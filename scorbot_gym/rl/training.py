@@ -269,9 +269,9 @@ class TrainConfig:
         # runs from before these settings: the kind's entry, updates on the CPU
         data = {"hyperparams_entry": None, "device": "cpu", **data}
         hp = data.get("hyperparams")
-        if isinstance(hp, dict) and hp and "reward_type" not in hp:
-            # a resolved set from before reward_type was one: the env's reward then, "dense"
-            data = {**data, "hyperparams": {**hp, "reward_type": "dense"}}
+        if isinstance(hp, dict) and hp:  # a resolved set from before these keys: their values
+            then = {"reward_type": "dense", "reward_scale": 1.0}  # then (not the entry's now)
+            data = {**data, "hyperparams": {**then, **hp}}
         return data
 
 
