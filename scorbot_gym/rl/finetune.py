@@ -229,7 +229,7 @@ def demo_buffer(transitions: dict[str, np.ndarray], model: SAC) -> ReplayBuffer:
         max(n, 1),
         model.observation_space,
         model.action_space,
-        device="cpu",
+        device=model.device,  # its samples join the online buffer's batches
         n_envs=1,
         handle_timeout_termination=False,
     )
