@@ -357,7 +357,7 @@ def test_a_fine_tunes_demonstration_buffer_round_trips(tmp_path):
         return DemoMixReplayBuffer(40, obs_space, act_space, device="cpu", demo_ratio=0.5)
 
     class Spaces:  # what demo_buffer reads of a model
-        observation_space, action_space = obs_space, act_space
+        observation_space, action_space, device = obs_space, act_space, "cpu"
 
     rng = np.random.default_rng(0)
     buffer = fresh()
