@@ -29,7 +29,6 @@ import argparse
 import os
 import platform
 import sys
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from scorbot_gym.cli._args import seed_list
@@ -61,17 +60,6 @@ def _positive(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"must be an integer >= 1, got {text}")
     return value
-
-
-def _train_arm(config, folder: Path, args: argparse.Namespace) -> None:
-    """Train an arm's seeds into ``folder``, or continue them (an interrupted or shorter run)."""
-    from scorbot_gym.rl import runs
-    from scorbot_gym.rl.training import resume, train_seeds
-
-    if (folder / runs.SEEDS).is_file():
-        resume(folder, timesteps=args.timesteps, processes=args.parallel)
-    else:
-        train_seeds(config, folder, args.seeds, processes=args.parallel)
 
 
 def _gpu_name() -> str | None:
@@ -112,7 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         "--device", default="auto", help="with --train: auto (CUDA when there is one), cpu, cuda"
     )
     parser.add_argument(
-        "--parallel", type=_positive, default=1, help="with --train: seeds trained at a time"
+        "--parallel",
+        type=_positive,
+        default=1,
+        help="with --train: runs (seeds of every arm) trained at a time, each in its own process",
     )
     parser.add_argument(
         "--hyperparams",
@@ -180,12 +171,17 @@ def main(argv: list[str] | None = None) -> int:
                 ).validate()
             except ValueError as exc:
                 parser.error(f"arm {label}: {exc}")
-        # every arm at once (each with --parallel seeds at a time): the arms of a comparison
-        # then share the machine's load and their wall times compare
-        with ThreadPoolExecutor(len(arms)) as threads:
-            jobs = [threads.submit(_train_arm, configs[a], d[0], args) for a, d in arms.items()]
-            for job in jobs:
-                job.result()
+        # every arm's seeds in one pool of --parallel processes: the arms of a comparison
+        # share the machine's load, so their wall times compare
+        from scorbot_gym.rl import runs
+        from scorbot_gym.rl.training import run_seed_jobs, seed_jobs, start_seeds
+
+        jobs = {}
+        for label, (folder,) in arms.items():
+            if not (folder / runs.SEEDS).is_file():  # else: interrupted or shorter, continued
+                start_seeds(configs[label], folder, args.seeds)
+            jobs.update(seed_jobs(folder, timesteps=args.timesteps, device=args.device))
+        run_seed_jobs(jobs, processes=args.parallel)
         for label in arms:
             trained[label] = {
                 "preset": PRESETS[label],

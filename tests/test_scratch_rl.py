@@ -22,7 +22,8 @@ def test_scratch_entries_are_set_for_learning_not_for_fine_tuning():
         if algo in hparams.OFF_POLICY:
             assert hp["buffer_size"] >= 1_000_000  # holds a 1M-step run
             assert hp["learning_starts"] >= 1000
-            assert hp["ent_coef"] == "auto_0.001"  # sized to the normalised reward
+            assert hp["ent_coef"] == "auto_0.001"
+            assert hp["reward_scale"] == 200  # the learner sees steps of <= 1
         else:
             assert hp["n_steps"] >= 4096
     # every entry the shipped policies and results came from names the old reward
@@ -68,6 +69,11 @@ def test_a_run_from_before_reward_type_keeps_the_dense_reward():
     config = TrainConfig.from_json(old)
     assert config.hyperparams["reward_type"] == "dense"
     assert config.device == "cpu" and config.hyperparams_entry is None
+    # a scratch run from before reward_scale learned at scale 1, whatever the entry says now
+    scratch = TrainConfig(hyperparams_entry="scratch").resolved().to_json()
+    del scratch["hyperparams"]["reward_scale"]
+    assert TrainConfig.from_json(scratch).resolved_hyperparams()["reward_scale"] == 1.0
+    assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_scale"] == 200
 
 
 def test_updates_run_where_the_device_says():
@@ -101,3 +107,65 @@ def test_train_records_the_entry_and_the_reward(tmp_path):
     assert config["hyperparams"]["reward_type"] == "normalized_dense"
     policy = json.loads((out / "policy" / "policy.json").read_text())
     assert policy["config"]["hyperparams"]["reward_type"] == "normalized_dense"
+
+
+def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
+    """Two seeds at once (spawned workers), then continued further, two at once again; each
+    evaluation records the return, and the curves carry it with the steps to each level."""
+    import dataclasses
+
+    from scorbot_gym.rl.curves import learning_curves
+    from scorbot_gym.rl.training import resume, train_seeds
+
+    config = TrainConfig(
+        objects=["box"],
+        timesteps=40,
+        hyperparams_entry="scratch",
+        hyperparams={"learning_starts": 20, "batch_size": 8, "buffer_size": 200, "net_arch": [8]},
+        eval_every=40,
+        eval_episodes=1,
+        checkpoint_every=40,
+        progress_bar=False,
+        tensorboard=False,
+        device="cpu",
+    )
+    out = tmp_path / "seeds"
+    with pytest.raises(ValueError, match="processes must be an integer >= 1"):
+        train_seeds(config, out, [0, 1], processes=0)
+    states = train_seeds(config, out, [0, 1], processes=2)["seeds"]
+    assert sorted(states) == [0, 1] and all(s["timesteps"] == 40 for s in states.values())
+    states = resume(out, timesteps=80, processes=2)["seeds"]
+    assert all(s["timesteps"] == 80 for s in states.values())
+    for seed in (0, 1):
+        run = json.loads((out / f"seed_{seed}" / "config.json").read_text())
+        assert run == {**dataclasses.asdict(config.resolved()), "seed": seed, "timesteps": 80}
+        assert all("mean_return" in e for e in states[seed]["eval"])
+    arm = learning_curves({"scratch": [out]})["scratch"]
+    assert arm["seeds"] == [0, 1]
+    assert arm["return_by_timesteps"]["timesteps"] == [0.0, 40.0, 80.0]
+    assert all(0.0 <= r <= 150.0 for r in arm["return_by_timesteps"]["mean"])
+    assert arm["first_reached"]["0.5"]["seeds_reached"] in (0, 1, 2)
+
+
+def test_the_learner_sees_the_reward_times_reward_scale():
+    """reward_scale multiplies what the learner is given; the env keeps its [0, 1] reward."""
+    import numpy as np
+
+    rewards = {}
+    for scale in (1, 200):
+        config = TrainConfig(
+            objects=["box"],
+            hyperparams_entry="scratch",
+            hyperparams={"reward_scale": scale},
+            normalize=False,
+        ).resolved()
+        venv = make_vec_env(config)
+        try:
+            venv.seed(3)
+            venv.reset()
+            steps = [venv.step(np.zeros((1, 6), np.float32))[1][0] for _ in range(3)]
+        finally:
+            venv.close()
+        rewards[scale] = np.array(steps)
+    assert (rewards[1] > 0).all() and (rewards[1] <= 0.005).all()
+    np.testing.assert_allclose(rewards[200], 200 * rewards[1], rtol=1e-6)

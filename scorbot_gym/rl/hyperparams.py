@@ -10,8 +10,12 @@ overrides, checks every value, and records the resolved set in its folder (``con
 ``hyperparams.yml``), so a run is a function of its folder, not of the package version.
 
 ``reward_type`` is the env's reward (an env setting kept with the hyperparameters, as RL Zoo
-keeps ``env_kwargs``: the reward and the learner's settings are tuned together, e.g. the
-scratch entries' small initial ``ent_coef`` is sized to the normalised reward's scale).
+keeps ``env_kwargs``: the reward and the learner's settings are tuned together).
+``reward_scale`` (default 1) multiplies the rewards the learner sees, SAC's "reward scale"
+(Haarnoja et al. 2018): the env, its Monitor CSVs and the evaluations keep the env's reward.
+The scratch entries use it because the normalised reward pays at most 0.005 a step: Q-values
+whose action dependence is ~1e-4 drown in the critic's initial output noise, so SAC did not
+climb it where it climbed the same shaping at a 200-times larger scale.
 
 ``train_freq`` and ``gradient_steps`` (off-policy) are counted per env, as if there were one:
 :func:`sb3_schedule` scales ``gradient_steps`` with the number of envs, so updates per env step
@@ -146,6 +150,7 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     "bc_coef": (("sac",), _float(0.0), "BC term on demo samples, times mean |Q|"),
     # the env's reward, tuned with the rest (RL Zoo's env_kwargs)
     "reward_type": (ALGOS, _reward_type, "the env's reward (scorbot_gym.tasks.grasp)"),
+    "reward_scale": (ALGOS, _float(0.0, low_open=True), "what the learner's rewards are times"),
 }
 
 #: keys that only the fine-tuning setting reads (they weigh its demonstrations)

@@ -32,6 +32,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 import yaml
+from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from pose.fileio import atomic_write_bytes, atomic_write_json
 from scorbot_gym import seeds as seed_ranges
@@ -311,9 +312,9 @@ class TrainConfig:
         identity = "given" if data.get("pose") == "manifold" else None
         data = {"hyperparams_entry": None, "device": "cpu", "identity": identity, **data}
         hp = data.get("hyperparams")
-        if isinstance(hp, dict) and hp and "reward_type" not in hp:
-            # a resolved set from before reward_type was one: the env's reward then, "dense"
-            data = {**data, "hyperparams": {**hp, "reward_type": "dense"}}
+        if isinstance(hp, dict) and hp:  # a resolved set from before these keys: their values
+            then = {"reward_type": "dense", "reward_scale": 1.0}  # then (not the entry's now)
+            data = {**data, "hyperparams": {**then, **hp}}
         return data
 
 
@@ -420,6 +421,8 @@ def make_vec_env(config: TrainConfig, monitor_dir: Path | None = None, segment: 
         for i in range(config.n_envs)
     ]
     venv = DummyVecEnv(fns) if config.n_envs == 1 else SubprocVecEnv(fns, start_method="spawn")
+    if reward_scale(config) != 1.0:
+        venv = ScaledReward(venv, reward_scale(config))
     if config.normalize:
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False)
     return venv
@@ -474,6 +477,27 @@ def run_provenance(config: TrainConfig, env: gym.Env) -> dict[str, Any]:
     else:
         models = provenance.env_pose_models(env)
     return provenance.record(trained_by(config), data, models)["provenance"]
+
+
+class ScaledReward(VecEnvWrapper):
+    """A VecEnv whose rewards are ``scale`` times its wrapped one's (the ``reward_scale``
+    hyperparameter): what the learner sees; the envs' Monitors log the env's own reward."""
+
+    def __init__(self, venv, scale: float) -> None:
+        super().__init__(venv)
+        self.scale = float(scale)
+
+    def reset(self):
+        return self.venv.reset()
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        return obs, rewards * self.scale, dones, infos
+
+
+def reward_scale(config: TrainConfig) -> float:
+    """What the learner's rewards are times (``reward_scale``; 1 unless the entry says)."""
+    return float(config.resolved_hyperparams().get("reward_scale", 1.0))
 
 
 def policy_meta(
@@ -755,6 +779,7 @@ def _seed_with_demos(run: _Run) -> dict[str, Any]:
     if c.normalize:
         for k, v in demos.obs.items():
             run.venv.obs_rms[k].update(v)
+    demos = dataclasses.replace(demos, rewards=demos.rewards * reward_scale(c))  # as learned
     added = add_to_replay_buffer(run.model, demos) if hasattr(run.model, "replay_buffer") else 0
     losses = behaviour_clone(run.model, demos, run.normalizer(), c.bc_steps, seed=c.seed)
     return {
@@ -779,6 +804,7 @@ def _fill_demo_buffer(run: _Run) -> dict[str, Any]:
     sigma = ImitationConfig().dart_sigma
     episodes = collect_episodes(run.eval_env, demo_seeds, dart_sigma=sigma, rng=rng)
     transitions = demo_transitions(episodes, run.init_policy)
+    transitions["rewards"] = transitions["rewards"] * reward_scale(c)  # as the learner sees them
     run.model.replay_buffer.demos = demo_buffer(transitions, run.model)
     return {
         "episodes": c.bc_demos,
@@ -885,25 +911,81 @@ def train_seeds(
     hyperparams_file: str | Path | None = None,
 ) -> dict[str, Any]:
     """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
-    (each in a process of its own, see :func:`train_seed`; 1: one after another in this
+    (each in a process of its own, see :func:`run_seed_jobs`; 1: one after another in this
     process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
     continues all of them. ``hyperparams_file`` as for :func:`train` (copied into every
-    seed's folder). Returns ``{"seeds": {seed: state}}``."""
+    seed's folder). The folder is locked while it trains. Returns ``{"seeds": {seed: state}}``."""
+    _check_processes(processes)
+    config = _check_seeds(config, seeds, hyperparams_file)
+    with runs.claim(out, new=True) as out:
+        _write_seeds(out, seeds, config, hyperparams_file)
+        return {"seeds": _by_seed(run_seed_jobs(seed_jobs(out), processes))}
+
+
+def start_seeds(
+    config: TrainConfig,
+    out: str | Path,
+    seeds: list[int],
+    hyperparams_file: str | Path | None = None,
+) -> TrainConfig:
+    """Check ``config`` and write ``out/seeds.json`` (seeds, the resolved configuration and
+    the ``--conf`` file), training nothing yet: :func:`seed_jobs` then lists the runs to train
+    (each seed's folder is locked while it trains). ``out`` must be new or empty, as for
+    :func:`train`. Returns the resolved configuration."""
+    config = _check_seeds(config, seeds, hyperparams_file)
+    with runs.claim(out, new=True) as out:
+        _write_seeds(out, seeds, config, hyperparams_file)
+    return config
+
+
+def _check_seeds(
+    config: TrainConfig, seeds: list[int], hyperparams_file: str | Path | None
+) -> TrainConfig:
     if not seeds or len(set(seeds)) != len(seeds) or any(s < 0 for s in seeds):
         raise ValueError(f"seeds must be distinct integers >= 0, got {seeds}")
     for s in seeds:
         seed_ranges.check_run_seed(s, "every seed")
-    _check_processes(processes)
     config = config.validate().resolved()
     check_pose_model(config)
     _read_conf(hyperparams_file, config)  # a bad file fails before seeds.json is written
-    with runs.claim(out, new=True) as out:
-        atomic_write_json(out / runs.SEEDS, {"seeds": list(seeds), "config": config.to_json()})
-        return {
-            "seeds": _train_seeds(
-                config, out, seeds, processes=processes, hyperparams_file=hyperparams_file
-            )
-        }
+    return config
+
+
+def _write_seeds(
+    out: Path, seeds: list[int], config: TrainConfig, hyperparams_file: str | Path | None
+) -> None:
+    record: dict[str, Any] = {"seeds": list(seeds), "config": config.to_json()}
+    if hyperparams_file is not None:
+        record["conf"] = str(Path(hyperparams_file).resolve())
+    atomic_write_json(out / runs.SEEDS, record)
+
+
+def seed_jobs(
+    out: str | Path,
+    timesteps: int | None = None,
+    progress_bar: bool | None = None,
+    device: str | None = None,
+) -> dict[Path, dict[str, Any]]:
+    """The runs of the ``--seeds`` folder ``out``: run folder -> its configuration (seed set;
+    ``timesteps``, ``progress_bar``, ``device`` replaced where given; the ``--conf`` file a
+    run not started yet copies, under ``hyperparams_file``), for :func:`run_seed_jobs`; a run
+    folder with a checkpoint is continued, any other started."""
+    out = Path(out)
+    record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
+    seeds = record.get("seeds")
+    if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
+        raise ValueError(f"{out / runs.SEEDS}: 'seeds' must be a list of integers")
+    try:
+        config = TrainConfig.from_json(record.get("config") or {})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
+    changes = {"timesteps": timesteps, "progress_bar": progress_bar, "device": device}
+    config = dataclasses.replace(config, **{k: v for k, v in changes.items() if v is not None})
+    conf = {"hyperparams_file": record["conf"]} if record.get("conf") else {}
+    return {
+        out / f"seed_{s}": {**dataclasses.replace(config, seed=s).validate().to_json(), **conf}
+        for s in seeds
+    }
 
 
 def _check_processes(processes: int) -> None:
@@ -911,61 +993,61 @@ def _check_processes(processes: int) -> None:
         raise ValueError(f"processes must be an integer >= 1, got {processes!r}")
 
 
-def train_seed(
-    config: dict[str, Any],
-    run: str | Path,
-    progress_bar: bool | None = None,
-    device: str | None = None,
-    hyperparams_file: str | None = None,
-) -> dict[str, Any]:
+def train_seed(config: dict[str, Any], run: str | Path) -> dict[str, Any]:
     """Train one seed's run (``config`` as in ``config.json``, its ``seed`` set) into ``run``,
-    or continue it from its checkpoint to ``config["timesteps"]``: what a worker process of
-    :func:`train_seeds` does, and what a Ray task or a cluster job can call."""
+    or continue it from its checkpoint to ``config["timesteps"]`` (with its ``progress_bar``
+    and ``device``): what a worker of :func:`run_seed_jobs` does, and what a Ray task or a
+    cluster job can call; ``config["hyperparams_file"]``, if there, is the ``--conf`` file a
+    run not started yet copies."""
     run = Path(run)
+    config = dict(config)
+    conf = config.pop("hyperparams_file", None)
     if runs.has_checkpoint(run):
-        return resume(run, timesteps=config["timesteps"], progress_bar=progress_bar, device=device)
-    return train(TrainConfig.from_json(config), run, hyperparams_file)
+        return resume(
+            run,
+            timesteps=config["timesteps"],
+            progress_bar=config["progress_bar"],
+            device=config["device"],
+        )
+    return train(TrainConfig.from_json(config), run, conf)
 
 
-def _train_seeds(
-    config: TrainConfig,
-    out: Path,
-    seeds: list[int],
-    progress_bar: bool | None = None,
-    device: str | None = None,
-    processes: int = 1,
-    hyperparams_file: str | Path | None = None,
-) -> dict[int, dict]:
-    jobs = {seed: dataclasses.replace(config, seed=seed).to_json() for seed in seeds}
-    conf = None if hyperparams_file is None else str(hyperparams_file)
-    if processes == 1 or len(seeds) == 1:
-        return {
-            s: train_seed(c, out / f"seed_{s}", progress_bar, device, conf) for s, c in jobs.items()
-        }
+def run_seed_jobs(jobs: dict[Path, dict[str, Any]], processes: int = 1) -> dict[Path, dict]:
+    """Train or continue every run of ``jobs`` (from :func:`seed_jobs`, several folders' may be
+    merged), ``processes`` at a time, each in a spawned process that dies with this one (1: one
+    after another in this process). A failed run does not stop the others; the failures are
+    raised together at the end. Returns run folder -> state."""
+    _check_processes(processes)
+    if processes == 1 or len(jobs) == 1:
+        return {run: train_seed(c, run) for run, c in jobs.items()}
     from scorbot_gym.experiments.workers import worker_pool
 
-    config.pose_args()  # default pose models are trained here once, not by every seed at once
-    quiet = False  # progress bars of several processes would overwrite each other
-    jobs = {s: {**c, "progress_bar": quiet} for s, c in jobs.items()}
-    states: dict[int, dict] = {}
+    for c in jobs.values():  # default pose models are trained here once, not by every worker
+        TrainConfig.from_json(c).pose_args()
+    states: dict[Path, dict] = {}
     errors: list[str] = []
-    with worker_pool(min(processes, len(seeds))) as pool:
+    with worker_pool(min(processes, len(jobs))) as pool:
+        # progress bars of several processes would overwrite each other
         futures = {
-            pool.submit(train_seed, c, str(out / f"seed_{s}"), quiet, device, conf): s
-            for s, c in jobs.items()
+            pool.submit(train_seed, {**c, "progress_bar": False}, str(run)): run
+            for run, c in jobs.items()
         }
         for future in as_completed(futures):
-            seed = futures[future]
+            run = futures[future]
             try:
-                states[seed] = future.result()
+                states[run] = future.result()
             except Exception as exc:  # the others go on; every failure is reported below
-                errors.append(f"seed {seed}: {type(exc).__name__}: {exc}")
+                errors.append(f"{run}: {type(exc).__name__}: {exc}")
     if errors:
         raise RuntimeError(
-            f"{len(errors)} of {len(seeds)} seeds failed ({'; '.join(errors)}); the others are "
-            f"in {out}, and --resume {out} continues every seed"
+            f"{len(errors)} of {len(jobs)} runs failed ({'; '.join(errors)}); the same call, "
+            "or --resume of their folder, continues them"
         )
-    return {s: states[s] for s in seeds}
+    return {run: states[run] for run in jobs}
+
+
+def _by_seed(states: dict[Path, dict]) -> dict[int, dict]:
+    return {int(run.name.removeprefix("seed_")): state for run, state in states.items()}
 
 
 def _read_state(path: Path) -> dict[str, Any]:
@@ -1172,21 +1254,10 @@ def _resume_seeds(
     device: str | None = None,
     processes: int = 1,
 ) -> dict[str, Any]:
-    record = runs.read_json(out / runs.SEEDS, "the seeds of a multi-seed run")
-    seeds = record.get("seeds")
-    if not isinstance(seeds, list) or not all(isinstance(s, int) for s in seeds):
-        raise ValueError(f"{out / runs.SEEDS}: 'seeds' must be a list of integers")
-    try:
-        config = TrainConfig.from_json(record.get("config") or {})
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"cannot resume: {out / runs.SEEDS}: {exc}") from None
-    if timesteps is not None:
-        config.timesteps = int(timesteps)
-    if progress_bar is not None:
-        config.progress_bar = bool(progress_bar)
-    if device is not None:
-        config.device = device
-    return {"seeds": _train_seeds(config, out, seeds, progress_bar, device, processes)}
+    if timesteps is not None and timesteps < 1:
+        raise ValueError(f"timesteps must be >= 1, got {timesteps}")
+    jobs = seed_jobs(out, timesteps, progress_bar, device)
+    return {"seeds": _by_seed(run_seed_jobs(jobs, processes))}
 
 
 __all__ = [
@@ -1198,6 +1269,9 @@ __all__ = [
     "make_policy_env",
     "make_vec_env",
     "resume",
+    "run_seed_jobs",
+    "seed_jobs",
+    "start_seeds",
     "train",
     "train_seed",
     "train_seeds",

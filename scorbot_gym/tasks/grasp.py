@@ -103,10 +103,12 @@ def normalized_grasp_reward(
     discount should use another reward. Rewards stay >= 0, so ending an episode any other way
     (the object knocked off the table) is worth 0 from then on: never better than going on.
 
-    Why ``w`` is small: it scales what a Q-function fits to [0, 1]; the old ``dense`` reward
-    (4 per step, +600 once) fits 0.002 ... 600 and paid 0.002 per step at the median start
-    distance; here the reach term there is 23 % of its maximum (``1 - tanh(3 * 0.34)``) and
-    worth ``0.23 * w / 4`` = 2.9e-4 per step, 1/3,500 of a success (the old one: 1/270,000).
+    Why ``w`` is small: the bound above needs ``w <= (1 - gamma) / 2`` with a success worth 1.
+    The old ``dense`` reward (4 per step, +600 once) paid 0.002 per step at the median start
+    distance, 1/270,000 of a success; here the reach term there is 23 % of its maximum
+    (``1 - tanh(3 * 0.34)``), ``0.23 * w / 4`` = 2.9e-4 per step, 1/3,500 of a success. A
+    learner may see the reward scaled (the ``reward_scale`` hyperparameter: SAC's scratch
+    entries use 200, steps of <= 1, as SAC's defaults expect); scaling keeps every ordering.
 
     Collisions: a step on which an arm link (not a finger) touches the table, pushes the
     object before both fingers hold it, or the arm hits itself pays nothing (the ``collision``
