@@ -44,6 +44,8 @@ def _loaded(path: Path):
 def _env_kwargs(source: str, models_file: Path) -> dict:
     if source == "oracle":
         return {"object_name": "box", "cameras": ["top"], **SMALL}
+    if source in ("constant", "oracle_position"):  # blind arms: no image, identity given
+        return {"pose_kwargs": {"yaw_deg": 30.0}, "objects": OBJECTS}
     if source == "noisy_oracle":
         noise = {"pos_sigma_m": 0.02, "yaw_sigma_deg": 7.0, "dropout": 0.1}
         return {"pose_kwargs": noise, "objects": OBJECTS, "distractors": 1}
@@ -58,6 +60,7 @@ def test_every_registered_pose_source_is_covered():
     """A pose source added to the registry must be added here (and so to the contract)."""
     assert set(pose_source_names()) == {
         "oracle", "noisy_oracle", "manifold", "manifold_clutter", "largest_blob", "random_blob",
+        "constant", "oracle_position",
     }  # fmt: skip
 
 
