@@ -129,6 +129,7 @@ def local_sweep(tmp_path_factory):
     return d, first, second, out.getvalue()
 
 
+@pytest.mark.slow
 def test_an_estimator_that_cannot_fit_an_object_scores_invalid_answers(tmp_path):
     """The golf ball covers ~90 px in the overview camera: too few SIFT keypoints for the
     manifold to fit. The sweep records invalid answers for it and the error, and goes on."""
@@ -396,6 +397,7 @@ def _views(tmp_path, p, occ=0.0):
     )[:4]
 
 
+@pytest.mark.slow
 def test_perturbed_views_are_seeded_change_the_image_and_keep_the_nominal_camera(tmp_path):
     clean = _views(tmp_path / "c", None)
     p = Perturbation(lighting=0.5, surfaces=0.5, camera_rot_deg=1.0, noise_sigma=4, blur_sigma=1)
@@ -495,6 +497,7 @@ def test_perturbation_validation():
         Perturbation(noise_sigma=-1)
 
 
+@pytest.mark.slow
 def test_env_perturbation_is_seeded_and_off_by_default():
     from scorbot_gym.envs.grasp import ScorbotGraspEnv
 

@@ -50,6 +50,7 @@ def test_the_closed_loop_report_has_each_blind_arm_on_the_main_arms_episodes():
     assert rates[2] < rates[1] < main["success_rate"] <= arms["oracle"]["success_rate"]
 
 
+@pytest.mark.slow
 def test_merging_an_older_report_gives_its_arm_the_label_of_now(tmp_path):
     whole = json.loads((RESULTS / "closed_loop.json").read_text())
     now = "rotation-blind (image position, constant rotation)"

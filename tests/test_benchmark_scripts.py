@@ -74,21 +74,69 @@ def test_every_benchmark_script_imports_and_parses_help():
     ("script", "args", "message"),
     [
         ("pose_ablation.py", ["--protocols", "top-resting,upside-down"], "unknown protocol"),
-        ("pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion"),
-        ("pose_ablation.py", ["--estimators", "chance,no-such-estimator"], "unknown estimator"),
-        ("pose_ablation.py", ["--perturbations", "none;glare=2"], "glare"),
+        pytest.param(
+            "pose_ablation.py", ["--occlusion", "0:100:5"], "occlusion", marks=pytest.mark.slow
+        ),
+        pytest.param(
+            "pose_ablation.py",
+            ["--estimators", "chance,no-such-estimator"],
+            "unknown estimator",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "pose_ablation.py", ["--perturbations", "none;glare=2"], "glare", marks=pytest.mark.slow
+        ),
         ("closed_loop.py", ["--perturbations", "none;glare=2"], "glare"),
-        ("closed_loop.py", ["--perturbations", "none", "--arms", "oracle"], "--arms does not"),
-        ("closed_loop.py", ["--arms", "oracle;robustnes"], "unknown arms ['robustnes']"),
-        ("closed_loop.py", ["--jobs", "0"], "--jobs must be >= 1"),
-        ("closed_loop.py", ["--merge", "no-such-part.json"], "no-such-part.json"),
-        ("pose_ablation.py", ["--estimators", "chance", "--paired", "pca-rbf"], "not among"),
-        ("pose_ablation.py", ["--protocols", "clutter", "--occlusion", "0,25"], "bin edges"),
+        pytest.param(
+            "closed_loop.py",
+            ["--perturbations", "none", "--arms", "oracle"],
+            "--arms does not",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "closed_loop.py",
+            ["--arms", "oracle;robustnes"],
+            "unknown arms ['robustnes']",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "closed_loop.py", ["--jobs", "0"], "--jobs must be >= 1", marks=pytest.mark.slow
+        ),
+        pytest.param(
+            "closed_loop.py",
+            ["--merge", "no-such-part.json"],
+            "no-such-part.json",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "pose_ablation.py",
+            ["--estimators", "chance", "--paired", "pca-rbf"],
+            "not among",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "pose_ablation.py",
+            ["--protocols", "clutter", "--occlusion", "0,25"],
+            "bin edges",
+            marks=pytest.mark.slow,
+        ),
         ("clutter_closed_loop.py", ["--episodes", "0"], "--episodes"),
-        ("clutter_closed_loop.py", ["--regrasps", "-1"], "--regrasps must be >= 0"),
-        ("clutter_closed_loop.py", ["--support", "floor"], "invalid choice: 'floor'"),
+        pytest.param(
+            "clutter_closed_loop.py",
+            ["--regrasps", "-1"],
+            "--regrasps must be >= 0",
+            marks=pytest.mark.slow,
+        ),
+        pytest.param(
+            "clutter_closed_loop.py",
+            ["--support", "floor"],
+            "invalid choice: 'floor'",
+            marks=pytest.mark.slow,
+        ),
         ("table_support.py", ["--tilts", "0", "60"], "--tilts in [0, 45] degrees"),
-        ("pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf("),
+        pytest.param(
+            "pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf(", marks=pytest.mark.slow
+        ),
         (
             "pose_ablation.py",
             [
@@ -115,6 +163,7 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
     assert message in line, line
 
 
+@pytest.mark.slow
 def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
     results = tmp_path / "pose_ablation.json.gz"  # the result file: its figure config
     shutil.copy(ABLATION, results)
@@ -139,6 +188,7 @@ def test_pose_ablation_redraws_its_png_and_rejects_a_foreign_json(tmp_path):
     assert "not a readable sweep JSON" in line, line
 
 
+@pytest.mark.slow
 def test_pose_ablation_pairs_the_selection_with_each_estimator_from_a_committed_json(tmp_path):
     sweep = tmp_path / "pose_ablation.json.gz"
     data = read_json(ABLATION)
@@ -234,6 +284,7 @@ def test_the_committed_perturbation_sweep_is_the_fig3_sweep_when_unperturbed():
     assert all(s["fit_errors"] == 0 for s in report["stats"].values())
 
 
+@pytest.mark.slow
 def test_closed_loop_merges_the_parts_of_a_split_run_into_the_whole_runs_report(tmp_path):
     """A batch split by ``--arms`` over several commands joins into the report one run writes:
     the committed report cut in two parts and merged gives back its arms and curves."""

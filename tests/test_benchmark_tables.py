@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 TABLES = runpy.run_path(str(ROOT / "benchmarks" / "tables.py"), run_name="tables_under_test")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("readme", ["README.md", "benchmarks/README.md"])
 def test_committed_tables_equal_the_generated_ones(readme):
     text = (ROOT / readme).read_text()

@@ -7,6 +7,7 @@ import pytest
 from scorbot_gym.cli import main
 
 
+@pytest.mark.slow
 def test_rollout_prints_summary_and_writes_json_and_gif(tmp_path, capsys):
     out, gif = tmp_path / "summary.json", tmp_path / "first.gif"
     code = main(

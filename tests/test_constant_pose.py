@@ -88,6 +88,7 @@ def test_the_env_renders_nothing_for_a_blind_source_and_observes_its_answer():
         env.close()
 
 
+@pytest.mark.slow
 def test_blind_arms_run_episodes_and_record_their_source():
     """A couple of seeded episodes per blind arm (the closed-loop benchmark's configurations)."""
     for pose in ("constant", "oracle_position"):

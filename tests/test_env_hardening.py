@@ -142,6 +142,7 @@ def test_scenes_share_one_renderer_and_match_mujoco_renderer():
     env.close()
 
 
+@pytest.mark.slow
 def test_scene_switches_reuse_uploaded_assets(monkeypatch):
     """Each object's texture and mesh go up to GL once; switching back binds them again, with
     the same pixels as a freshly built context."""

@@ -195,6 +195,7 @@ def test_bad_fine_tune_options_are_one_line_errors(argv, message, tmp_path, caps
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_the_benchmark_refuses_bad_settings_before_training(tmp_path):
     import os
     import subprocess

@@ -35,6 +35,7 @@ def _reset_within_timeout(vec: gym.vector.AsyncVectorEnv, seed: int) -> dict:
     return obs
 
 
+@pytest.mark.slow
 def test_forked_workers_render_after_the_parent_stepped_a_camera_env_and_a_sync_vector_env():
     make = functools.partial(gym.make, "ScorbotGrasp-v0", **IMAGE)
     env = make()

@@ -166,6 +166,7 @@ def test_chunked_arms_give_the_same_episodes(monkeypatch):
         assert a["steps_to_success"] == b["steps_to_success"]
 
 
+@pytest.mark.slow
 def test_fine_tuning_starts_from_a_saved_policy_and_counts_its_cost(learner_envs, tmp_path):
     """``init_policy``: the first fit starts from the saved network (fine-tuning it on
     estimated poses); the record's totals include what the starting policy cost."""

@@ -162,6 +162,7 @@ def test_unreadable_object_cache_entry_is_rebuilt_and_orphans_removed(tmp_path, 
     assert not orphan.exists()
 
 
+@pytest.mark.slow
 def test_env_runs_without_the_vision_and_mesh_stacks(tmp_path):
     """An env on the oracle, with a camera, imports neither scikit-learn nor trimesh/scipy, even
     with an empty object cache (the geometry is then derived in a child process): they would

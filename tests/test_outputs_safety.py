@@ -169,6 +169,7 @@ def _wait_for(path: Path, proc: subprocess.Popen, timeout_s: float = 180.0) -> N
         time.sleep(0.2)
 
 
+@pytest.mark.slow
 def test_a_second_train_of_the_same_folder_is_refused_while_the_first_runs(tmp_path, capsys):
     """Two real processes: the first ``scorbot-gym train`` holds its folder's lock from the
     moment it writes its marker; a second ``--out`` or ``--resume`` of the folder is refused
@@ -287,6 +288,7 @@ main(["demos", "--episodes", "2", "--seed", "3", "--out", "scorbot/killed-v0"])
 """
 
 
+@pytest.mark.slow
 def test_a_demos_killed_mid_write_leaves_nothing_that_blocks_a_rerun(minari_root, capsys):
     """SIGKILL while Minari writes the dataset: no dataset appears (Minari lists none, the
     id's folder does not exist), the rerun of the same command succeeds and clears the killed

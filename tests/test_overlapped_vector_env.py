@@ -43,6 +43,7 @@ def _assert_same(first: tuple, second: tuple) -> None:
     _assert_infos_equal(first[-1], second[-1])
 
 
+@pytest.mark.slow
 def test_steps_like_sync_vector_env_through_autoresets_with_images():
     fns = [functools.partial(MAKE, **IMAGE)] * 3
     overlapped = OverlappedVectorEnv(pin_env_fns(fns), **WORKERS)
@@ -68,6 +69,7 @@ def test_steps_like_sync_vector_env_through_autoresets_with_images():
         sync.close()
 
 
+@pytest.mark.slow
 def test_same_step_autoreset_and_partial_resets_match_sync_vector_env():
     for mode in (AutoresetMode.SAME_STEP, AutoresetMode.DISABLED):
         overlapped = OverlappedVectorEnv([MAKE] * 2, autoreset_mode=mode, **WORKERS)

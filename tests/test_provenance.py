@@ -269,6 +269,7 @@ def test_outputs_default_to_a_fresh_run_folder_and_refuse_existing_files(tmp_pat
     assert companion(Path("a/x.json.gz"), ".png") == Path("a/x.png")
 
 
+@pytest.mark.slow
 def test_learned_policy_benchmark_never_replaces_the_shipped_policy(tmp_path, monkeypatch, capsys):
     """By default it trains into runs/learned_policy-<time>/; a named existing folder or
     result is refused, before any training, unless --overwrite."""

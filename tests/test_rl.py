@@ -65,6 +65,7 @@ def test_training_writes_a_loadable_model_checkpoints_and_curve(trained_run):
     assert not list(out.rglob(".*tmp*")), "temporary files left behind"
 
 
+@pytest.mark.slow
 def test_resume_continues_from_the_checkpoint(trained_run, tmp_path):
     out, state = trained_run
     copy = tmp_path / "run"

@@ -114,6 +114,7 @@ def test_evaluations_npz_is_what_sb3s_eval_callback_writes(conf_run):
         assert (npz["ep_lengths"] >= 1).all() and (npz["ep_lengths"] <= 150).all()
 
 
+@pytest.mark.slow
 def test_after_resume_monitor_time_is_monotone_and_evaluations_continue(conf_run, tmp_path):
     """SB3's ``load_results`` gives every episode in the order it was played: the resumed
     segment's rows come after the first segment's (a resumed run used to append rows whose

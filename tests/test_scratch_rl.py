@@ -109,6 +109,7 @@ def test_train_records_the_entry_and_the_reward(tmp_path):
     assert policy["config"]["hyperparams"]["reward_type"] == "normalized_dense"
 
 
+@pytest.mark.slow
 def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
     """Two seeds at once (spawned workers), then continued further, two at once again; each
     evaluation records the return, and the curves carry it with the steps to each level."""

@@ -33,6 +33,7 @@ def test_scripted_oracle_grasps_every_object(envs, name):
     assert all(r.failure_cause is None for r in results)
 
 
+@pytest.mark.slow
 def test_scripted_oracle_cartesian_actions(envs):
     for name in ("tomato_soup_can", "banana", "large_marker"):
         assert _scripted(envs["cartesian"], 3, name).success

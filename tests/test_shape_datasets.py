@@ -102,6 +102,7 @@ def test_layout_errors(tmp_path):
         load_mpeg7(tmp_path)
 
 
+@pytest.mark.slow
 def test_shapes_eval_cli_on_mpeg7_and_eth80_folders(tmp_path, capsys):
     import json
 

@@ -73,6 +73,7 @@ def test_flr_recognises_rendered_objects(rendered):
     assert clf.score(X[~even], rendered.labels[~even]) >= 0.75
 
 
+@pytest.mark.slow
 def test_shapes_eval_cli_on_rendered_objects(rendered, cache, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SCORBOT_GYM_CACHE", str(cache))
     out_json, out_png = tmp_path / "r.json", tmp_path / "cm.png"

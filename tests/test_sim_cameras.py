@@ -115,6 +115,7 @@ def test_no_working_backend_gives_one_error_saying_what_to_install():
     assert "apt-get install libegl1" in out.stdout and "MUJOCO_GL=egl" in out.stdout
 
 
+@pytest.mark.slow
 def test_import_opens_no_display_and_a_worker_renders_in_its_own_thread():
     """Importing opens no EGL display (a fork after import inherits no rasterizer); a child
     process's first frame makes llvmpipe rasterize in the calling thread unless the user chose;

@@ -58,6 +58,7 @@ def _assert_same_rollouts(first: gym.vector.VectorEnv, second: gym.vector.Vector
         second.close()
 
 
+@pytest.mark.slow
 def test_sync_and_async_give_the_same_observations():
     kw = {"object_name": "tomato_soup_can"}
     sync = gym.make_vec("ScorbotGrasp-v0", 2, vectorization_mode="sync", **kw)
@@ -98,6 +99,7 @@ def test_camera_on_the_arm_sends_its_calibration_every_step():
         env.close()
 
 
+@pytest.mark.slow
 def test_pinned_workers_run_on_their_cores_and_match_unpinned():
     """``pin_env_fns``: worker i on core i % cores (checked from outside, in /proc), the main
     process left unpinned, and the observations the same as unpinned workers give."""
