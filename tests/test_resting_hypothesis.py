@@ -123,3 +123,23 @@ def test_mismatched_resting_models_and_configs_give_one_line_errors():
         RolloutConfig(pose="oracle", resting_hypothesis=True)
     with pytest.raises(ValueError, match="resting_hypothesis adds"):
         RolloutConfig(pose="manifold", pose_model="m.npz", resting_hypothesis=True)
+
+
+@pytest.mark.slow
+def test_the_config_gives_the_source_the_resting_view_models_and_the_spec_rebuilds_it():
+    """``resting_hypothesis=True`` hands the resting-view default models (trained on first use)
+    to the source, and ``gym.make(env.spec)`` rebuilds it with them."""
+
+    def source(env):
+        while not hasattr(env, "source"):
+            env = env.env
+        return env.source
+
+    env = RolloutConfig(pose="manifold", resting_hypothesis=True).make_env()
+    again = gym.make(env.spec)
+    for built in (source(env), source(again)):
+        assert built.resting_models is not None
+        assert built.resting_models.meta["training"]["tilted_views"] == 0
+        assert built.models.meta["training"]["tilted_views"] > 0
+    env.close()
+    again.close()
