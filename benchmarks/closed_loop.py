@@ -7,8 +7,10 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 - ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
   rollout defaults for masks and identity (background subtraction; FLR shortlist + appearance
   recognition; the table-top prior): no privileged input. Variants swap one component: no
-  table-top prior (estimates as the models answer them), FLR alone or appearance alone as the
-  recogniser, the ``side`` camera's own pose models where the top view is hidden;
+  table-top prior (estimates as the models answer them), the resting-view models as a resting
+  hypothesis (their estimate wherever the default models answer a near-resting pose), FLR
+  alone or appearance alone as the recogniser, the ``side`` camera's own pose models where the
+  top view is hidden;
 - the blind arms, each named for what it ignores, beside the estimator: ``rotation-blind (image
   position, constant rotation)``, the ``manifold`` arm with the trained models swapped for a
   constant rotation fitted on their views (``RolloutConfig.estimator="chance"``), masks,
@@ -73,6 +75,8 @@ ROTATION_BLIND_ARM = "rotation-blind (image position, constant rotation)"
 TRUE_POSITION_ARM = "rotation-blind (true position, constant rotation)"
 #: the ``constant`` source: one pose, whatever the cameras see
 IMAGE_BLIND_ARM = "image-blind (constant pose, identity given)"
+#: the ``manifold`` arm with the resting-view models as its resting hypothesis
+RESTING_HYPOTHESIS_ARM = "manifold, resting-view hypothesis"
 #: the labels earlier reports gave arms, and the label each has now (``--merge`` reads old files)
 RENAMED_ARMS = {"chance (image-blind estimator)": ROTATION_BLIND_ARM}
 #: the config its ``--perturbations`` runs are stored under by default
@@ -236,6 +240,10 @@ def main(argv: list[str] | None = None) -> int:
         default_pose_models("top", 320, 240, progress=args.progress)
     if labels:
         return _perturbation_arms(args, labels, time.perf_counter() - t0)
+    if any(c.resting_hypothesis for c in arms.values()):
+        from scorbot_gym.perception.training import RESTING_TRAINING
+
+        default_pose_models("top", 320, 240, progress=args.progress, training=RESTING_TRAINING)
     if any(c.fallback_cameras for c in arms.values()):
         default_pose_models("side", 320, 240, progress=args.progress)
     if any(c.pose_cameras[0] == "eye_in_hand" for c in arms.values()):
@@ -292,6 +300,9 @@ def _arm_configs(args) -> dict:
     return {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
         "manifold": RolloutConfig(**manifold, episodes=n, seed=seed),
+        RESTING_HYPOTHESIS_ARM: RolloutConfig(
+            **manifold, resting_hypothesis=True, episodes=n, seed=seed
+        ),
         "manifold, no table prior": RolloutConfig(
             **manifold, support="none", episodes=n, seed=seed
         ),

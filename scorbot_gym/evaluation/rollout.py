@@ -64,6 +64,9 @@ class RolloutConfig:
     position, the rotation-blind answer every estimator figure reports beside it;
     :mod:`scorbot_gym.perception.baseline_models`), with
     segmentation and recognition unchanged; ``"manifold"`` (default) keeps the trained ones.
+    ``resting_hypothesis`` adds the resting-view default models to the ``manifold`` source as
+    its resting hypothesis (``ModelSetPoseSource(resting_models=...)``: their estimate wherever
+    the default models answer a pose near a resting one).
     """
 
     policy: str = "scripted"
@@ -92,6 +95,7 @@ class RolloutConfig:
     regrasps: int = 0
     support: str = "table"
     estimator: str = "manifold"
+    resting_hypothesis: bool = False
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -173,6 +177,13 @@ class RolloutConfig:
                     f"estimator {self.estimator!r} swaps the default models of pose 'manifold' "
                     "(no pose_model, no fallback_cameras)"
                 )
+        if self.resting_hypothesis and (
+            self.pose != "manifold" or self.pose_model is not None or self.estimator != "manifold"
+        ):
+            raise ValueError(
+                "resting_hypothesis adds the resting-view default models to pose 'manifold' "
+                "with its default models (no pose_model, estimator 'manifold')"
+            )
         if self.pose_cameras is None:
             self.pose_cameras = ("top", "side") if self.recognize else ("top",)
         self.pose_cameras = tuple(self.pose_cameras)
@@ -205,6 +216,7 @@ class RolloutConfig:
                 ("motion", self.motion, None),
                 ("segmenter", self.segmenter, "background"),
                 ("estimator", self.estimator, "manifold"),
+                ("resting_hypothesis", self.resting_hypothesis, False),
             )
             if value != default
         ]
@@ -263,6 +275,12 @@ class RolloutConfig:
                 baseline_source_kwargs(
                     self.estimator, models, recognizer, self.pose_cameras, progress=progress
                 )
+            )
+        if self.resting_hypothesis:
+            from scorbot_gym.perception.training import RESTING_TRAINING
+
+            kwargs["resting_models"] = default_models(
+                self.pose_cameras[0], w, h, progress=progress, training=RESTING_TRAINING
             )
         if self.fallback_cameras:
             kwargs["fallback_models"] = [

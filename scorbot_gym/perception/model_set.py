@@ -84,6 +84,16 @@ class ModelSetPoseSource:
         (:class:`~scorbot_gym.perception.recognizers.IdentityOnlyRecognizer`), so that only
         the estimator differs between the arms. By file or set, never as a built recogniser,
         so the env's spec can rebuild the source.
+    resting_models
+        A second model set (or file) of the same camera, image size and objects, trained on
+        resting views only: the resting hypothesis. Where the primary models' estimate is
+        within a few degrees of one of the object's resting poses
+        (:meth:`TableSupport.is_resting`), the resting models' estimate on the same view
+        replaces it if valid: models trained on 3-D tilts (the default ``models``) answer the
+        height along the top camera's line of sight worse than models that only know the
+        object lying on the table, which lose thin objects (marker, banana) less often; objects
+        the primary models find tilted keep their estimate. ``None`` (default): the primary
+        models alone.
     """
 
     def __init__(
@@ -98,8 +108,12 @@ class ModelSetPoseSource:
         motion: str | SilhouetteMotion | None = None,
         support: TableSupport | str | None = "table",
         recognition_models: PoseModelSet | str | os.PathLike | None = None,
+        resting_models: PoseModelSet | str | os.PathLike | None = None,
     ) -> None:
         self.models = _load(models)
+        self.resting_models = None if resting_models is None else _load(resting_models)
+        if self.resting_models is not None:
+            self._check_resting(self.resting_models)
         self.recognition_models = None
         if recognition_models is not None:
             self.recognition_models = _load(recognition_models)
@@ -135,6 +149,18 @@ class ModelSetPoseSource:
         self.motion = make_motion(motion)
         self._last: WorldPose | None = None  # the last valid answer, for ``motion``
         self._masks: dict[str, np.ndarray | None] = {}  # this step's masks, by camera
+
+    def _check_resting(self, resting: PoseModelSet) -> None:
+        """``resting_models`` must answer the primary models' camera, size and objects."""
+        keys = ("camera", "width", "height")
+        theirs = {k: resting.meta.get(k) for k in keys}
+        ours = {k: self.models.meta.get(k) for k in keys}
+        if theirs != ours or resting.object_names != self.models.object_names:
+            raise ValueError(
+                f"resting_models must be a model set of the primary models' camera, image size "
+                f"and objects ({ours}, {len(self.models.object_names)} objects), got {theirs} "
+                f"with {len(resting.object_names)} objects"
+            )
 
     @property
     def privileged(self) -> bool:
@@ -323,7 +349,27 @@ class ModelSetPoseSource:
             est = self.models.predict(view)
             timings.update({f"estimate_{k}": v for k, v in est.timings_ms.items() if k != "total"})
             timings["estimate"] = est.timings_ms.get("total", 0.0)
-        return _world_pose(est, cam, name, timings, cam_name)
+        return self._resting_hypothesis(_world_pose(est, cam, name, timings, cam_name), view)
+
+    def _resting_hypothesis(self, pose: WorldPose, view: View) -> WorldPose:
+        """``pose``, or where it is near a resting pose the ``resting_models``' valid estimate
+        on the same view (``details["hypothesis"]`` says which was kept)."""
+        if self.resting_models is None or not self._resting_check.is_resting(pose):
+            return pose
+        t0 = time.perf_counter()
+        est = self.resting_models.predict(view)
+        timings = {**pose.timings_ms, "estimate_resting": (time.perf_counter() - t0) * 1e3}
+        if not est.valid:
+            return dataclasses.replace(
+                pose, timings_ms=timings, details={**pose.details, "hypothesis": "primary"}
+            )
+        alt = _world_pose(est, view.camera, pose.object_name, timings, self.camera)
+        return dataclasses.replace(alt, details={**alt.details, "hypothesis": "resting"})
+
+    @property
+    def _resting_check(self) -> TableSupport:
+        """The table-top prior's resting test (the source's own prior if it is one)."""
+        return self.support if isinstance(self.support, TableSupport) else TableSupport()
 
 
 def _load(models: PoseModelSet | str | os.PathLike) -> PoseModelSet:

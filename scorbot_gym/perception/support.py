@@ -61,6 +61,15 @@ class TableSupport:
         if self.max_shift_m < 0.0:
             raise ValueError(f"max_shift_m must be >= 0 metres, got {self.max_shift_m}")
 
+    def is_resting(self, pose: WorldPose) -> bool:
+        """Whether ``pose`` is valid and within ``snap_deg`` of one of its object's resting
+        poses: the estimates :meth:`refine` would take as lying on the table (before the
+        ``max_shift_m`` check, which needs the camera)."""
+        if not pose.valid or pose.object_name is None:
+            return False
+        _, resting, symmetries = _object_geometry(pose.object_name)
+        return _nearest_rest(pose.rotation, resting, symmetries)[0] <= self.snap_deg
+
     def refine(self, pose: WorldPose, camera: CameraModel) -> WorldPose:
         """``pose`` on the table if it is a resting pose within the limits, else ``pose``.
 
@@ -71,16 +80,7 @@ class TableSupport:
         t0 = time.perf_counter()
         points, resting, symmetries = _object_geometry(pose.object_name)
         R = pose.rotation
-        # R @ S = Rz(yaw) @ rest for an exact resting pose and a symmetry S of the object (a
-        # marker lying on the table may be estimated at any roll about its axis): the tilt is
-        # the angle between the world z axes of R @ S @ rest^T and the identity.
-        best = (np.inf, 0, 0)
-        for k, rest in enumerate(resting):
-            cos = np.einsum("i,nij,j->n", R[2], symmetries, rest[2])
-            j = int(np.argmax(cos))
-            tilt = float(np.degrees(np.arccos(np.clip(cos[j], -1.0, 1.0))))
-            best = min(best, (tilt, k, j))
-        tilt, k, j = best
+        tilt, k, j = _nearest_rest(R, resting, symmetries)
         if tilt > self.snap_deg:
             return pose
         M = R @ symmetries[j] @ resting[k].T
@@ -136,6 +136,23 @@ def make_support(support: TableSupport | str | None) -> Any:
         f"support must be one of {support_names()} or an object with refine(pose, camera), "
         f"got {support!r}"
     )
+
+
+def _nearest_rest(
+    R: np.ndarray, resting: tuple[np.ndarray, ...], symmetries: np.ndarray
+) -> tuple[float, int, int]:
+    """``(tilt in degrees, resting pose index, symmetry index)`` of the resting pose nearest
+    to the rotation ``R``. ``R @ S = Rz(yaw) @ rest`` for an exact resting pose and a symmetry
+    ``S`` of the object (a marker lying on the table may be estimated at any roll about its
+    axis): the tilt is the angle between the world z axes of ``R @ S @ rest^T`` and the
+    identity."""
+    best = (np.inf, 0, 0)
+    for k, rest in enumerate(resting):
+        cos = np.einsum("i,nij,j->n", R[2], symmetries, rest[2])
+        j = int(np.argmax(cos))
+        tilt = float(np.degrees(np.arccos(np.clip(cos[j], -1.0, 1.0))))
+        best = min(best, (tilt, k, j))
+    return best
 
 
 @functools.lru_cache(maxsize=64)
