@@ -61,6 +61,7 @@ import os
 import platform
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -77,6 +78,14 @@ TRUE_POSITION_ARM = "rotation-blind (true position, constant rotation)"
 IMAGE_BLIND_ARM = "image-blind (constant pose, identity given)"
 #: the ``manifold`` arm with the resting-view models as its resting hypothesis
 RESTING_HYPOTHESIS_ARM = "manifold, resting-view hypothesis"
+#: the ``manifold`` arm, its table-top prior decided once an episode (``"table_memory"``)
+TABLE_MEMORY_ARM = "manifold, table prior held per episode"
+#: that arm with appearance recognition over every class (no FLR shortlist)
+TABLE_MEMORY_APPEARANCE_ARM = "manifold, table prior held per episode, appearance recognition"
+#: the ``manifold`` arm with the resting-view models (the default before the tilted views)
+RESTING_MODELS_ARM = "manifold, resting-view models"
+#: the placeholder of that arm's ``pose_model``, the cache file once the run starts
+RESTING_MODELS = "<the resting-view default models>"
 #: the labels earlier reports gave arms, and the label each has now (``--merge`` reads old files)
 RENAMED_ARMS = {"chance (image-blind estimator)": ROTATION_BLIND_ARM}
 #: the config its ``--perturbations`` runs are stored under by default
@@ -95,9 +104,16 @@ def _run_arms(runs: list, jobs: int, progress: bool) -> dict[str, dict]:
 
     done = run_rollouts([config for _, config in runs], jobs=jobs, progress=progress)
     out = {}
-    for (label, _), (summary, _) in zip(runs, done, strict=True):
+    for (label, _), (summary, results) in zip(runs, done, strict=True):
         summary.pop("results", None)
         summary["label"] = label
+        # the failed episodes by seed (the others succeeded): arms of one run pair episode by
+        # episode, for McNemar's test
+        summary["failed"] = {
+            str(r.seed): [r.object_name, r.failure_cause or "failed"]
+            for r in results
+            if not r.success
+        }
         lo, hi = summary["success_rate_ci95"]
         p = summary.get("perception") or {}
         print(
@@ -240,6 +256,10 @@ def main(argv: list[str] | None = None) -> int:
         default_pose_models("top", 320, 240, progress=args.progress)
     if labels:
         return _perturbation_arms(args, labels, time.perf_counter() - t0)
+    arms = {  # the resting-view models trained (once) and named by their cache file
+        k: replace(c, pose_model=_resting_models_file()) if c.pose_model == RESTING_MODELS else c
+        for k, c in arms.items()
+    }
     if any(c.resting_hypothesis for c in arms.values()):
         from scorbot_gym.perception.training import RESTING_TRAINING
 
@@ -306,6 +326,13 @@ def _arm_configs(args) -> dict:
         "manifold, no table prior": RolloutConfig(
             **manifold, support="none", episodes=n, seed=seed
         ),
+        TABLE_MEMORY_ARM: RolloutConfig(**manifold, support="table_memory", episodes=n, seed=seed),
+        TABLE_MEMORY_APPEARANCE_ARM: RolloutConfig(
+            **manifold, support="table_memory", recognizer="appearance", episodes=n, seed=seed
+        ),
+        RESTING_MODELS_ARM: RolloutConfig(
+            **manifold, pose_model=RESTING_MODELS, episodes=n, seed=seed
+        ),
         TRUE_POSITION_ARM: RolloutConfig(pose="oracle_position", episodes=n, seed=seed),
         ROTATION_BLIND_ARM: RolloutConfig(**manifold, estimator="chance", episodes=n, seed=seed),
         IMAGE_BLIND_ARM: RolloutConfig(pose="constant", episodes=n, seed=seed),
@@ -346,6 +373,14 @@ def _arm_configs(args) -> dict:
             seed=seed,
         ),
     }
+
+
+def _resting_models_file() -> str:
+    """The resting-view default models' cache file (trained there on first use)."""
+    from scorbot_gym.perception.references import default_models, saved_path
+    from scorbot_gym.perception.training import RESTING_TRAINING
+
+    return str(saved_path(default_models("top", 320, 240, training=RESTING_TRAINING)))
 
 
 def _curves() -> list[tuple[str, float, str, dict]]:

@@ -41,7 +41,7 @@ SEGMENTERS = ("background", "depth", "privileged")
 #: :mod:`scorbot_gym.perception.splitters` takes them from here (``none``: blobs left whole)
 SPLITTERS = ("none", "keypoints", "distance")
 #: :func:`scorbot_gym.perception.support.support_names` (``none``: no prior)
-SUPPORTS = ("table", "none")
+SUPPORTS = ("table", "table_memory", "none")
 #: :mod:`scorbot_gym.perception.recognizers` takes them from here
 RECOGNIZERS = ("flr", "appearance", "flr+appearance")
 #: :func:`scorbot_gym.perception.motion.motion_names` (sorted)

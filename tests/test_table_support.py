@@ -11,7 +11,13 @@ from pose.camera import CameraModel
 from scorbot_gym.evaluation.rollout import RolloutConfig
 from scorbot_gym.objects import get_object
 from scorbot_gym.perception.base import WorldPose
-from scorbot_gym.perception.support import TableSupport, make_support
+from scorbot_gym.perception.support import (
+    TableSupport,
+    TableSupportMemory,
+    make_support,
+    refine_pose,
+    reset_support,
+)
 from scorbot_gym.sim.scene import TABLE_HEIGHT
 from scorbot_gym.sim.simulation import mat_to_quat, quat_from_yaw, quat_mul, quat_to_mat
 
@@ -151,3 +157,71 @@ def test_the_manifold_source_puts_a_resting_estimate_on_the_table(tmp_path):
         env.close()
     assert len(errors["table"]) >= 5 and on_table >= len(errors["table"]) - 1, errors
     assert np.median(errors["table"]) < np.median(errors["none"]), errors
+
+
+def test_the_memory_decides_resting_on_clear_views_and_then_holds_it(top):
+    """Three clear near-resting views decide "resting"; then an occluded estimate tilted 15
+    degrees (past the per-estimate rule's 5) is still put on the table, and the next episode
+    starts undecided."""
+    memory = make_support("table_memory")
+    assert isinstance(memory, TableSupportMemory)
+    R, z = _resting("banana", 0.3)
+    at_rest = _pose("banana", np.array([0.3, 0.05, z + 0.003]), _tilt(R, 2.0))
+    wandering = _pose("banana", np.array([0.3, 0.05, z + 0.004]), _tilt(R, 15.0))
+    assert TableSupport().refine(wandering, top) is wandering  # the per-estimate rule lets it by
+    assert memory.refine(at_rest, top, clear=False).details["table_support"]["decision"] == (
+        "undecided"
+    )  # an occluded view does not vote
+    for _ in range(3):
+        out = memory.refine(at_rest, top, clear=True)
+        assert out.details["table_support"]["decision"] == "undecided"
+    assert memory.resting is True
+    held = memory.refine(wandering, top)
+    assert held.details["table_support"]["decision"] == "resting"
+    assert held.details["table_support"]["tilt_deg"] == pytest.approx(15.0, abs=1e-6)
+    lowest = held.position[2] + (get_object("banana").mesh_vertices() @ held.rotation[2]).min()
+    assert lowest == pytest.approx(TABLE_HEIGHT, abs=1e-6)
+    lifted = _pose("banana", np.array([0.3, 0.05, z + 0.05]), R)
+    assert memory.refine(lifted, top).position[2] == pytest.approx(z + 0.05)  # max_shift_m
+    memory.reset()
+    assert memory.resting is None
+    assert memory.refine(wandering, top).position[2] == pytest.approx(z + 0.004)
+
+
+def test_the_memory_decides_not_resting_for_a_tilted_object_and_leaves_it_alone(top):
+    """An object on a stand (clear views 12 degrees out of every resting pose) is decided not
+    resting: a later estimate within the per-estimate rule's 5 degrees is not snapped."""
+    memory = TableSupportMemory(votes=3)
+    R, z = _resting("box", 0.2)
+    tilted = _pose("box", np.array([0.3, -0.05, z + 0.01]), _tilt(R, 12.0))
+    for _ in range(2):
+        memory.refine(tilted, top, clear=True)
+    memory.refine(_pose("box", tilted.position, _tilt(R, 1.0)), top, clear=True)  # 2 of 3
+    assert memory.resting is False
+    near = _pose("box", np.array([0.3, -0.05, z + 0.004]), _tilt(R, 3.0))
+    assert TableSupport().refine(near, top) is not near
+    out = memory.refine(near, top, clear=True)
+    assert out.position[2] == pytest.approx(z + 0.004)
+    assert out.details["table_support"]["decision"] == "not resting"
+
+
+def test_the_memory_checks_its_parameters():
+    with pytest.raises(ValueError, match="votes must be a positive integer"):
+        TableSupportMemory(votes=0)
+    with pytest.raises(ValueError, match="hold_deg must be in"):
+        TableSupportMemory(hold_deg=2.0)
+    with pytest.raises(ValueError, match="hold_deg must be in"):
+        TableSupportMemory(hold_deg=120.0)
+    assert RolloutConfig(pose="manifold", support="table_memory").pose_kwargs()["support"] == (
+        "table_memory"
+    )
+
+
+def test_a_user_prior_without_reset_or_clear_still_works(top):
+    class Lift:
+        def refine(self, pose, camera):
+            return pose
+
+    est = _pose("box", np.array([0.3, 0.0, 0.1]), np.eye(3))
+    assert refine_pose(Lift(), est, top, clear=True) is est
+    reset_support(Lift())  # no reset: nothing to do

@@ -42,7 +42,7 @@ from scorbot_gym.perception.model_set import _load, _world_pose, check_recognize
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import BackgroundSegmenter
 from scorbot_gym.perception.splitters import make_splitter
-from scorbot_gym.perception.support import TableSupport, make_support
+from scorbot_gym.perception.support import TableSupport, make_support, reset_support
 
 #: pixels (at 320 x 240) a blob needs to count as an object
 MIN_BLOB_AREA = 120
@@ -153,6 +153,7 @@ class ClutterPoseSource:
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
         self._last, self._known, self._seen = None, [], None
         self.segmenter.reset(frame, self.camera)
+        reset_support(self.support)
         self._reset_splitter()
         if self._recognizer is None and len(self.models.object_names) > 1:
             self._recognizer = make_recognizer(

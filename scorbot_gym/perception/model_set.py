@@ -32,7 +32,14 @@ from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
 from scorbot_gym.perception.references import load_model_set
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
-from scorbot_gym.perception.support import TableSupport, hull_points, make_support
+from scorbot_gym.perception.support import (
+    TableSupport,
+    TableSupportMemory,
+    hull_points,
+    make_support,
+    refine_pose,
+    reset_support,
+)
 from scorbot_gym.sim.simulation import mat_to_quat
 
 _MOVED = "moved"  # the start of the reason of an answer from the motion detector
@@ -76,8 +83,10 @@ class ModelSetPoseSource:
         ``None`` (default) answers invalid.
     support
         ``"table"`` (default: a :class:`~scorbot_gym.perception.support.TableSupport`, estimates
-        within a few degrees of a resting pose are put on the table), ``"none"`` (estimates as
-        the models answer them) or a support object with ``refine(pose, camera)``.
+        within a few degrees of a resting pose are put on the table), ``"table_memory"`` (a
+        :class:`~scorbot_gym.perception.support.TableSupportMemory`: resting or not decided
+        on the first clear views and held for the episode), ``"none"`` (estimates as the
+        models answer them) or a support object with ``refine(pose, camera)``.
     recognition_models
         Where ``models`` hold a baseline (the image-blind ``chance`` arm): the trained model
         set (or file) whose ``recognizer`` names the object, its pose estimates dropped
@@ -106,7 +115,7 @@ class ModelSetPoseSource:
         clear_min_area: int = 200,
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
         motion: str | SilhouetteMotion | None = None,
-        support: TableSupport | str | None = "table",
+        support: TableSupport | TableSupportMemory | str | None = "table",
         recognition_models: PoseModelSet | str | os.PathLike | None = None,
         resting_models: PoseModelSet | str | os.PathLike | None = None,
     ) -> None:
@@ -189,6 +198,7 @@ class ModelSetPoseSource:
         for cam in self.cameras:
             self.segmenter.reset(frame, cam)
         self.memory.reset()
+        reset_support(self.support)
         if frame.object_name is None and len(self.models.object_names) > 1:
             if self._recognizer is None:
                 recognising = self.recognition_models or self.models
@@ -247,7 +257,8 @@ class ModelSetPoseSource:
         """``pose`` refined by the support prior (if any) with its camera's calibration."""
         if self.support is None or not pose.valid:
             return pose
-        return self.support.refine(pose, frame.cameras[pose.camera])
+        clear = self._clear(self._masks.get(pose.camera), pose.camera)
+        return refine_pose(self.support, pose, frame.cameras[pose.camera], clear)
 
     def _moved(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
         """The last valid pose, moved to where a clear silhouette now places the object; or,

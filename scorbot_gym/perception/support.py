@@ -16,12 +16,23 @@ camera's line of sight (so the object projects where the image put it) until the
 lowest point is on the table. Estimates further from every resting pose (a tilted object on a
 stand or leaning on another) are left as they are, as are those that would have to slide more
 than ``max_shift_m``: an object lifted in the hand, or one standing on something else.
+
+:class:`TableSupportMemory` makes the same decision once an episode instead of on every
+estimate. Whether an object rests on the table does not change while it is being approached,
+but the estimates do: with the arm over the object, the top camera's view of a thin object
+degrades and its estimated tilt wanders past ``snap_deg``, so the per-estimate rule lets
+through the too-high answers it exists to correct, at the moment of the grasp. The memory
+votes on the first clear views (as :class:`pose.recognition.RecognitionMemory` keeps the
+identity from them) and then holds the answer: an object decided resting has every later
+estimate put on the table (within ``hold_deg`` of a resting pose), one decided not resting
+(a tilted object on a stand) has none.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import time
 from typing import Any
 
@@ -70,8 +81,12 @@ class TableSupport:
         _, resting, symmetries = _object_geometry(pose.object_name)
         return _nearest_rest(pose.rotation, resting, symmetries)[0] <= self.snap_deg
 
-    def refine(self, pose: WorldPose, camera: CameraModel) -> WorldPose:
-        """``pose`` on the table if it is a resting pose within the limits, else ``pose``.
+    def reset(self) -> None:
+        """Nothing to forget: every estimate is judged on its own."""
+
+    def refine(self, pose: WorldPose, camera: CameraModel, clear: bool = False) -> WorldPose:
+        """``pose`` on the table if it is a resting pose within the limits, else ``pose``
+        (``clear``, whether the view was unobstructed, is not used here).
 
         The refined pose's ``timings_ms["support"]`` is the time this took and its
         ``details["table_support"]`` the tilt snapped (degrees) and the slide (mm)."""
@@ -110,18 +125,87 @@ class TableSupport:
         )
 
 
+class TableSupportMemory:
+    """The table-top prior decided once an episode, on clear views (see the module docstring).
+
+    Parameters
+    ----------
+    table
+        The per-estimate prior: its ``snap_deg`` is the vote of one clear view (resting or
+        not) and the rule applied until the votes are in; its table height and
+        ``max_shift_m`` hold throughout (a lifted object is never put back on the table).
+    votes
+        Clear views to decide on (the majority; a tie is resting).
+    hold_deg
+        After deciding resting, the largest tilt out of a resting pose that is still put on
+        the table: a looser bound than ``table.snap_deg``, since the decision is already made,
+        but not so loose that an estimate off by a whole face is snapped to the wrong one.
+    """
+
+    def __init__(
+        self, table: TableSupport | None = None, votes: int = 3, hold_deg: float = 30.0
+    ) -> None:
+        self.table = table if table is not None else TableSupport()
+        if not isinstance(votes, int) or isinstance(votes, bool) or votes < 1:
+            raise ValueError(f"votes must be a positive integer, got {votes!r}")
+        if not self.table.snap_deg <= hold_deg <= 90.0:
+            raise ValueError(
+                f"hold_deg must be in [table.snap_deg, 90] = [{self.table.snap_deg}, 90] "
+                f"degrees, got {hold_deg}"
+            )
+        self.votes = votes
+        self.hold_deg = float(hold_deg)
+        self._held = dataclasses.replace(self.table, snap_deg=self.hold_deg)
+        self.reset()
+
+    def __repr__(self) -> str:
+        return (
+            f"TableSupportMemory(table={self.table!r}, votes={self.votes}, "
+            f"hold_deg={self.hold_deg})"
+        )
+
+    def reset(self) -> None:
+        """Forget the last episode's votes and decision."""
+        self._votes: list[bool] = []
+        self.resting: bool | None = None  # the decision; None until the votes are in
+
+    def refine(self, pose: WorldPose, camera: CameraModel, clear: bool = False) -> WorldPose:
+        """``pose`` refined by the decision (by ``table`` while undecided); a valid estimate
+        from a clear view (``clear``) is a vote until the decision is made.
+        ``details["table_support"]["decision"]`` says which rule applied."""
+        if not pose.valid or pose.object_name is None:
+            return pose
+        if self.resting is None:
+            if clear:
+                self._votes.append(self.table.is_resting(pose))
+                if len(self._votes) >= self.votes:
+                    self.resting = 2 * sum(self._votes) >= len(self._votes)
+            out, decision = self.table.refine(pose, camera), "undecided"
+        elif self.resting:
+            out, decision = self._held.refine(pose, camera), "resting"
+        else:
+            out, decision = pose, "not resting"
+        record = {**out.details.get("table_support", {}), "decision": decision}
+        return dataclasses.replace(out, details={**out.details, "table_support": record})
+
+
 #: the support priors by name (``scorbot_gym.names.SUPPORTS`` is checked against it)
-_SUPPORTS: dict[str, type[TableSupport] | None] = {"table": TableSupport, "none": None}
+_SUPPORTS: dict[str, type[TableSupport] | type[TableSupportMemory] | None] = {
+    "table": TableSupport,
+    "table_memory": TableSupportMemory,
+    "none": None,
+}
 
 
 def support_names() -> tuple[str, ...]:
     return tuple(_SUPPORTS)
 
 
-def make_support(support: TableSupport | str | None) -> Any:
-    """A support prior by name (``"table"``: :class:`TableSupport`; ``"none"`` or ``None``:
-    estimates stay as the models answer them) or the object itself (anything with
-    ``refine(pose, camera)``)."""
+def make_support(support: TableSupport | TableSupportMemory | str | None) -> Any:
+    """A support prior by name (``"table"``: :class:`TableSupport`; ``"table_memory"``:
+    :class:`TableSupportMemory`; ``"none"`` or ``None``: estimates stay as the models answer
+    them) or the object itself (anything with ``refine(pose, camera)``; ``reset()`` and a
+    ``clear`` keyword of ``refine`` are used where it has them)."""
     if isinstance(support, str):
         if support not in _SUPPORTS:
             raise ValueError(
@@ -136,6 +220,20 @@ def make_support(support: TableSupport | str | None) -> Any:
         f"support must be one of {support_names()} or an object with refine(pose, camera), "
         f"got {support!r}"
     )
+
+
+def refine_pose(support: Any, pose: WorldPose, camera: CameraModel, clear: bool) -> WorldPose:
+    """``support.refine(pose, camera)``, telling it whether the view was clear if its
+    ``refine`` takes a ``clear`` keyword (a user's prior need not)."""
+    if "clear" in inspect.signature(support.refine).parameters:
+        return support.refine(pose, camera, clear=clear)
+    return support.refine(pose, camera)
+
+
+def reset_support(support: Any) -> None:
+    """Start a new episode for a support prior that keeps anything between estimates."""
+    if support is not None and callable(getattr(support, "reset", None)):
+        support.reset()
 
 
 def _nearest_rest(
