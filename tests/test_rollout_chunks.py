@@ -84,3 +84,38 @@ def test_chunked_rollouts_give_the_same_episodes_for_any_jobs(tmp_path, monkeypa
         assert [r.seed for r in r2] == [7, 8, 9]
         assert _outcomes(s1, r1) == _outcomes(s2, r2)
     assert whole[0][0]["perception"]["estimates"] > 0  # the estimator ran
+
+
+def test_rollout_and_compare_take_jobs_and_a_ray_address():
+    from scorbot_gym.cli import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["rollout", "--jobs", "3", "--ray"])
+    assert (args.jobs, args.ray) == (3, "local")
+    args = parser.parse_args(["compare", "--policies", "scripted", "--ray", "ray://head:10001"])
+    assert (args.jobs, args.ray) == (1, "ray://head:10001")
+    assert parser.parse_args(["rollout"]).ray is None
+    with pytest.raises(SystemExit):
+        parser.parse_args(["rollout", "--jobs", "0"])
+
+
+@pytest.mark.slow
+@pytest.mark.ray
+def test_ray_tasks_give_the_episodes_one_process_gives(monkeypatch):
+    """The noisy oracle under the push, four episodes in one-episode chunks as tasks of a
+    local Ray instance: the episodes of a plain run, seed for seed."""
+    pytest.importorskip("ray")
+    noise = {"pos_sigma_m": 0.01, "yaw_sigma_deg": 10.0}
+    config = RolloutConfig(
+        pose="noisy",
+        noise=noise,
+        disturbance="push",
+        objects=("box", "banana"),
+        episodes=4,
+        seed=11,
+    )
+    monkeypatch.setattr(chunks, "MIN_CHUNK_EPISODES", 1)
+    ((s1, r1),) = run_rollouts([config], jobs=1)
+    ((s2, r2),) = run_rollouts([config], jobs=2, ray="local")
+    assert [r.seed for r in r2] == [11, 12, 13, 14]
+    assert _outcomes(s1, r1) == _outcomes(s2, r2)

@@ -78,3 +78,24 @@ def seed_list(text: str) -> list[int]:
     if not seeds or len(set(seeds)) != len(seeds) or min(seeds) < 0:
         raise argparse.ArgumentTypeError(f"must be distinct integers >= 0, got {text}")
     return seeds
+
+
+def add_episode_workers(parser: argparse.ArgumentParser) -> None:
+    """``--jobs N`` and ``--ray [ADDRESS]``: where the episodes run. Every episode depends on
+    its seed alone, so the results are the same for any choice."""
+    parser.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=1,
+        help="processes, each running a chunk of an arm's episodes (results do not depend on "
+        "it; with --ray local, the local Ray instance's CPUs)",
+    )
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="run the chunks as Ray tasks: a local instance, or join ADDRESS (auto, "
+        "ray://host:port; its workers need scorbot-gym installed)",
+    )

@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scorbot_gym.cli._args import add_name_list, non_negative_int, positive_int
+from scorbot_gym.cli._args import (
+    add_episode_workers,
+    add_name_list,
+    non_negative_int,
+    positive_int,
+)
 
 
 def _noise_levels(text: str) -> list[str]:
@@ -97,12 +102,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=1,
         help="re-estimate the pose every K steps (0: once per episode, at reset; default 1)",
     )
-    p.add_argument(
-        "--jobs",
-        type=positive_int,
-        default=1,
-        help="processes, each running a chunk of an arm's episodes (results do not depend on it)",
-    )
+    add_episode_workers(p)
     p.add_argument("--json", type=Path, default=None, help="write the report as JSON here")
     p.add_argument("--png", type=Path, default=None, help="write the comparison figure here")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -178,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         estimate_every=args.estimate_every,
         progress=not args.no_progress,
         jobs=args.jobs,
+        ray=args.ray,
     )
     print(format_report(report))
     if args.json:

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from scorbot_gym.cli._args import (
+    add_episode_workers,
     add_name_list,
     non_negative_float,
     non_negative_int,
@@ -213,6 +214,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         f"(0 to {MAX_TILT_DEG:g})",
     )
     p.add_argument("--episodes", type=positive_int, default=20)
+    add_episode_workers(p)
     add_name_list(p, "--objects", CATALOGUE, "objects to draw from (default: the catalogue)")
     p.add_argument("--seed", type=int, default=0, help="seed of the first episode")
     p.add_argument(
@@ -340,7 +342,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
 def run(args: argparse.Namespace) -> int:
     from pose.fileio import atomic_write_json
     from scorbot_gym.evaluation import format_summary
-    from scorbot_gym.evaluation.rollout import run_rollout
+    from scorbot_gym.evaluation.rollout import run_rollouts
     from scorbot_gym.evaluation.video import record_episodes
 
     config = config_from_args(args)
@@ -349,7 +351,9 @@ def run(args: argparse.Namespace) -> int:
             f"--pose {args.pose} with --distractors {args.distractors}: the clutter pipeline "
             f"(--pose {config.pose}: blobs split, each recognised, the target's pose estimated)"
         )
-    summary, _ = run_rollout(config, progress=not args.no_progress)
+    ((summary, _),) = run_rollouts(
+        [config], jobs=args.jobs, progress=not args.no_progress, ray=args.ray
+    )
     print(format_summary(summary))
     if args.json:
         atomic_write_json(args.json, summary)

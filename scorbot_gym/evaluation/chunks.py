@@ -15,6 +15,7 @@ process in all, so that one long arm (the estimator's, or one with 220 episodes 
 
 from __future__ import annotations
 
+import functools
 import itertools
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -48,11 +49,22 @@ def plan_chunks(tasks: Sequence[tuple[int, int]], jobs: int) -> list[list[tuple[
     return plans
 
 
+def parallel(jobs: int, ray: str | None) -> bool:
+    """Whether chunks run in workers (processes or Ray tasks), so a chunk's arguments take a
+    worker's settings (no progress bar, one thread)."""
+    return jobs > 1 or ray is not None
+
+
+def _call(run: Callable[..., Any], args: tuple) -> Any:
+    return run(*args)
+
+
 def run_chunked(
     run: Callable[..., Any],
     tasks: Sequence[tuple[int, int]],
     chunk_args: Callable[[int, int, int], tuple],
     jobs: int = 1,
+    ray: str | None = None,
 ) -> list[list[Any]]:
     """Run every task's chunks (:func:`plan_chunks`); per task, the outputs of its chunks in
     seed order.
@@ -63,7 +75,22 @@ def run_chunked(
     function and its arguments pickle. Chunks are queued round-robin over the tasks (the first
     chunk of every task, then the second, ...): every task starts early, so an arm whose
     episodes are slow is never left to start last and finish alone.
+
+    ``ray`` runs the chunks as Ray tasks instead (:class:`~scorbot_gym.experiments.RayRunner`):
+    ``"local"`` starts a local Ray instance of ``jobs`` CPUs, an address (``"auto"``,
+    ``"ray://head:10001"``) joins a cluster, whose workers must have the package (and, for
+    the default pose models, a shared cache); chunks are planned for ``jobs`` workers (at least
+    two) either way. The results are the same as in processes.
     """
+    if ray is not None:
+        from scorbot_gym.experiments.runners import RayRunner
+
+        local = ray == "local"
+        runner = RayRunner(None if local else ray, num_cpus=jobs if local else None)
+        plans = plan_chunks(tasks, max(jobs, 2))
+        flat = [(i, chunk) for i, plan in enumerate(plans) for chunk in plan]
+        outs = iter(runner.map([chunk_args(i, *c) for i, c in flat], functools.partial(_call, run)))
+        return [[next(outs) for _ in plan] for plan in plans]
     plans = plan_chunks(tasks, jobs)
     if jobs == 1:
         return [[run(*chunk_args(i, *chunk)) for chunk in plan] for i, plan in enumerate(plans)]

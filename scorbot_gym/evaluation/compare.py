@@ -80,7 +80,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.envs.factory import make_env
-from scorbot_gym.evaluation.chunks import run_chunked
+from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
@@ -509,17 +509,19 @@ def _chance_kwargs(cond: PoseCondition, models: Any, progress: bool, jobs: int) 
     return baseline_source_kwargs("chance", models, kw["recognizer"], kw["cameras"], jobs, progress)
 
 
-def _map(jobs: int, tasks: list[tuple]) -> list[list[EpisodeResult]]:
-    """Run :func:`_run_arm` over ``tasks``, under ``jobs > 1`` in spawned processes, each task
-    cut into chunks of its seeds (:func:`~scorbot_gym.evaluation.chunks.run_chunked`; one
-    thread, no progress bar in a worker); every episode depends only on its seed, so the
-    results do not depend on ``jobs``."""
+def _map(jobs: int, tasks: list[tuple], ray: str | None = None) -> list[list[EpisodeResult]]:
+    """Run :func:`_run_arm` over ``tasks``, under ``jobs > 1`` in spawned processes (as Ray
+    tasks with ``ray``), each task cut into chunks of its seeds
+    (:func:`~scorbot_gym.evaluation.chunks.run_chunked`; one thread, no progress bar in a
+    worker); every episode depends only on its seed, so the results do not depend on
+    ``jobs`` or the runner."""
+    workers = parallel(jobs, ray)
 
     def chunk_args(i: int, n: int, first: int) -> tuple:
         t = tasks[i]  # a worker: no progress bar, one thread
-        return (*t[:2], n, first, *t[4:]) if jobs == 1 else (*t[:2], n, first, *t[4:-1], False, 1)
+        return (*t[:2], n, first, *t[4:-1], False, 1) if workers else (*t[:2], n, first, *t[4:])
 
-    done = run_chunked(_run_arm, [(t[2], t[3]) for t in tasks], chunk_args, jobs)
+    done = run_chunked(_run_arm, [(t[2], t[3]) for t in tasks], chunk_args, jobs, ray)
     return [[r for chunk in chunks for r in chunk] for chunks in done]
 
 
@@ -535,10 +537,12 @@ def compare(
     estimate_every: int = 1,
     progress: bool = True,
     jobs: int = 1,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     """Run every policy under every pose condition on the same seeds; returns the report
-    described in the module docstring (``jobs`` processes, each running a chunk of an arm; the
-    results do not depend on it)."""
+    described in the module docstring (``jobs`` processes, each running a chunk of an arm, or
+    Ray tasks with ``ray``: ``"local"`` or a cluster address; the results do not depend on
+    either)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     if jobs < 1:
@@ -557,7 +561,7 @@ def compare(
         for c in conds
         for p in policies
     ]
-    episodes_run = _map(jobs, tasks)
+    episodes_run = _map(jobs, tasks, ray)
     results = [_record(arms[t[0]], t[1], eps) for t, eps in zip(tasks, episodes_run, strict=True)]
     diffs = []
     for cond in conds:

@@ -14,7 +14,7 @@ from typing import Any
 from scorbot_gym.data.perturbations import Perturbation
 from scorbot_gym.envs.arguments import tilt_deg
 from scorbot_gym.envs.factory import make_env
-from scorbot_gym.evaluation.chunks import run_chunked
+from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
@@ -355,18 +355,24 @@ def run_rollout(
 
 
 def run_rollouts(
-    configs: Sequence[RolloutConfig], jobs: int = 1, progress: bool = False
+    configs: Sequence[RolloutConfig],
+    jobs: int = 1,
+    progress: bool = False,
+    ray: str | None = None,
 ) -> list[tuple[dict[str, Any], list[EpisodeResult]]]:
     """:func:`run_rollout` for each configuration, its episodes cut into chunks of seeds run in
-    ``jobs`` worker processes (:mod:`scorbot_gym.evaluation.chunks`); the results are the
-    same for any ``jobs``. A summary's ``wall_s`` is the seconds its episodes took, added over
+    ``jobs`` worker processes, or as Ray tasks with ``ray`` (``"local"`` or a cluster address;
+    :func:`scorbot_gym.evaluation.chunks.run_chunked`); the results are the same for any
+    ``jobs`` or runner. A summary's ``wall_s`` is the seconds its episodes took, added over
     its chunks (one core's time: a worker runs OpenCV on one thread)."""
+    workers = parallel(jobs, ray)
 
     def chunk_args(i: int, n: int, first: int) -> tuple:
         chunk = replace(configs[i], episodes=n, seed=first)
-        return (chunk, progress) if jobs == 1 else (chunk, False, 1)
+        return (chunk, False, 1) if workers else (chunk, progress)
 
-    done = run_chunked(_episodes, [(c.episodes, c.seed) for c in configs], chunk_args, jobs)
+    tasks = [(c.episodes, c.seed) for c in configs]
+    done = run_chunked(_episodes, tasks, chunk_args, jobs, ray)
     out = []
     for config, chunks in zip(configs, done, strict=True):
         results = [r for rs, _ in chunks for r in rs]
