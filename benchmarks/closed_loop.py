@@ -7,10 +7,13 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 - ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
   rollout defaults for masks and identity (background subtraction; FLR shortlist + appearance
   recognition; the table-top prior): no privileged input. Variants swap one component: no
-  table-top prior (estimates as the models answer them), the resting-view models as a resting
+  table-top prior (estimates as the models answer them), the prior decided once an episode on
+  clear views and held (``support="table_memory"``; alone and with appearance recognition), the
+  resting-view models in place of the default ones, the resting-view models as a resting
   hypothesis (their estimate wherever the default models answer a near-resting pose), FLR
   alone or appearance alone as the recogniser, the ``side`` camera's own pose models where the
-  top view is hidden;
+  top view is hidden. Each arm's failed episodes are kept by seed (``failed``), so two arms of
+  one run pair episode by episode;
 - the blind arms, each named for what it ignores, beside the estimator: ``rotation-blind (image
   position, constant rotation)``, the ``manifold`` arm with the trained models swapped for a
   constant rotation fitted on their views (``RolloutConfig.estimator="chance"``), masks,
