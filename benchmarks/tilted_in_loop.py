@@ -19,7 +19,10 @@ privileged input), ``chance`` (the image-blind answer: the same source and segme
 the ``chance`` estimator in place of the models, a constant rotation, the training views'
 medoid, placed at the silhouette as every baseline places it) and ``resting`` (the simple
 baseline: the resting-view models that the tilted ones replaced,
-:data:`~scorbot_gym.perception.training.RESTING_TRAINING`). Per arm: grasp success,
+:data:`~scorbot_gym.perception.training.RESTING_TRAINING`); ``manifold_held`` is ``manifold``
+with the table-top prior decided once an episode and held (``support="table_memory"``). The
+image arms are given the target's identity, or with ``--recognize`` recognise it as the main
+job does (a section of its own: ``--section loop_recognize``). Per arm: grasp success,
 success@5deg of the valid estimates (pooled over every estimate of every episode; an invalid
 estimate is not counted there, the valid rate is beside it), the median rotation error (over
 episodes, of each episode's median, as the rollout summary takes it), ms per estimate; and the
@@ -36,7 +39,7 @@ its record, the others stay as measured) and recomputes the totals over all of t
 
     python benchmarks/tilted_in_loop.py models [--jobs 2] [--objects box cylinder]
     python benchmarks/tilted_in_loop.py loop [--episodes 70] [--tilts 0 10 20 30] [--jobs 2]
-        [--arms oracle manifold chance resting]
+        [--arms oracle manifold chance resting manifold_held] [--recognize --section NAME]
 """
 
 from __future__ import annotations
@@ -103,7 +106,11 @@ LOOP_ARMS = {
     "manifold": "the default models (IN_LOOP_TRAINING)",
     "chance": "the chance estimator fitted on IN_LOOP_TRAINING's views (image-blind rotation)",
     "resting": "the resting-view models (RESTING_TRAINING, the default before)",
+    "manifold_held": "the default models, the table-top prior decided once an episode on clear "
+    "views and held (support='table_memory')",
 }
+#: the ``support`` of each arm's source, where it is not the default ``"table"``
+ARM_SUPPORT = {"manifold_held": "table_memory"}
 #: the arms run unless ``--arms`` says otherwise
 DEFAULT_LOOP_ARMS = ("oracle", "manifold", "chance", "resting")
 #: symmetry groups of ``by_symmetry`` (the target's :class:`pose.symmetry.Symmetry` kind)
@@ -272,16 +279,25 @@ def run_models(args: argparse.Namespace) -> dict:
 
 
 def _loop_arm(
-    label: str, pose: str, tilt: float, episodes: int, seed: int, objects, pose_model
+    label: str,
+    pose: str,
+    tilt: float,
+    episodes: int,
+    seed: int,
+    objects,
+    pose_model,
+    recognize: bool = False,
 ) -> dict:
     import cv2
 
     from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 
     cv2.setNumThreads(1)
+    image = pose == "manifold"  # recognition and the support prior are the image source's
     config = RolloutConfig(
         pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed, objects=objects,
-        pose_model=pose_model if pose == "manifold" else None,
+        pose_model=pose_model if image else None, recognize=recognize and image,
+        support=ARM_SUPPORT.get(label, "table"),
     )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)
@@ -371,7 +387,7 @@ def arm_models(label: str, objects, jobs: int, progress: bool = True) -> str | N
         return None
     if label == "chance":
         return str(baseline_models("chance", IN_LOOP_TRAINING, objects, jobs, progress))
-    training = RESTING_TRAINING if label == "resting" else IN_LOOP_TRAINING
+    training = RESTING_TRAINING if label == "resting" else IN_LOOP_TRAINING  # manifold(_held)
     default_pose_models(objects=objects, jobs=jobs, progress=progress, training=training)
     return str(default_models_path(objects=objects, training=training))
 
@@ -465,8 +481,10 @@ def run_loop(args: argparse.Namespace) -> dict:
     for i, tilt in enumerate(args.tilts):
         for label in args.arms:
             pose = "oracle" if label == "oracle" else "manifold"
-            model = models[label] if label != "manifold" or objects else None
-            runs.append((label, pose, tilt, args.episodes, args.seed + 1000 * i, objects, model))
+            default = label in ("manifold", "manifold_held") and not objects
+            model = None if default else models[label]
+            seed = args.seed + 1000 * i
+            runs.append((label, pose, tilt, args.episodes, seed, objects, model, args.recognize))
     t0 = time.perf_counter()
     if args.jobs > 1:
         from scorbot_gym.experiments.workers import worker_pool
@@ -516,6 +534,7 @@ def merge_loop(new: dict, previous: dict | None, args: argparse.Namespace) -> di
         "tilts_deg": list(args.tilts),
         "episodes_per_tilt": args.episodes,
         "seed": args.seed,
+        "identity": "recognised" if args.recognize else "given",
         "arm_pose_sources": {label: LOOP_ARMS[label] for label in labels},
         "arms": arms,
         "totals": _totals(arms, labels),
@@ -537,8 +556,9 @@ def _same_loop(section: dict | None, args: argparse.Namespace) -> bool:
     objects = list(args.objects) if args.objects else "catalogue"
     return bool(section) and (
         section.get("objects"), section.get("tilts_deg"), section.get("episodes_per_tilt"),
-        section.get("seed"),
-    ) == (objects, list(args.tilts), args.episodes, args.seed)  # fmt: skip
+        section.get("seed"), section.get("identity", "given"),
+    ) == (objects, list(args.tilts), args.episodes, args.seed,
+          "recognised" if args.recognize else "given")  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -554,6 +574,12 @@ def main(argv: list[str] | None = None) -> int:
     lp.add_argument("--seed", type=int, default=7000)
     lp.add_argument("--jobs", type=int, default=1)
     lp.add_argument("--objects", nargs="+", default=None, help="default: the catalogue")
+    lp.add_argument(
+        "--recognize",
+        action="store_true",
+        help="the image arms recognise the target (top + side, the rollout default) instead "
+        "of being given its identity; write it to its own --section",
+    )
     lp.add_argument(
         "--arms", nargs="+", choices=list(LOOP_ARMS), default=list(DEFAULT_LOOP_ARMS),
         help="pose sources to run; the section's other arms of the same episodes are kept",
