@@ -6,9 +6,11 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
 - ``oracle``: ground-truth pose, re-read every step (the ceiling);
 - ``manifold``: the pose-manifold estimator on the top camera, re-estimated every step, with the
   rollout defaults for masks and identity (background subtraction; FLR shortlist + appearance
-  recognition; the table-top prior): no privileged input. Variants swap one component: no
-  table-top prior (estimates as the models answer them), the prior decided once an episode on
-  clear views and held (``support="table_memory"``; alone and with appearance recognition), the
+  recognition) and the per-estimate table-top prior (``support="table"``, the default until
+  2026-11-27: the arms below were measured with it): no privileged input. Variants swap one
+  component: no table-top prior (estimates as the models answer them), the prior decided once
+  an episode on clear views and held (``support="table_memory"``, the rollout default since
+  2026-11-27; alone and with appearance recognition), the
   resting-view models in place of the default ones, the resting-view models as a resting
   hypothesis (their estimate wherever the default models answer a near-resting pose), FLR
   alone or appearance alone as the recogniser, the ``side`` camera's own pose models where the
@@ -219,6 +221,13 @@ def main(argv: list[str] | None = None) -> int:
         help='";"-separated env perturbations ("none": unperturbed), the manifold arm under each',
     )
     parser.add_argument(
+        "--perturbation-support",
+        choices=("table", "table_memory", "none"),
+        default="table",
+        help="the table-top prior of the --perturbations arms (default: table, the per-estimate "
+        "prior the committed config was measured with; table_memory is the rollout default)",
+    )
+    parser.add_argument(
         "--merge",
         nargs="+",
         type=Path,
@@ -318,7 +327,13 @@ def _arm_configs(args) -> dict:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     n, seed, m_push = args.episodes, args.seed, args.push_episodes
-    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    # the arms as measured: the per-estimate prior (support "table", the default until
+    # 2026-11-27), each variant swapping one component; the held prior (the default since:
+    # "table_memory") is an arm of its own
+    manifold = dict(
+        pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize, support="table"
+    )
+    held = {**manifold, "support": "table_memory"}
     fallback = {**manifold, "fallback_cameras": ("side",)}
     return {
         "oracle": RolloutConfig(pose="oracle", episodes=n, seed=seed),
@@ -327,11 +342,11 @@ def _arm_configs(args) -> dict:
             **manifold, resting_hypothesis=True, episodes=n, seed=seed
         ),
         "manifold, no table prior": RolloutConfig(
-            **manifold, support="none", episodes=n, seed=seed
+            **{**manifold, "support": "none"}, episodes=n, seed=seed
         ),
-        TABLE_MEMORY_ARM: RolloutConfig(**manifold, support="table_memory", episodes=n, seed=seed),
+        TABLE_MEMORY_ARM: RolloutConfig(**held, episodes=n, seed=seed),
         TABLE_MEMORY_APPEARANCE_ARM: RolloutConfig(
-            **manifold, support="table_memory", recognizer="appearance", episodes=n, seed=seed
+            **held, recognizer="appearance", episodes=n, seed=seed
         ),
         RESTING_MODELS_ARM: RolloutConfig(
             **manifold, pose_model=RESTING_MODELS, episodes=n, seed=seed
@@ -371,6 +386,7 @@ def _arm_configs(args) -> dict:
             pose="manifold",
             pose_cameras=("eye_in_hand",),
             segmenter="depth",
+            support="table",
             pose_size=EYE_IN_HAND_SIZE,
             episodes=args.eye_in_hand_episodes,
             seed=seed,
@@ -431,7 +447,7 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
             part["arms"] = {RENAMED_ARMS.get(k, k): a for k, a in part["arms"].items()}
             for label, arm in part["arms"].items():
                 arm["label"] = label
-    same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm")
+    same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm", "support")
     for key in same:
         if len({json.dumps(p.get(key)) for p in parts}) > 1:
             parser.error(f"--merge: the parts differ in {key!r}: they are not one run's arms")
@@ -510,7 +526,12 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
     from pose.fileio import write_result
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
-    manifold = dict(pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize)
+    manifold = dict(
+        pose="manifold",
+        segmenter=args.segmenter,
+        recognize=not args.no_recognize,
+        support=args.perturbation_support,
+    )
     runs = [
         (label, RolloutConfig(
             **manifold, perturbation=None if label == "none" else label,
@@ -523,6 +544,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
     report = {
         "benchmark": "closed_loop_perturbations",
         "arm": "manifold",
+        "support": args.perturbation_support,
         "episodes_per_arm": args.episodes,
         "seed": args.seed,
         "pose_model_ready_s": train_s,

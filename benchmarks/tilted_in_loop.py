@@ -109,8 +109,10 @@ LOOP_ARMS = {
     "manifold_held": "the default models, the table-top prior decided once an episode on clear "
     "views and held (support='table_memory')",
 }
-#: the ``support`` of each arm's source, where it is not the default ``"table"``
+#: the ``support`` of each image arm's source: the per-estimate prior the committed arms were
+#: measured with (the default until 2026-11-27), the held one (the default since) by name
 ARM_SUPPORT = {"manifold_held": "table_memory"}
+ARM_SUPPORT_DEFAULT = "table"
 #: the arms run unless ``--arms`` says otherwise
 DEFAULT_LOOP_ARMS = ("oracle", "manifold", "chance", "resting")
 #: symmetry groups of ``by_symmetry`` (the target's :class:`pose.symmetry.Symmetry` kind)
@@ -297,7 +299,7 @@ def _loop_arm(
     config = RolloutConfig(
         pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed, objects=objects,
         pose_model=pose_model if image else None, recognize=recognize and image,
-        support=ARM_SUPPORT.get(label, "table"),
+        support=ARM_SUPPORT.get(label, ARM_SUPPORT_DEFAULT) if image else None,
     )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)

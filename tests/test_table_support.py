@@ -158,6 +158,23 @@ def test_the_manifold_source_puts_a_resting_estimate_on_the_table(tmp_path):
     assert len(errors["table"]) >= 5 and on_table >= len(errors["table"]) - 1, errors
     assert np.median(errors["table"]) < np.median(errors["none"]), errors
 
+    # the source's default: the prior held per episode, decided on the first clear views
+    env = make_env("ScorbotGrasp-v0", pose="manifold", pose_kwargs={"models": models},
+                   objects=["banana"])  # fmt: skip
+    wrapper = env
+    while not hasattr(wrapper, "source"):
+        wrapper = wrapper.env
+    memory = wrapper.source.support
+    assert isinstance(memory, TableSupportMemory)
+    still = np.zeros(env.action_space.shape)
+    for seed in range(2):
+        env.reset(seed=seed)
+        assert memory.resting is None or len(memory._votes) == 1  # the reset's own estimate
+        for _ in range(4):  # the arm at home: clear views of a banana at rest
+            env.step(still)
+        assert memory.resting is True
+    env.close()
+
 
 def test_the_memory_decides_resting_on_clear_views_and_then_holds_it(top):
     """Three clear near-resting views decide "resting"; then an occluded estimate tilted 15
@@ -203,6 +220,15 @@ def test_the_memory_decides_not_resting_for_a_tilted_object_and_leaves_it_alone(
     out = memory.refine(near, top, clear=True)
     assert out.position[2] == pytest.approx(z + 0.004)
     assert out.details["table_support"]["decision"] == "not resting"
+
+
+def test_the_manifold_default_is_the_held_prior_and_the_clutter_default_the_per_estimate_one():
+    assert RolloutConfig(pose="manifold").support == "table_memory"
+    assert RolloutConfig(pose="manifold", distractors=2, pose_model="m.npz").support == "table"
+    assert RolloutConfig(pose="oracle").support == "table"
+    assert RolloutConfig(pose="manifold", support="table").support == "table"
+    with pytest.raises(ValueError, match="image-based pose sources"):
+        RolloutConfig(pose="oracle", support="table_memory")
 
 
 def test_the_memory_checks_its_parameters():

@@ -134,10 +134,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--support",
         choices=SUPPORTS,
-        default="table",
-        help="table-top prior of the image-based pose sources: table (default: an estimate "
-        "within 5 degrees of a resting pose is put on the table, along the line of sight) or "
-        "none (estimates as the models answer them)",
+        default=None,
+        help="table-top prior of the image-based pose sources: table_memory (the default of "
+        "--pose manifold: whether the object rests on the table is decided on the first clear "
+        "views and held, and every estimate of a resting one is put on the table), table (the "
+        "default with --distractors: each estimate within 5 degrees of a resting pose is put "
+        "on the table, along the line of sight) or none (estimates as the models answer them)",
     )
     p.add_argument(
         "--estimator",

@@ -18,6 +18,7 @@ from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
+from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
 #: the pose sources that split a cluttered table into blobs and estimate the named target on
@@ -57,8 +58,11 @@ class RolloutConfig:
     (:mod:`scorbot_gym.perception.splitters`; ``"none"``: blobs stay whole). ``regrasps`` is
     the scripted controller's retries after its fingers close on nothing
     (:class:`~scorbot_gym.policies.ScriptedGraspPolicy`; ``scripted`` policy only).
-    ``support`` is the image-based sources' table-top prior (``"table"``: estimates near a
-    resting pose are put on the table, :mod:`scorbot_gym.perception.support`; ``"none"``).
+    ``support`` is the image-based sources' table-top prior (:mod:`scorbot_gym.perception.support`;
+    ``None``: the source's default, ``"table_memory"`` for ``manifold``, ``"table"`` for the
+    clutter sources): ``"table_memory"`` decides once an episode, on clear views, whether the
+    object rests on the table and then puts every estimate of a resting one on it;
+    ``"table"`` puts each estimate near a resting pose on it; ``"none"``.
     ``estimator`` swaps the ``manifold`` source's trained models for a :mod:`pose.registry`
     baseline fitted on the same views (``"chance"``: a constant rotation placed at the mask's
     position, the rotation-blind answer every estimator figure reports beside it;
@@ -93,7 +97,7 @@ class RolloutConfig:
     tilt_deg: float = 0.0
     splitter: str = "none"
     regrasps: int = 0
-    support: str = "table"
+    support: str | None = None
     estimator: str = "manifold"
     resting_hypothesis: bool = False
 
@@ -156,6 +160,8 @@ class RolloutConfig:
                 f"splitter only applies to the clutter pose sources {CLUTTER_POSE_SOURCES}, "
                 f"not {self.pose!r}"
             )
+        if self.support is None:  # the source's own default prior
+            self.support = DEFAULT_SUPPORT if self.pose == "manifold" else "table"
         if self.support not in SUPPORTS:
             raise ValueError(f"support must be one of {SUPPORTS}, got {self.support!r}")
         if self.support != "table" and self.pose not in ("manifold", *CLUTTER_POSE_SOURCES):

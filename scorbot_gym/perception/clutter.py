@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from pose.model_set import PoseModelSet
+from pose.recognition import view_is_clear
 from pose.segmentation import BackgroundSubtractionSegmenter, components
 from pose.view import View
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
@@ -42,7 +43,13 @@ from scorbot_gym.perception.model_set import _load, _world_pose, check_recognize
 from scorbot_gym.perception.recognizers import make_recognizer
 from scorbot_gym.perception.segmenters import BackgroundSegmenter
 from scorbot_gym.perception.splitters import make_splitter
-from scorbot_gym.perception.support import TableSupport, make_support, reset_support
+from scorbot_gym.perception.support import (
+    TableSupport,
+    TableSupportMemory,
+    make_support,
+    refine_pose,
+    reset_support,
+)
 
 #: pixels (at 320 x 240) a blob needs to count as an object
 MIN_BLOB_AREA = 120
@@ -99,7 +106,8 @@ class ClutterPoseSource:
     target's identity is the task command, so the wrapper must pass it (``identity="given"``,
     the env's ``target_class`` / ``info["object_name"]``). ``support`` refines the target's
     estimate as for ``manifold`` (:mod:`scorbot_gym.perception.support`; ``"table"`` by
-    default, ``"none"``).
+    default, the prior the clutter figures were measured with; ``"table_memory"``, its votes
+    from clear views of the chosen blob; ``"none"``).
     """
 
     privileged = False
@@ -112,7 +120,7 @@ class ClutterPoseSource:
         cameras: Sequence[str] | None = None,
         track_gate_px: float = TRACK_GATE_PX,
         splitter: str | Any = "none",
-        support: TableSupport | str | None = "table",
+        support: TableSupport | TableSupportMemory | str | None = "table",
     ) -> None:
         self.models = _load(models)
         self.support = make_support(support)
@@ -206,8 +214,10 @@ class ClutterPoseSource:
             )
         else:
             pose = _world_pose(est, cam, target, timings, self.camera)
-            if self.support is not None:
-                pose = self.support.refine(pose, cam)
+            if self.support is not None:  # a clear view of the chosen blob may vote (memory)
+                excluded = getattr(self.segmenter, "excluded", lambda c: None)(self.camera)
+                clear = view_is_clear(blobs[chosen], excluded)
+                pose = refine_pose(self.support, pose, cam, clear)
         pose.details = {
             **pose.details,
             "blobs": records,

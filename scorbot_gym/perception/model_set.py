@@ -33,6 +33,7 @@ from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_reco
 from scorbot_gym.perception.references import load_model_set
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.perception.support import (
+    DEFAULT_SUPPORT,
     TableSupport,
     TableSupportMemory,
     hull_points,
@@ -82,11 +83,14 @@ class ModelSetPoseSource:
         of the cameras shows that it moved since the last valid estimate (``reason`` says so);
         ``None`` (default) answers invalid.
     support
-        ``"table"`` (default: a :class:`~scorbot_gym.perception.support.TableSupport`, estimates
-        within a few degrees of a resting pose are put on the table), ``"table_memory"`` (a
-        :class:`~scorbot_gym.perception.support.TableSupportMemory`: resting or not decided
-        on the first clear views and held for the episode), ``"none"`` (estimates as the
-        models answer them) or a support object with ``refine(pose, camera)``.
+        ``"table_memory"`` (default: a
+        :class:`~scorbot_gym.perception.support.TableSupportMemory`, whether the object rests
+        on the table is decided on the first clear views and held for the episode, and every
+        estimate of a resting one is put on the table), ``"table"`` (a
+        :class:`~scorbot_gym.perception.support.TableSupport`: each estimate within a few
+        degrees of a resting pose is put on the table; the default until 2026-11-27),
+        ``"none"`` (estimates as the models answer them) or a support object with
+        ``refine(pose, camera)``.
     recognition_models
         Where ``models`` hold a baseline (the image-blind ``chance`` arm): the trained model
         set (or file) whose ``recognizer`` names the object, its pose estimates dropped
@@ -115,7 +119,7 @@ class ModelSetPoseSource:
         clear_min_area: int = 200,
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),
         motion: str | SilhouetteMotion | None = None,
-        support: TableSupport | TableSupportMemory | str | None = "table",
+        support: TableSupport | TableSupportMemory | str | None = DEFAULT_SUPPORT,
         recognition_models: PoseModelSet | str | os.PathLike | None = None,
         resting_models: PoseModelSet | str | os.PathLike | None = None,
     ) -> None:

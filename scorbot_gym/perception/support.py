@@ -189,6 +189,10 @@ class TableSupportMemory:
         return dataclasses.replace(out, details={**out.details, "table_support": record})
 
 
+#: the ``manifold`` source's prior by default since 2026-11-27 (the clutter sources keep
+#: ``"table"``, the prior their figures were measured with)
+DEFAULT_SUPPORT = "table_memory"
+
 #: the support priors by name (``scorbot_gym.names.SUPPORTS`` is checked against it)
 _SUPPORTS: dict[str, type[TableSupport] | type[TableSupportMemory] | None] = {
     "table": TableSupport,
