@@ -187,10 +187,14 @@ PERTURBATIONS = "perturbations"
 RESTING_PERTURBATIONS = "perturbations_resting_models"
 
 
-def closed_loop_arms(config: str | None = None) -> str:
+def closed_loop_arms(config: str | None = None, undisturbed: bool = False) -> str:
+    """The arms of a run (``undisturbed``: only those without a push, on the top camera)."""
     d = read("closed_loop.json", config)
     rows = []
     for label, a in d["arms"].items():
+        cfg = a.get("config", {})
+        if undisturbed and (cfg.get("disturbance") or cfg.get("pose_cameras", ["top"])[0] != "top"):
+            continue
         valid = a.get("perception", {}).get("valid_rate")
         rows.append(
             [
@@ -764,11 +768,16 @@ def env_memory() -> str:
     return table(head, rows)
 
 
+#: vector-env configurations of the ablations (``--ablations``), in the JSON, not the table
+VECTOR_ABLATIONS = ("async_pinned", "async_cap", "async_raster_thread")
+
+
 def vector_env() -> str:
     """env steps/s (÷ the plain env) per configuration (rows) and setting (columns)."""
     d = read("vector_env.json")
     settings = list(d["results"])
     configs = list(dict.fromkeys(c for s in settings for c in d["results"][s]))
+    configs = [c for c in configs if c.split("-")[0] not in VECTOR_ABLATIONS]
     rows = []
     for config in configs:
         row = [f"`{config}`"]
@@ -900,9 +909,13 @@ def cli_startup() -> str:
             ", ".join(c["heavy_imports"]) or "none",
         ]
         for c in d["commands"]
+        if c["argv"] == "--help" or not c["argv"].endswith("--help")
     ]
     head = ["command", "median s", "before (same run)", "heavy imports"]
-    return f"{d['runs']} fresh processes per command:\n\n" + table(head, rows)
+    return (
+        f"{d['runs']} fresh processes per command (each sub-command's `--help` is in the "
+        "JSON):\n\n" + table(head, rows)
+    )
 
 
 def wrapper_step() -> str:
@@ -1002,7 +1015,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "headline-ablation": headline_ablation,
     "closed-loop": closed_loop_arms,
     "closed-loop-robustness": closed_loop_robustness,
-    "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP),
+    "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP, undisturbed=True),
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
     "compare-noise-once": compare_table("noise_once"),
