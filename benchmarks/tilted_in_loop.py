@@ -108,10 +108,14 @@ LOOP_ARMS = {
     "resting": "the resting-view models (RESTING_TRAINING, the default before)",
     "manifold_held": "the default models, the table-top prior decided once an episode on clear "
     "views and held (support='table_memory')",
+    "manifold_held_appearance": "manifold_held, recognised by appearance over every class "
+    "(recognizer='appearance'; with --recognize)",
 }
+#: the recogniser of each image arm where it is not the rollout default (with --recognize)
+ARM_RECOGNIZER = {"manifold_held_appearance": "appearance"}
 #: the ``support`` of each image arm's source: the per-estimate prior the committed arms were
 #: measured with (the default until 2026-11-27), the held one (the default since) by name
-ARM_SUPPORT = {"manifold_held": "table_memory"}
+ARM_SUPPORT = {"manifold_held": "table_memory", "manifold_held_appearance": "table_memory"}
 ARM_SUPPORT_DEFAULT = "table"
 #: the arms run unless ``--arms`` says otherwise
 DEFAULT_LOOP_ARMS = ("oracle", "manifold", "chance", "resting")
@@ -300,6 +304,7 @@ def _loop_arm(
         pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed, objects=objects,
         pose_model=pose_model if image else None, recognize=recognize and image,
         support=ARM_SUPPORT.get(label, ARM_SUPPORT_DEFAULT) if image else None,
+        **({"recognizer": ARM_RECOGNIZER[label]} if label in ARM_RECOGNIZER else {}),
     )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)
@@ -483,7 +488,7 @@ def run_loop(args: argparse.Namespace) -> dict:
     for i, tilt in enumerate(args.tilts):
         for label in args.arms:
             pose = "oracle" if label == "oracle" else "manifold"
-            default = label in ("manifold", "manifold_held") and not objects
+            default = label.startswith("manifold") and not objects
             model = None if default else models[label]
             seed = args.seed + 1000 * i
             runs.append((label, pose, tilt, args.episodes, seed, objects, model, args.recognize))
