@@ -185,6 +185,7 @@ def closed_loop_paired() -> str:
 RESTING_CLOSED_LOOP = "resting_models"
 PERTURBATIONS = "perturbations"
 RESTING_PERTURBATIONS = "perturbations_resting_models"
+HELD_PERTURBATIONS = "perturbations_held"
 
 
 def closed_loop_arms(config: str | None = None, undisturbed: bool = False) -> str:
@@ -227,6 +228,7 @@ def closed_loop_perturbations() -> str:
     d = read("closed_loop.json", PERTURBATIONS)
     # the same run with the resting-view models
     before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]
+    held = read("closed_loop.json", HELD_PERTURBATIONS)["arms"]  # the default prior since
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -236,6 +238,7 @@ def closed_loop_perturbations() -> str:
                 f"`{label}`",
                 f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}",
                 pct(before[label]["success_rate"]) if label in before else "–",
+                pct(held[label]["success_rate"]) if label in held else "–",
                 failures(a["failure_causes"]),
                 f"{pct(p['valid_rate'])} / {pct(p['first_estimate_valid_rate'])}",
                 pct(p["recognition_accuracy"]),
@@ -247,6 +250,7 @@ def closed_loop_perturbations() -> str:
             "perturbation",
             "success (95 % CI)",
             "with the resting-view models",
+            "with the held prior",
             "failures",
             "valid estimates (all steps / first)",
             "recognition",
