@@ -72,7 +72,9 @@ def _arm(label: str, tilt: float, ok: int, valid: int, hits: float, split: bool)
 def test_new_arms_merge_with_the_arms_measured_before(bench):
     """A section written before the split (no ``runs``, no ``by_symmetry``) keeps its arms as
     measured; the totals cover every arm, the new ones with their symmetry split."""
-    args = argparse.Namespace(arms=["chance"], objects=None, tilts=[20.0], episodes=2, seed=7, recognize=False)
+    args = argparse.Namespace(
+        arms=["chance"], objects=None, tilts=[20.0], episodes=2, seed=7, recognize=False
+    )
     old = {
         "objects": "catalogue", "tilts_deg": [20.0], "episodes_per_tilt": 2, "seed": 7,
         "arms": [_arm("oracle", 20.0, 2, 40, 1.0, False),
