@@ -228,6 +228,13 @@ def main(argv: list[str] | None = None) -> int:
         "prior the committed config was measured with; table_memory is the rollout default)",
     )
     parser.add_argument(
+        "--perturbation-recognizer",
+        choices=("flr+appearance", "appearance", "flr"),
+        default="flr+appearance",
+        help="the recogniser of the --perturbations arms (default: flr+appearance, as the "
+        "committed config was measured; appearance is the rollout default)",
+    )
+    parser.add_argument(
         "--merge",
         nargs="+",
         type=Path,
@@ -327,11 +334,15 @@ def _arm_configs(args) -> dict:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
     n, seed, m_push = args.episodes, args.seed, args.push_episodes
-    # the arms as measured: the per-estimate prior (support "table", the default until
-    # 2026-11-27), each variant swapping one component; the held prior (the default since:
-    # "table_memory") is an arm of its own
+    # the arms as measured: the per-estimate prior (support "table") and FLR's shortlist decided
+    # by appearance, the defaults until 2026-11-27, each variant swapping one component; the
+    # defaults since (the held prior "table_memory", appearance recognition) are arms of their own
     manifold = dict(
-        pose="manifold", segmenter=args.segmenter, recognize=not args.no_recognize, support="table"
+        pose="manifold",
+        segmenter=args.segmenter,
+        recognize=not args.no_recognize,
+        support="table",
+        recognizer="flr+appearance",
     )
     held = {**manifold, "support": "table_memory"}
     fallback = {**manifold, "fallback_cameras": ("side",)}
@@ -447,7 +458,8 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
             part["arms"] = {RENAMED_ARMS.get(k, k): a for k, a in part["arms"].items()}
             for label, arm in part["arms"].items():
                 arm["label"] = label
-    same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm", "support")
+    same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm")
+    same += ("support", "recognizer")
     for key in same:
         if len({json.dumps(p.get(key)) for p in parts}) > 1:
             parser.error(f"--merge: the parts differ in {key!r}: they are not one run's arms")
@@ -531,6 +543,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         segmenter=args.segmenter,
         recognize=not args.no_recognize,
         support=args.perturbation_support,
+        recognizer=args.perturbation_recognizer,
     )
     runs = [
         (label, RolloutConfig(
@@ -545,6 +558,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         "benchmark": "closed_loop_perturbations",
         "arm": "manifold",
         "support": args.perturbation_support,
+        "recognizer": args.perturbation_recognizer,
         "episodes_per_arm": args.episodes,
         "seed": args.seed,
         "pose_model_ready_s": train_s,

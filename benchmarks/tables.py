@@ -110,9 +110,9 @@ def _arm_by_config(arms: dict, want: dict) -> str | None:
 #: the rollout default's configuration (the arm the headline quotes), and the per-estimate
 #: prior it replaced on 2026-11-27
 DEFAULT_ARM = {"pose": "manifold", "support": "table_memory", "estimator": "manifold",
-               "recognizer": "flr+appearance", "pose_model": None, "fallback_cameras": [],
+               "recognizer": "appearance", "pose_model": None, "fallback_cameras": [],
                "resting_hypothesis": False}  # fmt: skip
-PER_ESTIMATE_ARM = {**DEFAULT_ARM, "support": "table"}
+PER_ESTIMATE_ARM = {**DEFAULT_ARM, "support": "table", "recognizer": "flr+appearance"}
 
 
 def headline_closed_loop() -> str:

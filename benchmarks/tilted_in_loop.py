@@ -111,7 +111,8 @@ LOOP_ARMS = {
     "manifold_held_appearance": "manifold_held, recognised by appearance over every class "
     "(recognizer='appearance'; with --recognize)",
 }
-#: the recogniser of each image arm where it is not the rollout default (with --recognize)
+#: the recogniser of each image arm (with --recognize) where it is not FLR's shortlist decided by
+#: appearance, the default the committed arms were measured with (appearance since 2026-11-27)
 ARM_RECOGNIZER = {"manifold_held_appearance": "appearance"}
 #: the ``support`` of each image arm's source: the per-estimate prior the committed arms were
 #: measured with (the default until 2026-11-27), the held one (the default since) by name
@@ -304,7 +305,7 @@ def _loop_arm(
         pose=pose, tilt_deg=tilt, episodes=episodes, seed=seed, objects=objects,
         pose_model=pose_model if image else None, recognize=recognize and image,
         support=ARM_SUPPORT.get(label, ARM_SUPPORT_DEFAULT) if image else None,
-        **({"recognizer": ARM_RECOGNIZER[label]} if label in ARM_RECOGNIZER else {}),
+        recognizer=ARM_RECOGNIZER.get(label, "flr+appearance") if image else None,
     )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)

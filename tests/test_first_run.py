@@ -64,37 +64,45 @@ def test_the_defaults_are_what_the_main_job_uses():
     spec = defaults.MAIN_JOB
     assert main_job.pose_cameras == spec.recognition_cameras == compare.MANIFOLD_CAMERAS
     assert (main_job.pose_cameras[0], *main_job.pose_size) == (spec.camera, spec.width, spec.height)
-    assert "flr" in main_job.recognizer  # so the silhouettes are needed
+    assert main_job.recognizer == spec.recognizer == compare.MANIFOLD_RECOGNIZER == "appearance"
+    assert [e.what.split(",")[0] for e in defaults.cache_entries()] == ["pose models"]
     assert inspect.signature(default_pose_models).parameters["training"].default == spec.training
     assert spec.objects is None  # the whole catalogue
 
 
 @pytest.mark.slow
-def test_doctor_then_defaults_then_the_main_job_finds_them(monkeypatch, tmp_path, capsys):
-    """Doctor says missing; ``pose train --defaults`` builds exactly the entries doctor lists;
-    doctor says ready with their sizes; the main job's own calls then build nothing."""
+@pytest.mark.parametrize("recognizer", ["appearance", "flr+appearance"])
+def test_doctor_then_defaults_then_the_main_job_finds_them(
+    monkeypatch, tmp_path, capsys, recognizer
+):
+    """Doctor says missing; ``pose train --defaults`` builds exactly the entries doctor lists
+    (the silhouettes only for a recogniser that uses FLR); doctor says ready with their sizes;
+    the main job's own calls then build nothing."""
     from scorbot_gym.perception.recognizers import make_recognizer
 
+    spec = replace(TINY, recognizer=recognizer)
+    flr = "flr" in recognizer
     monkeypatch.setenv("SCORBOT_GYM_CACHE", str(tmp_path))
-    monkeypatch.setattr(defaults, "MAIN_JOB", TINY)
+    monkeypatch.setattr(defaults, "MAIN_JOB", spec)
     assert main(["doctor", "--frames", "1"]) == 0
     out = capsys.readouterr().out
-    entries = defaults.cache_entries(TINY)
-    assert out.count(": missing") == 2 and "scorbot-gym pose train --defaults" in out
+    entries = defaults.cache_entries(spec)
+    assert len(entries) == 1 + flr
+    assert out.count(": missing") == len(entries) and "scorbot-gym pose train --defaults" in out
     assert all(str(e.path) in out for e in entries)
 
     assert main(["pose", "train", "--defaults", "--jobs", "1"]) == 0
     captured = capsys.readouterr()
     assert "1/2 box" in captured.err and "2/2 banana" in captured.err  # a line per object
-    assert "rendering silhouettes" in captured.err
+    assert ("rendering silhouettes" in captured.err) == flr
     assert all(e.present and e.size_bytes > 0 for e in entries)
     assert main(["doctor", "--frames", "1"]) == 0
     out = capsys.readouterr().out
-    assert len(re.findall(r": ready, \d+\.\d MB", out)) == 2
+    assert len(re.findall(r": ready, \d+\.\d MB", out)) == len(entries)
 
     files = sorted(p for p in tmp_path.rglob("*") if p.is_file())
     models = default_pose_models(objects=TINY.objects, training=TINY.training, progress=False)
-    make_recognizer("flr+appearance", models, TINY.recognition_cameras, TINY.width, TINY.height)
+    make_recognizer(recognizer, models, spec.recognition_cameras, spec.width, spec.height)
     assert sorted(p for p in tmp_path.rglob("*") if p.is_file()) == files  # nothing new built
 
 

@@ -8,7 +8,7 @@ import pytest
 
 from pose.baselines import ChanceEstimator
 from pose.model_set import PoseModelSet
-from pose.recognition import ShortlistRecognizer
+from pose.recognition import AppearanceRecognizer
 from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 from scorbot_gym.perception.model_set import ModelSetPoseSource
 from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer
@@ -57,7 +57,7 @@ def test_a_bad_estimator_is_a_one_line_error(kwargs, message):
 
 def test_the_default_estimator_keeps_the_trained_models(defaults):
     kw = RolloutConfig(pose="manifold", recognize=True).pose_kwargs()
-    assert kw["models"] is defaults and kw["recognizer"] == "flr+appearance"
+    assert kw["models"] is defaults and kw["recognizer"] == "appearance"
 
 
 @pytest.mark.slow
@@ -73,16 +73,16 @@ def test_chance_swaps_the_models_and_keeps_recognition_without_its_estimates(def
     assert all(isinstance(blind[n], ChanceEstimator) for n in OBJECTS)
     assert blind.meta["views_of"] == COARSE.to_dict()  # fitted on the trained models' views
     # recognition by the trained models, named (so the env's spec can rebuild the source)
-    assert chance["recognizer"] == "flr+appearance" and chance["recognition_models"] is defaults
+    assert chance["recognizer"] == "appearance" and chance["recognition_models"] is defaults
     source = ModelSetPoseSource(**{**chance, "segmenter": "privileged"})  # reads no images
     source.reset(_frame_without_identity(), None)
     rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)
-    assert isinstance(rec.recognizer, ShortlistRecognizer)
-    assert set(rec.recognizer.appearance.estimators) == set(OBJECTS)  # the trained models'
+    assert isinstance(rec.recognizer, AppearanceRecognizer)
+    assert set(rec.recognizer.estimators) == set(OBJECTS)  # the trained models'
     # the identity given: nothing to recognise, the recogniser stays the manifold arm's name
     given = RolloutConfig(pose="manifold", estimator="chance").pose_kwargs()
-    assert given["recognizer"] == "flr+appearance" and "recognition_models" not in given
+    assert given["recognizer"] == "appearance" and "recognition_models" not in given
     assert isinstance(given["models"]["box"], ChanceEstimator)
 
 

@@ -119,9 +119,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--recognizer",
         choices=RECOGNIZERS,
-        default="flr+appearance",
-        help="with --recognize: flr (silhouettes), appearance (the model with most inliers) or "
-        "flr+appearance (default: FLR's three best classes, decided by appearance)",
+        default=None,
+        help="with --recognize: appearance (the default of --pose manifold: the class whose "
+        "pose model explains the most keypoints), flr (the FLR classifier on silhouettes) or "
+        "flr+appearance (FLR's three best classes, decided by appearance; the default with "
+        "--distractors)",
     )
     p.add_argument(
         "--splitter",

@@ -83,6 +83,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
+from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 from scorbot_gym.policies.imitation import SHIPPED_FINETUNED_POLICY, SHIPPED_LEARNED_POLICY
@@ -93,7 +94,8 @@ DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S 
 REFERENCE = "scripted"
 #: the ``manifold`` condition: no privileged input (the main arm of benchmarks/closed_loop.py)
 MANIFOLD_SEGMENTER = "background"  # masks by background subtraction, not the renderer's
-MANIFOLD_RECOGNIZER = "flr+appearance"  # identity recognised, not given
+MANIFOLD_RECOGNIZER = DEFAULT_RECOGNIZER  # identity recognised, not given (before 2026-11-27:
+# "flr+appearance", which compare.json's estimator conditions record)
 MANIFOLD_CAMERAS = ("top", "side")  # pose from the first; recognition fused over both
 #: the pose-condition names (besides one ``noisy@S[:Y]`` per noise level)
 POSE_CONDITIONS = ("oracle", "noisy", "manifold", "chance")

@@ -18,6 +18,7 @@ from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
 from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
+from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
 
@@ -40,7 +41,9 @@ class RolloutConfig:
     default pose models of their own and estimate where the pose camera's estimate is invalid;
     ``motion="silhouette"`` then places a moved object from its silhouette where none can.
     ``segmenter`` and ``recognizer`` name the source's components (defaults: background
-    subtraction; FLR shortlisting three classes that appearance decides among).
+    subtraction; recognition by appearance, the class whose pose model explains the most
+    keypoints, for ``manifold``, FLR shortlisting three classes that appearance decides among
+    for the clutter sources).
     ``noise`` holds the ``noisy_oracle`` parameters (``pos_sigma_m``, ``yaw_sigma_deg``,
     ``dropout``). ``policy`` is ``scripted``, ``random``, ``rl`` (the shipped SB3 residual
     policy: the scripted controller + a learned correction), ``learned`` (the shipped
@@ -81,7 +84,7 @@ class RolloutConfig:
     motion: str | None = None
     pose_size: tuple[int, int] = (320, 240)
     segmenter: str = "background"
-    recognizer: str = "flr+appearance"
+    recognizer: str | None = None
     recognize: bool = False
     estimate_every: int = 1
     disturbance: str | None = None
@@ -160,6 +163,9 @@ class RolloutConfig:
                 f"splitter only applies to the clutter pose sources {CLUTTER_POSE_SOURCES}, "
                 f"not {self.pose!r}"
             )
+        if self.recognizer is None:  # the source's own default recogniser
+            manifold = self.pose == "manifold"
+            self.recognizer = DEFAULT_RECOGNIZER if manifold else "flr+appearance"
         if self.support is None:  # the source's own default prior
             self.support = DEFAULT_SUPPORT if self.pose == "manifold" else "table"
         if self.support not in SUPPORTS:

@@ -2,11 +2,12 @@
 ahead (``scorbot-gym pose train --defaults``).
 
 ``scorbot-gym rollout --pose manifold --recognize`` (and ``compare``'s estimator conditions)
-need two things that are built the first time they are asked for and then read from the cache
+need what is built the first time it is asked for and then read from the cache
 (``$SCORBOT_GYM_CACHE``, else ``~/.cache/scorbot-gym``): the default pose models of the pose
 camera (:func:`~scorbot_gym.perception.training.default_pose_models`, the minutes-long step)
-and, to recognise the object, silhouettes of the catalogue rendered from the recognition
-cameras (:func:`~scorbot_gym.perception.recognizers.train_silhouette_recognizer`). A user who
+and, for a recogniser that uses FLR (not the default, appearance, which asks the pose models),
+silhouettes of the catalogue rendered from the recognition cameras
+(:func:`~scorbot_gym.perception.recognizers.train_silhouette_recognizer`). A user who
 knows this can pay the cost when it suits them and see whether it has been paid;
 :data:`MAIN_JOB` says what the main job uses (a test checks it against
 :class:`~scorbot_gym.evaluation.rollout.RolloutConfig` and the comparison's conditions).
@@ -18,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from scorbot_gym.perception.recognizers import SILHOUETTES_PER_OBJECT
+from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER, SILHOUETTES_PER_OBJECT
 from scorbot_gym.perception.training import IN_LOOP_TRAINING, TrainingSet
 
 
@@ -29,7 +30,8 @@ class DefaultModels:
     ``camera`` / ``width`` / ``height``: the pose camera and image size of the default pose
     models; ``objects`` (``None``: the catalogue) and ``training`` as
     :func:`~scorbot_gym.perception.training.default_pose_models` takes them;
-    ``recognition_cameras`` the cameras whose silhouettes the recogniser is fitted on,
+    ``recognizer`` the recogniser (silhouettes are rendered only for one that uses FLR),
+    ``recognition_cameras`` the cameras whose silhouettes FLR is fitted on,
     ``silhouettes_per_object`` how many.
     """
 
@@ -38,6 +40,7 @@ class DefaultModels:
     height: int = 240
     objects: tuple[str, ...] | None = None
     training: TrainingSet = field(default=IN_LOOP_TRAINING)
+    recognizer: str = DEFAULT_RECOGNIZER
     recognition_cameras: tuple[str, ...] = ("top", "side")
     silhouettes_per_object: int = SILHOUETTES_PER_OBJECT
 
@@ -90,10 +93,17 @@ def cache_entries(spec: DefaultModels | None = None) -> list[CacheEntry]:
         _recognised(names), spec.silhouettes_per_object, spec.width, spec.height, 0, "scene"
     )
     cams = "+".join(spec.recognition_cameras)
-    return [
-        CacheEntry(f"pose models, camera {spec.camera} {size} ({len(names)} objects)", models),
-        CacheEntry(f"recognition silhouettes, cameras {cams} {size}", silhouettes),
+    entries = [
+        CacheEntry(f"pose models, camera {spec.camera} {size} ({len(names)} objects)", models)
     ]
+    if _uses_flr(spec):
+        entries.append(CacheEntry(f"recognition silhouettes, cameras {cams} {size}", silhouettes))
+    return entries
+
+
+def _uses_flr(spec: DefaultModels) -> bool:
+    """Whether ``spec``'s recogniser is fitted on silhouettes (appearance needs no training)."""
+    return "flr" in spec.recognizer
 
 
 def build(
@@ -111,10 +121,11 @@ def build(
         spec.camera, spec.width, spec.height, names, jobs=jobs, progress=progress,
         training=spec.training,
     )  # fmt: skip
-    render_catalogue_silhouettes(
-        _recognised(names), spec.silhouettes_per_object, spec.width, spec.height, seed=0,
-        viewpoints="scene", progress=progress,
-    )  # fmt: skip
+    if _uses_flr(spec):
+        render_catalogue_silhouettes(
+            _recognised(names), spec.silhouettes_per_object, spec.width, spec.height, seed=0,
+            viewpoints="scene", progress=progress,
+        )  # fmt: skip
     return cache_entries(spec)
 
 

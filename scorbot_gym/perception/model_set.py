@@ -29,7 +29,11 @@ from pose.view import View
 from scorbot_gym.names import RECOGNIZERS
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
-from scorbot_gym.perception.recognizers import IdentityOnlyRecognizer, make_recognizer
+from scorbot_gym.perception.recognizers import (
+    DEFAULT_RECOGNIZER,
+    IdentityOnlyRecognizer,
+    make_recognizer,
+)
 from scorbot_gym.perception.references import load_model_set
 from scorbot_gym.perception.segmenters import Segmenter, make_segmenter
 from scorbot_gym.perception.support import (
@@ -63,8 +67,9 @@ class ModelSetPoseSource:
         Cameras to use; the pose comes from the model set's camera (added first if missing),
         the others serve recognition (e.g. ``("top", "side")``).
     recognizer
-        Used only when the identity is withheld: ``"flr+appearance"`` (default: FLR's three
-        best classes, decided by appearance), ``"flr"``, ``"appearance"`` or an object with
+        Used only when the identity is withheld: ``"appearance"`` (default: the class whose
+        pose model explains the most keypoints), ``"flr+appearance"`` (FLR's three best
+        classes, decided by appearance; the default until 2026-11-27), ``"flr"`` or an object with
         ``recognize`` (taking ``{camera: mask}`` if its ``reads`` is ``"silhouettes"``, both
         if ``"silhouettes+view"``, else a :class:`pose.view.View`); built on the first reset
         that needs it.
@@ -114,7 +119,7 @@ class ModelSetPoseSource:
         models: PoseModelSet | str | os.PathLike,
         segmenter: Segmenter | str = "background",
         cameras: Sequence[str] | None = None,
-        recognizer: str | Any = "flr+appearance",
+        recognizer: str | Any = DEFAULT_RECOGNIZER,
         memory: RecognitionMemory | None = None,
         clear_min_area: int = 200,
         fallback_models: Sequence[PoseModelSet | str | os.PathLike] = (),

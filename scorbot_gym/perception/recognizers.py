@@ -28,6 +28,11 @@ from pose.shape.descriptors import block_weights
 from pose.shape.flr import FLRClassifier
 from scorbot_gym.names import RECOGNIZERS
 
+#: the ``manifold`` source's recogniser by default since 2026-11-27: in the loop it recognised
+#: more episodes than FLR's shortlist, most of all tilted objects, whose silhouettes FLR was
+#: not fitted on (benchmarks/notes/2026-11-27-closed-loop.md); the clutter sources keep
+#: ``"flr+appearance"``, the recogniser their figures were measured with
+DEFAULT_RECOGNIZER = "appearance"
 #: classes FLR shortlists for appearance to decide among (``"flr+appearance"``)
 SHORTLIST_LENGTH = 3
 #: FLR settings tuned by the shape-recognition benchmark (ART block weighted 3x)
