@@ -357,7 +357,7 @@ def _arm_configs(args) -> dict:
         ),
         TABLE_MEMORY_ARM: RolloutConfig(**held, episodes=n, seed=seed),
         TABLE_MEMORY_APPEARANCE_ARM: RolloutConfig(
-            **held, recognizer="appearance", episodes=n, seed=seed
+            **{**held, "recognizer": "appearance"}, episodes=n, seed=seed
         ),
         RESTING_MODELS_ARM: RolloutConfig(
             **manifold, pose_model=RESTING_MODELS, episodes=n, seed=seed
@@ -366,10 +366,10 @@ def _arm_configs(args) -> dict:
         ROTATION_BLIND_ARM: RolloutConfig(**manifold, estimator="chance", episodes=n, seed=seed),
         IMAGE_BLIND_ARM: RolloutConfig(pose="constant", episodes=n, seed=seed),
         "manifold, FLR recognition": RolloutConfig(
-            **manifold, recognizer="flr", episodes=n, seed=seed
+            **{**manifold, "recognizer": "flr"}, episodes=n, seed=seed
         ),
         "manifold, appearance recognition": RolloutConfig(
-            **manifold, recognizer="appearance", episodes=n, seed=seed
+            **{**manifold, "recognizer": "appearance"}, episodes=n, seed=seed
         ),
         "manifold, side fallback": RolloutConfig(**fallback, episodes=n, seed=seed),
         "oracle, push, servoing": RolloutConfig(
@@ -398,6 +398,7 @@ def _arm_configs(args) -> dict:
             pose_cameras=("eye_in_hand",),
             segmenter="depth",
             support="table",
+            recognizer="flr+appearance",
             pose_size=EYE_IN_HAND_SIZE,
             episodes=args.eye_in_hand_episodes,
             seed=seed,

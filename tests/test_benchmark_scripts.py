@@ -365,3 +365,26 @@ def test_a_result_file_keeps_its_other_runs_when_one_is_written(tmp_path):
         read_result(path, "seed2")
     with pytest.raises(ValueError, match="may not carry its own 'configs'"):
         write_result(path, {"configs": {}})
+
+
+def test_every_closed_loop_arm_is_a_valid_configuration_and_the_defaults_have_theirs():
+    """``closed_loop.py`` builds each arm's RolloutConfig (no episodes run): every one is valid,
+    the committed arms keep the components they were measured with, and the arm of the
+    rollout defaults is the one the README's headline quotes."""
+    import argparse
+    import runpy
+
+    from scorbot_gym.evaluation.rollout import RolloutConfig
+
+    bench = runpy.run_path(str(BENCHMARKS / "closed_loop.py"), run_name="closed_loop_under_test")
+    args = argparse.Namespace(
+        episodes=2, seed=1, push_episodes=2, curve_episodes=1, eye_in_hand_episodes=2,
+        segmenter="background", no_recognize=False,
+    )  # fmt: skip
+    arms = bench["_arm_configs"](args)
+    default = RolloutConfig(pose="manifold", recognize=True)
+    held = arms[bench["TABLE_MEMORY_APPEARANCE_ARM"]]
+    assert (held.support, held.recognizer) == (default.support, default.recognizer)
+    assert (arms["manifold"].support, arms["manifold"].recognizer) == ("table", "flr+appearance")
+    assert arms["manifold, FLR recognition"].recognizer == "flr"
+    assert arms["manifold, no table prior"].support == "none"
