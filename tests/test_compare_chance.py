@@ -13,7 +13,7 @@ import pytest
 
 from pose.baselines import ChanceEstimator
 from pose.model_set import PoseModelSet
-from pose.recognition import AppearanceRecognizer, ShortlistRecognizer
+from pose.recognition import AppearanceRecognizer
 from scorbot_gym.cli import main
 from scorbot_gym.evaluation import compare as cmp
 from scorbot_gym.perception.base import PerceptionFrame
@@ -93,8 +93,8 @@ def test_chance_runs_the_chance_set_and_the_default_models_recognition(default_m
     source.reset(PerceptionFrame(), None)  # no identity: recognition is set up
     rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)
-    assert isinstance(rec.recognizer, ShortlistRecognizer) and rec.reads == "silhouettes+view"
-    assert set(rec.recognizer.appearance.estimators) == set(OBJECTS)  # the trained models'
+    assert isinstance(rec.recognizer, AppearanceRecognizer) and rec.reads == "view"
+    assert set(rec.recognizer.estimators) == set(OBJECTS)  # the trained models'
     # the fitted set comes from the cache the second time
     path = baseline_models_path("chance", COARSE, OBJECTS)
     before = path.stat().st_mtime_ns

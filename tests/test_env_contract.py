@@ -252,10 +252,10 @@ def test_the_cli_says_which_pipeline_runs(monkeypatch, capsys):
     import scorbot_gym.evaluation.rollout as rollout
     from scorbot_gym.cli import main
 
-    def stop(config, progress):
-        raise ValueError(f"stopped before any episode, pose {config.pose}")
+    def stop(configs, jobs=1, progress=False, ray=None):
+        raise ValueError(f"stopped before any episode, pose {configs[0].pose}")
 
-    monkeypatch.setattr(rollout, "run_rollout", stop)
+    monkeypatch.setattr(rollout, "run_rollouts", stop)
     assert main(["rollout", "--pose", "manifold", "--distractors", "2"]) == 2
     out, err = capsys.readouterr()
     assert out.strip() == (

@@ -96,6 +96,7 @@ def no_work(monkeypatch):
         return fail
 
     monkeypatch.setattr(rollout, "run_rollout", started("a rollout"))
+    monkeypatch.setattr(rollout, "run_rollouts", started("a rollout"))
     monkeypatch.setattr(compare, "compare", started("a comparison"))
     monkeypatch.setattr(perception, "train_models", started("a pose-model fit"))
     monkeypatch.setattr(datasets, "collect_episodes", started("an episode"))
