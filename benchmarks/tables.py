@@ -186,7 +186,7 @@ def closed_loop_paired() -> str:
 RESTING_CLOSED_LOOP = "resting_models"
 PERTURBATIONS = "perturbations"
 RESTING_PERTURBATIONS = "perturbations_resting_models"
-HELD_PERTURBATIONS = "perturbations_held"
+HELD_PERTURBATIONS = "perturbations_defaults"
 
 
 def closed_loop_arms(config: str | None = None, undisturbed: bool = False) -> str:
@@ -229,7 +229,7 @@ def closed_loop_perturbations() -> str:
     d = read("closed_loop.json", PERTURBATIONS)
     # the same run with the resting-view models
     before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]
-    held = read("closed_loop.json", HELD_PERTURBATIONS)["arms"]  # the default prior since
+    held = read("closed_loop.json", HELD_PERTURBATIONS)["arms"]  # the defaults since 2026-11-27
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -251,7 +251,7 @@ def closed_loop_perturbations() -> str:
             "perturbation",
             "success (95 % CI)",
             "with the resting-view models",
-            "with the held prior",
+            "with today's defaults",
             "failures",
             "valid estimates (all steps / first)",
             "recognition",
