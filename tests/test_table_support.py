@@ -238,9 +238,8 @@ def test_the_memory_checks_its_parameters():
         TableSupportMemory(hold_deg=2.0)
     with pytest.raises(ValueError, match="hold_deg must be in"):
         TableSupportMemory(hold_deg=120.0)
-    assert RolloutConfig(pose="manifold", support="table_memory").pose_kwargs()["support"] == (
-        "table_memory"
-    )
+    config = RolloutConfig(pose="manifold", support="table_memory", pose_model="m.npz")
+    assert config.pose_kwargs()["support"] == "table_memory"  # a file named: nothing trained
 
 
 def test_a_user_prior_without_reset_or_clear_still_works(top):
