@@ -248,5 +248,5 @@ def test_a_user_prior_without_reset_or_clear_still_works(top):
             return pose
 
     est = _pose("box", np.array([0.3, 0.0, 0.1]), np.eye(3))
-    assert refine_pose(Lift(), est, top, clear=True) is est
+    assert refine_pose(Lift(), est, top, clear=lambda: True) is est
     reset_support(Lift())  # no reset: nothing to do

@@ -216,7 +216,7 @@ class ClutterPoseSource:
             pose = _world_pose(est, cam, target, timings, self.camera)
             if self.support is not None:  # a clear view of the chosen blob may vote (memory)
                 excluded = getattr(self.segmenter, "excluded", lambda c: None)(self.camera)
-                clear = view_is_clear(blobs[chosen], excluded)
+                clear = lambda: view_is_clear(blobs[chosen], excluded)  # noqa: E731
                 pose = refine_pose(self.support, pose, cam, clear)
         pose.details = {
             **pose.details,

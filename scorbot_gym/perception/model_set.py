@@ -266,8 +266,9 @@ class ModelSetPoseSource:
         """``pose`` refined by the support prior (if any) with its camera's calibration."""
         if self.support is None or not pose.valid:
             return pose
-        clear = self._clear(self._masks.get(pose.camera), pose.camera)
-        return refine_pose(self.support, pose, frame.cameras[pose.camera], clear)
+        cam = pose.camera
+        clear = lambda: self._clear(self._masks.get(cam), cam)  # noqa: E731  (asked only if needed)
+        return refine_pose(self.support, pose, frame.cameras[cam], clear)
 
     def _moved(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
         """The last valid pose, moved to where a clear silhouette now places the object; or,

@@ -32,8 +32,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import inspect
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -84,9 +84,8 @@ class TableSupport:
     def reset(self) -> None:
         """Nothing to forget: every estimate is judged on its own."""
 
-    def refine(self, pose: WorldPose, camera: CameraModel, clear: bool = False) -> WorldPose:
-        """``pose`` on the table if it is a resting pose within the limits, else ``pose``
-        (``clear``, whether the view was unobstructed, is not used here).
+    def refine(self, pose: WorldPose, camera: CameraModel) -> WorldPose:
+        """``pose`` on the table if it is a resting pose within the limits, else ``pose``.
 
         The refined pose's ``timings_ms["support"]`` is the time this took and its
         ``details["table_support"]`` the tilt snapped (degrees) and the slide (mm)."""
@@ -164,6 +163,11 @@ class TableSupportMemory:
             f"hold_deg={self.hold_deg})"
         )
 
+    @property
+    def wants_clear(self) -> bool:
+        """Whether :meth:`refine` still counts votes (whether the view was clear matters)."""
+        return self.resting is None
+
     def reset(self) -> None:
         """Forget the last episode's votes and decision."""
         self._votes: list[bool] = []
@@ -208,8 +212,8 @@ def support_names() -> tuple[str, ...]:
 def make_support(support: TableSupport | TableSupportMemory | str | None) -> Any:
     """A support prior by name (``"table"``: :class:`TableSupport`; ``"table_memory"``:
     :class:`TableSupportMemory`; ``"none"`` or ``None``: estimates stay as the models answer
-    them) or the object itself (anything with ``refine(pose, camera)``; ``reset()`` and a
-    ``clear`` keyword of ``refine`` are used where it has them)."""
+    them) or the object itself (anything with ``refine(pose, camera)``; ``reset()``, and
+    with ``wants_clear`` ``refine``'s ``clear`` keyword, are used where it has them)."""
     if isinstance(support, str):
         if support not in _SUPPORTS:
             raise ValueError(
@@ -226,11 +230,14 @@ def make_support(support: TableSupport | TableSupportMemory | str | None) -> Any
     )
 
 
-def refine_pose(support: Any, pose: WorldPose, camera: CameraModel, clear: bool) -> WorldPose:
-    """``support.refine(pose, camera)``, telling it whether the view was clear if its
-    ``refine`` takes a ``clear`` keyword (a user's prior need not)."""
-    if "clear" in inspect.signature(support.refine).parameters:
-        return support.refine(pose, camera, clear=clear)
+def refine_pose(
+    support: Any, pose: WorldPose, camera: CameraModel, clear: Callable[[], bool]
+) -> WorldPose:
+    """``support.refine(pose, camera)``; a support that ``wants_clear`` (one still deciding,
+    :class:`TableSupportMemory`) is also told whether the view was clear. ``clear`` is asked
+    only then: the test dilates the mask, work an estimate that needs no vote does not pay."""
+    if getattr(support, "wants_clear", False):
+        return support.refine(pose, camera, clear=clear())
     return support.refine(pose, camera)
 
 
