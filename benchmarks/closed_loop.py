@@ -10,7 +10,8 @@ Arms (every arm runs the same seeded episodes over the whole catalogue):
   2026-11-27: the arms below were measured with it): no privileged input. Variants swap one
   component: no table-top prior (estimates as the models answer them), the prior decided once
   an episode on clear views and held (``support="table_memory"``, the rollout default since
-  2026-11-27; alone and with appearance recognition), the
+  2026-11-27; alone and with appearance recognition, and that with each fixed pose camera
+  re-calibrated from the arm's silhouette, ``calibration="arm"``), the
   resting-view models in place of the default ones, the resting-view models as a resting
   hypothesis (their estimate wherever the default models answer a near-resting pose), FLR
   alone or appearance alone as the recogniser, the ``side`` camera's own pose models where the
@@ -48,7 +49,8 @@ the default run, ``closed_loop.png``.
 ``--perturbations "none;lighting=0.5;..."`` runs instead the ``manifold`` arm once per env
 perturbation (``scorbot_gym.data.perturbations``, redrawn every episode; the pose models are the
 unperturbed ones): the perturbation axes in the loop, stored as the config ``perturbations`` of
-``closed_loop.json`` (unless ``--config`` names another).
+``closed_loop.json`` (unless ``--config`` names another); ``--perturbation-support``,
+``--perturbation-recognizer`` and ``--perturbation-calibration`` choose that arm's components.
 
     python benchmarks/closed_loop.py [--episodes 220] [--curve-episodes 44] [--jobs 16] [--quick]
     python benchmarks/closed_loop.py --arms "oracle;manifold;robustness" --out part1.json
@@ -87,6 +89,8 @@ RESTING_HYPOTHESIS_ARM = "manifold, resting-view hypothesis"
 TABLE_MEMORY_ARM = "manifold, table prior held per episode"
 #: that arm with appearance recognition over every class (no FLR shortlist)
 TABLE_MEMORY_APPEARANCE_ARM = "manifold, table prior held per episode, appearance recognition"
+#: that arm with each fixed pose camera re-calibrated from the arm's silhouette
+ARM_CALIBRATION_ARM = f"{TABLE_MEMORY_APPEARANCE_ARM}, arm calibration"
 #: the ``manifold`` arm with the resting-view models (the default before the tilted views)
 RESTING_MODELS_ARM = "manifold, resting-view models"
 #: the placeholder of that arm's ``pose_model``, the cache file once the run starts
@@ -235,6 +239,14 @@ def main(argv: list[str] | None = None) -> int:
         "committed config was measured; appearance is the rollout default)",
     )
     parser.add_argument(
+        "--perturbation-calibration",
+        choices=("none", "arm"),
+        default="none",
+        help="the camera calibration of the --perturbations arms (default: none, the cameras "
+        "as calibrated, as the committed configs were measured; arm: re-calibrated from the "
+        "arm's silhouette)",
+    )
+    parser.add_argument(
         "--merge",
         nargs="+",
         type=Path,
@@ -343,6 +355,7 @@ def _arm_configs(args) -> dict:
         recognize=not args.no_recognize,
         support="table",
         recognizer="flr+appearance",
+        calibration="none",
     )
     held = {**manifold, "support": "table_memory"}
     fallback = {**manifold, "fallback_cameras": ("side",)}
@@ -358,6 +371,9 @@ def _arm_configs(args) -> dict:
         TABLE_MEMORY_ARM: RolloutConfig(**held, episodes=n, seed=seed),
         TABLE_MEMORY_APPEARANCE_ARM: RolloutConfig(
             **{**held, "recognizer": "appearance"}, episodes=n, seed=seed
+        ),
+        ARM_CALIBRATION_ARM: RolloutConfig(
+            **{**held, "recognizer": "appearance", "calibration": "arm"}, episodes=n, seed=seed
         ),
         RESTING_MODELS_ARM: RolloutConfig(
             **manifold, pose_model=RESTING_MODELS, episodes=n, seed=seed
@@ -460,7 +476,7 @@ def _merge(parser: argparse.ArgumentParser, args) -> int:
             for label, arm in part["arms"].items():
                 arm["label"] = label
     same = ("seed", "episodes_per_arm", "episodes_per_disturbed_arm", "arm")
-    same += ("support", "recognizer")
+    same += ("support", "recognizer", "calibration")
     for key in same:
         if len({json.dumps(p.get(key)) for p in parts}) > 1:
             parser.error(f"--merge: the parts differ in {key!r}: they are not one run's arms")
@@ -545,6 +561,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         recognize=not args.no_recognize,
         support=args.perturbation_support,
         recognizer=args.perturbation_recognizer,
+        calibration=args.perturbation_calibration,
     )
     runs = [
         (label, RolloutConfig(
@@ -560,6 +577,7 @@ def _perturbation_arms(args, labels: list[str], train_s: float) -> int:
         "arm": "manifold",
         "support": args.perturbation_support,
         "recognizer": args.perturbation_recognizer,
+        "calibration": args.perturbation_calibration,
         "episodes_per_arm": args.episodes,
         "seed": args.seed,
         "pose_model_ready_s": train_s,

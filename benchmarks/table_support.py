@@ -41,8 +41,9 @@ def first_estimates(tilt_deg: float, seed: int, episodes: int) -> list[dict]:
 
     # the models' own answers (the prior off), measured as the prior would measure them
     cfg = RolloutConfig(
-        pose="manifold", episodes=episodes, seed=seed, tilt_deg=tilt_deg, support="none"
-    )
+        pose="manifold", episodes=episodes, seed=seed, tilt_deg=tilt_deg, support="none",
+        calibration="none",
+    )  # fmt: skip
     env = cfg.make_env()
     measure = TableSupport(snap_deg=90.0, max_shift_m=1.0)  # measures every estimate
     rows = []

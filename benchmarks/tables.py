@@ -94,7 +94,7 @@ BLIND_ARMS = (
 
 
 #: RolloutConfig fields added after some arms were run, at the value those arms ran with
-CONFIG_DEFAULTS = {"estimator": "manifold", "resting_hypothesis": False}
+CONFIG_DEFAULTS = {"estimator": "manifold", "resting_hypothesis": False, "calibration": "none"}
 
 
 def _arm_by_config(arms: dict, want: dict) -> str | None:
@@ -107,12 +107,13 @@ def _arm_by_config(arms: dict, want: dict) -> str | None:
     return None
 
 
-#: the rollout default's configuration (the arm the headline quotes), and the per-estimate
-#: prior it replaced on 2026-11-27
+#: the rollout default's configuration (the arm the headline quotes), the default it replaced
+#: on 2026-11-28 (the cameras as calibrated) and the per-estimate prior of before 2026-11-27
 DEFAULT_ARM = {"pose": "manifold", "support": "table_memory", "estimator": "manifold",
                "recognizer": "appearance", "pose_model": None, "fallback_cameras": [],
-               "resting_hypothesis": False}  # fmt: skip
-PER_ESTIMATE_ARM = {**DEFAULT_ARM, "support": "table", "recognizer": "flr+appearance"}
+               "resting_hypothesis": False, "calibration": "arm"}  # fmt: skip
+UNCALIBRATED_ARM = {**DEFAULT_ARM, "calibration": "none"}
+PER_ESTIMATE_ARM = {**UNCALIBRATED_ARM, "support": "table", "recognizer": "flr+appearance"}
 
 
 def headline_closed_loop() -> str:
@@ -120,8 +121,10 @@ def headline_closed_loop() -> str:
     arms = d["arms"]
     blind = [(words, _arm_by_config(arms, want), run) for words, want, run in BLIND_ARMS]
     default = _arm_by_config(arms, DEFAULT_ARM)
+    uncalibrated = _arm_by_config(arms, UNCALIBRATED_ARM)
     before = _arm_by_config(arms, PER_ESTIMATE_ARM)
-    wanted = (("the default's arm (support table_memory)", default),
+    wanted = (("the default's arm (calibration arm)", default),
+              ("the arm with the cameras as calibrated (calibration none)", uncalibrated),
               ("the per-estimate prior's arm (support table)", before))  # fmt: skip
     missing = [k for k, label in wanted if not label]
     missing += [k for k in ("oracle",) if k not in arms]
@@ -132,20 +135,21 @@ def headline_closed_loop() -> str:
             f"'{';'.join(missing)}' --out PART.json, then --merge it with the file's main run "
             "(--out benchmarks/results/closed_loop.json --overwrite)"
         )
-    a, o, b = arms[default], arms["oracle"], arms[before]
+    a, o, b, u = arms[default], arms["oracle"], arms[before], arms[uncalibrated]
     levels = ", ".join(f"{words} {pct(arms[label]['success_rate'])}" for words, label, _ in blind)
     names = ", ".join(f"`{label}`" for _, label, _ in blind)
     return (
         f"**{pct(a['success_rate'])}** of {a['episodes']} seeded grasps "
         f"(95 % CI {ci(a['success_rate_ci95'])[1:-1]}) with the pose estimated from the camera "
         f"images alone (background subtraction, recognition by appearance, pose manifold, "
-        f"table-top prior held per episode; "
-        f"whole catalogue, scripted controller, seeds from {d['seed']}); with the defaults "
-        f"before 2026-11-27 (the prior judged per estimate, FLR's shortlist) "
+        f"table-top prior held per episode, cameras re-calibrated from the arm; "
+        f"whole catalogue, scripted controller, seeds from {d['seed']}); with the cameras as "
+        f"calibrated (the default until 2026-11-28) {pct(u['success_rate'])}; with the "
+        f"defaults before 2026-11-27 (the prior judged per estimate, FLR's shortlist) "
         f"{pct(b['success_rate'])}; with the true pose "
         f"(the upper bound) {pct(o['success_rate'])}; {levels} "
-        f"(`benchmarks/results/closed_loop.json`, arms `{default}`, `{before}`, `oracle`, "
-        f"{names}).\n"
+        f"(`benchmarks/results/closed_loop.json`, arms `{default}`, `{uncalibrated}`, "
+        f"`{before}`, `oracle`, {names}).\n"
     )
 
 
@@ -180,23 +184,23 @@ def closed_loop_paired() -> str:
     return f"Seeds {seeds[0]}–{seeds[-1]}:\n\n" + table(head, rows)
 
 
-#: configs of closed_loop.json: the run with the resting-view pose models (the default before
-#: the tilted ones), the perturbation run (``closed_loop.py --perturbations``) and its
-#: resting-view twin
-RESTING_CLOSED_LOOP = "resting_models"
+#: configs of closed_loop.json: the perturbation run (``closed_loop.py --perturbations``) and its
+#: twins with the resting-view pose models (the default before the tilted ones) and later defaults
 PERTURBATIONS = "perturbations"
 RESTING_PERTURBATIONS = "perturbations_resting_models"
 HELD_PERTURBATIONS = "perturbations_defaults"
+#: the perturbation run with today's defaults (``--perturbation-calibration arm``), and the
+#: calibration error alone on fresh seeds, as calibrated and re-calibrated from the arm
+CALIBRATED_PERTURBATIONS = "perturbations_calibration"
+FRESH_UNCALIBRATED = "calibration_error_fresh_seeds"
+FRESH_CALIBRATED = "calibration_error_fresh_seeds_arm"
 
 
-def closed_loop_arms(config: str | None = None, undisturbed: bool = False) -> str:
-    """The arms of a run (``undisturbed``: only those without a push, on the top camera)."""
-    d = read("closed_loop.json", config)
+def closed_loop_arms() -> str:
+    """The arms of the main run."""
+    d = read("closed_loop.json")
     rows = []
     for label, a in d["arms"].items():
-        cfg = a.get("config", {})
-        if undisturbed and (cfg.get("disturbance") or cfg.get("pose_cameras", ["top"])[0] != "top"):
-            continue
         valid = a.get("perception", {}).get("valid_rate")
         rows.append(
             [
@@ -229,7 +233,8 @@ def closed_loop_perturbations() -> str:
     d = read("closed_loop.json", PERTURBATIONS)
     # the same run with the resting-view models
     before = read("closed_loop.json", RESTING_PERTURBATIONS)["arms"]
-    held = read("closed_loop.json", HELD_PERTURBATIONS)["arms"]  # the defaults since 2026-11-27
+    held = read("closed_loop.json", HELD_PERTURBATIONS)["arms"]  # the defaults of 2026-11-27
+    today = read("closed_loop.json", CALIBRATED_PERTURBATIONS)["arms"]  # since 2026-11-28
     rows = []
     for label in d["perturbations"]:
         a = d["arms"][label]
@@ -240,6 +245,7 @@ def closed_loop_perturbations() -> str:
                 f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}",
                 pct(before[label]["success_rate"]) if label in before else "–",
                 pct(held[label]["success_rate"]) if label in held else "–",
+                pct(today[label]["success_rate"]) if label in today else "–",
                 failures(a["failure_causes"]),
                 f"{pct(p['valid_rate'])} / {pct(p['first_estimate_valid_rate'])}",
                 pct(p["recognition_accuracy"]),
@@ -251,7 +257,8 @@ def closed_loop_perturbations() -> str:
             "perturbation",
             "success (95 % CI)",
             "with the resting-view models",
-            "with today's defaults",
+            "with the defaults of 2026-11-27",
+            "with today's defaults (+ arm calibration)",
             "failures",
             "valid estimates (all steps / first)",
             "recognition",
@@ -259,6 +266,36 @@ def closed_loop_perturbations() -> str:
         ],
         rows,
     )
+
+
+def closed_loop_calibration_fresh() -> str:
+    """The calibration error on fresh seeds, the cameras as calibrated against re-calibrated
+    from the arm, paired episode by episode (``failed`` seeds: the others succeeded)."""
+    from scorbot_gym.evaluation.summary import newcombe_paired_diff
+
+    runs = {
+        "as calibrated (`--calibration none`)": FRESH_UNCALIBRATED,
+        "re-calibrated from the arm (`--calibration arm`)": FRESH_CALIBRATED,
+    }
+    runs = {label: read("closed_loop.json", config) for label, config in runs.items()}
+    first = next(iter(runs.values()))
+    seeds = [str(first["seed"] + i) for i in range(first["episodes_per_arm"])]
+    arms = {k: next(iter(d["arms"].values())) for k, d in runs.items()}
+    ok = {k: [s not in a["failed"] for s in seeds] for k, a in arms.items()}
+    ref = list(arms)[0]
+    rows = []
+    for label, a in arms.items():
+        vs = "(reference)"
+        if label != ref:
+            diff = newcombe_paired_diff(ok[label], ok[ref])
+            lo, hi = diff["ci95"]
+            vs = (f"{100 * diff['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}), "
+                  f"{diff['only_a']} vs {diff['only_b']}, p = {diff['mcnemar_p']:.1g}")  # fmt: skip
+        rows.append([label, f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}",
+                     failures(a["failure_causes"]), vs])  # fmt: skip
+    head = ["cameras", "success (95 % CI)", "failures",
+            "Δ, points (95 % CI), discordant, McNemar p"]  # fmt: skip
+    return f"`{first['perturbations'][0]}`, seeds {seeds[0]}–{seeds[-1]}:\n\n" + table(head, rows)
 
 
 def policy_name(policy: str) -> str:
@@ -1020,7 +1057,6 @@ TABLES: dict[str, Callable[[], str]] = {
     "headline-ablation": headline_ablation,
     "closed-loop": closed_loop_arms,
     "closed-loop-robustness": closed_loop_robustness,
-    "closed-loop-resting": lambda: closed_loop_arms(RESTING_CLOSED_LOOP, undisturbed=True),
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
     "compare-noise-once": compare_table("noise_once"),
@@ -1058,6 +1094,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "tilted-in-loop": tilted_in_loop,
     "tilted-in-loop-recognize": lambda: tilted_in_loop("loop_recognize"),
     "closed-loop-paired": closed_loop_paired,
+    "closed-loop-calibration-fresh": closed_loop_calibration_fresh,
     "cli-startup": cli_startup,
     "wrapper-step": wrapper_step,
 }

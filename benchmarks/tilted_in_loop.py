@@ -110,14 +110,20 @@ LOOP_ARMS = {
     "views and held (support='table_memory')",
     "manifold_held_appearance": "manifold_held, recognised by appearance over every class "
     "(recognizer='appearance'; with --recognize)",
+    "manifold_calibrated": "manifold_held_appearance with the fixed cameras re-calibrated from "
+    "the arm's silhouette (calibration='arm'; the defaults since 2026-11-28)",
 }
 #: the recogniser of each image arm (with --recognize) where it is not FLR's shortlist decided by
 #: appearance, the default the committed arms were measured with (appearance since 2026-11-27)
-ARM_RECOGNIZER = {"manifold_held_appearance": "appearance"}
+ARM_RECOGNIZER = {"manifold_held_appearance": "appearance", "manifold_calibrated": "appearance"}
 #: the ``support`` of each image arm's source: the per-estimate prior the committed arms were
 #: measured with (the default until 2026-11-27), the held one (the default since) by name
-ARM_SUPPORT = {"manifold_held": "table_memory", "manifold_held_appearance": "table_memory"}
+ARM_SUPPORT = {"manifold_held": "table_memory", "manifold_held_appearance": "table_memory",
+               "manifold_calibrated": "table_memory"}  # fmt: skip
 ARM_SUPPORT_DEFAULT = "table"
+#: the arms whose fixed cameras are re-calibrated from the arm's silhouette (the others were
+#: measured with the cameras as calibrated, the default until 2026-11-28)
+ARM_CALIBRATION = {"manifold_calibrated": "arm"}
 #: the arms run unless ``--arms`` says otherwise
 DEFAULT_LOOP_ARMS = ("oracle", "manifold", "chance", "resting")
 #: symmetry groups of ``by_symmetry`` (the target's :class:`pose.symmetry.Symmetry` kind)
@@ -306,6 +312,7 @@ def _loop_arm(
         pose_model=pose_model if image else None, recognize=recognize and image,
         support=ARM_SUPPORT.get(label, ARM_SUPPORT_DEFAULT) if image else None,
         recognizer=ARM_RECOGNIZER.get(label, "flr+appearance") if image else None,
+        calibration=ARM_CALIBRATION.get(label, "none") if image else None,
     )  # fmt: skip
     t0 = time.perf_counter()
     summary, _ = run_rollout(config, progress=False)

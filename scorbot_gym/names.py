@@ -42,6 +42,9 @@ SEGMENTERS = ("background", "depth", "privileged")
 SPLITTERS = ("none", "keypoints", "distance")
 #: :func:`scorbot_gym.perception.support.support_names` (``none``: no prior)
 SUPPORTS = ("table", "table_memory", "none")
+#: :mod:`scorbot_gym.perception.calibration` takes them from here (``none``: the cameras as
+#: calibrated; ``arm``: re-calibrated from the arm's silhouette while the episode runs)
+CALIBRATIONS = ("none", "arm")
 #: :mod:`scorbot_gym.perception.recognizers` takes them from here
 RECOGNIZERS = ("flr", "appearance", "flr+appearance")
 #: :func:`scorbot_gym.perception.motion.motion_names` (sorted)

@@ -86,6 +86,7 @@ def test_pose_ablate_without_occlusion_sweeps_the_default_levels(monkeypatch):
 _REGISTERED_NAMES = """
 import json
 from scorbot_gym.data.protocols import protocol_names
+from scorbot_gym.perception.calibration import calibration_names
 from scorbot_gym.evaluation.rollout import POLICIES, POSE_ALIASES
 from scorbot_gym.perception import pose_source_names, segmenter_names
 from scorbot_gym.perception.motion import motion_names
@@ -102,7 +103,7 @@ print(json.dumps({
     "FIXED_CAMERAS": [c.name for c in DEFAULT_CAMERAS], "MOVING_CAMERAS": MOVING_CAMERAS,
     "SEGMENTERS": segmenter_names(), "RECOGNIZERS": RECOGNIZERS, "MOTIONS": motion_names(),
     "DISTURBANCES": list(DISTURBANCES), "PROTOCOLS": protocol_names(), "SPLITTERS": SPLITTERS,
-    "SUPPORTS": support_names(), "IDENTITIES": IDENTITIES,
+    "SUPPORTS": support_names(), "IDENTITIES": IDENTITIES, "CALIBRATIONS": calibration_names(),
 }))
 """
 

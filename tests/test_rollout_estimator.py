@@ -74,7 +74,7 @@ def test_chance_swaps_the_models_and_keeps_recognition_without_its_estimates(def
     assert blind.meta["views_of"] == COARSE.to_dict()  # fitted on the trained models' views
     # recognition by the trained models, named (so the env's spec can rebuild the source)
     assert chance["recognizer"] == "appearance" and chance["recognition_models"] is defaults
-    source = ModelSetPoseSource(**{**chance, "segmenter": "privileged"})  # reads no images
+    source = ModelSetPoseSource(**{**chance, "segmenter": "privileged", "calibration": "none"})
     source.reset(_frame_without_identity(), None)
     rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)

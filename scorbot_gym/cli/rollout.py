@@ -21,6 +21,7 @@ from scorbot_gym.cli._args import (
 )
 from scorbot_gym.envs.arguments import MAX_TILT_DEG
 from scorbot_gym.names import (
+    CALIBRATIONS,
     DISTURBANCES,
     FIXED_CAMERAS,
     MOTIONS,
@@ -142,6 +143,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "views and held, and every estimate of a resting one is put on the table), table (the "
         "default with --distractors: each estimate within 5 degrees of a resting pose is put "
         "on the table, along the line of sight) or none (estimates as the models answer them)",
+    )
+    p.add_argument(
+        "--calibration",
+        choices=CALIBRATIONS,
+        default=None,
+        help="with --pose manifold: none (default: the fixed cameras as calibrated) or arm "
+        "(each fixed pose camera re-calibrated at every estimate from the arm's silhouette, "
+        "against a calibration error)",
     )
     p.add_argument(
         "--estimator",
@@ -326,6 +335,7 @@ def config_from_args(args: argparse.Namespace) -> RolloutConfig:
         recognize=_recognize(args),
         splitter=args.splitter,
         support=args.support,
+        calibration=args.calibration,
         estimator=args.estimator,
         estimate_every=args.estimate_every,
         disturbance=None if args.disturb == "none" else args.disturb,

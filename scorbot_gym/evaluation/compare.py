@@ -83,6 +83,7 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
+from scorbot_gym.perception.calibration import DEFAULT_CALIBRATION
 from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
@@ -182,6 +183,7 @@ def pose_conditions(
                 "recognizer": MANIFOLD_RECOGNIZER,
                 "cameras": list(MANIFOLD_CAMERAS),
                 "support": DEFAULT_SUPPORT,  # recorded (compare.json before 2026-11-27: "table")
+                "calibration": DEFAULT_CALIBRATION,  # recorded (compare.json before: "none")
             }
             if p == "manifold" and pose_model is not None:
                 kw["models"] = str(pose_model)

@@ -17,7 +17,8 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import summarize
-from scorbot_gym.names import POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
+from scorbot_gym.names import CALIBRATIONS, POLICIES, POSE_ALIASES, SPLITTERS, SUPPORTS
+from scorbot_gym.perception.calibration import DEFAULT_CALIBRATION
 from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
@@ -73,7 +74,11 @@ class RolloutConfig:
     segmentation and recognition unchanged; ``"manifold"`` (default) keeps the trained ones.
     ``resting_hypothesis`` adds the resting-view default models to the ``manifold`` source as
     its resting hypothesis (``ModelSetPoseSource(resting_models=...)``: their estimate wherever
-    the default models answer a pose near a resting one).
+    the default models answer a pose near a resting one). ``calibration`` is the ``manifold``
+    source's camera calibration (:mod:`scorbot_gym.perception.calibration`; ``None``: its
+    default where the segmenter is ``"background"``, else ``"none"``): ``"arm"`` re-calibrates
+    each fixed pose camera from the arm's silhouette at every estimate, ``"none"`` keeps the
+    cameras as calibrated.
     """
 
     policy: str = "scripted"
@@ -103,6 +108,7 @@ class RolloutConfig:
     support: str | None = None
     estimator: str = "manifold"
     resting_hypothesis: bool = False
+    calibration: str | None = None
 
     def __post_init__(self) -> None:
         self.pose = POSE_ALIASES.get(self.pose, self.pose)
@@ -173,6 +179,19 @@ class RolloutConfig:
         if self.support != "table" and self.pose not in ("manifold", *CLUTTER_POSE_SOURCES):
             raise ValueError(
                 f"support only applies to the image-based pose sources, not {self.pose!r}"
+            )
+        if self.calibration is None:  # the source's own default (arm-aware segmenters only)
+            arm_aware = self.pose == "manifold" and self.segmenter == "background"
+            self.calibration = DEFAULT_CALIBRATION if arm_aware else "none"
+        if self.calibration not in CALIBRATIONS:
+            raise ValueError(f"calibration must be one of {CALIBRATIONS}, got {self.calibration!r}")
+        if self.calibration != "none" and (
+            self.pose != "manifold" or self.segmenter != "background"
+        ):
+            raise ValueError(
+                f"calibration {self.calibration!r} re-calibrates the cameras of pose 'manifold' "
+                f"from the arm in background subtraction (segmenter 'background'), not pose "
+                f"{self.pose!r} with segmenter {self.segmenter!r}"
             )
         if self.estimator != "manifold":
             from pose.registry import make_from_spec
@@ -278,6 +297,7 @@ class RolloutConfig:
             "cameras": list(self.pose_cameras),
             "motion": self.motion,
             "support": self.support,
+            "calibration": self.calibration,
         }
         if self.estimator != "manifold":  # the same source, a baseline's models
             from scorbot_gym.perception.baseline_models import baseline_source_kwargs

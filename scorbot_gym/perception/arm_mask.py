@@ -64,6 +64,32 @@ class ArmMaskRenderer:
         self, camera: CameraModel, joint_pos: np.ndarray, gripper_opening: float = 0.0
     ) -> np.ndarray:
         """``(H, W)`` bool: pixels where ``camera`` sees the arm at ``joint_pos``."""
+        r = self._posed(camera, joint_pos, gripper_opening)
+        seg = r.render()
+        return (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0)
+
+    def render_with_depth(
+        self, camera: CameraModel, joint_pos: np.ndarray, gripper_opening: float = 0.0
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The arm's mask (as :meth:`render`) and its depth ``(H, W)`` in metres along the
+        optical axis (meaningful inside the mask): where a camera calibration from the
+        silhouette needs the arm's 3-D points."""
+        r = self._posed(camera, joint_pos, gripper_opening)
+        seg = r.render()
+        mask = (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0)
+        r.disable_segmentation_rendering()
+        r.enable_depth_rendering()
+        try:
+            depth = r.render().copy()
+        finally:
+            r.disable_depth_rendering()
+            r.enable_segmentation_rendering()
+        return mask, depth
+
+    def _posed(
+        self, camera: CameraModel, joint_pos: np.ndarray, gripper_opening: float
+    ) -> mujoco.Renderer:
+        """The renderer for ``camera``'s image size, its scene set to the arm at ``joint_pos``."""
         q = np.asarray(joint_pos, float).ravel()
         if q.shape != (len(ARM_JOINTS),) or not np.all(np.isfinite(q)):
             raise ValueError(f"joint_pos must be {len(ARM_JOINTS)} finite angles, got {q}")
@@ -82,8 +108,7 @@ class ArmMaskRenderer:
             self._renderers[key] = r
         r = self._renderers[key]
         r.update_scene(d, camera=self._cam)
-        seg = r.render()
-        return (seg[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (seg[..., 0] >= 0)
+        return r
 
     def close(self) -> None:
         """Free the GL contexts (the next :meth:`render` makes them again)."""

@@ -28,6 +28,11 @@ from pose.recognition import Recognition, RecognitionMemory, view_is_clear
 from pose.view import View
 from scorbot_gym.names import RECOGNIZERS
 from scorbot_gym.perception.base import PerceptionFrame, WorldPose
+from scorbot_gym.perception.calibration import (
+    ArmCalibration,
+    default_calibration,
+    make_calibration,
+)
 from scorbot_gym.perception.motion import SilhouetteMotion, make_motion
 from scorbot_gym.perception.recognizers import (
     DEFAULT_RECOGNIZER,
@@ -112,6 +117,15 @@ class ModelSetPoseSource:
         object lying on the table, which lose thin objects (marker, banana) less often; objects
         the primary models find tilted keep their estimate. ``None`` (default): the primary
         models alone.
+    calibration
+        ``"arm"`` (an :class:`~scorbot_gym.perception.calibration.ArmCalibration`: each
+        fixed pose camera re-calibrated at every estimate from the arm's silhouette, which
+        cancels an error of the cameras' calibration; needs the ``"background"`` segmenter;
+        while the arm hides the object, the last estimate is answered again through the
+        camera as re-calibrated), ``"none"`` (every camera as its public calibration says),
+        or such an object; ``None`` (default):
+        :data:`~scorbot_gym.perception.calibration.DEFAULT_CALIBRATION` where the segmenter
+        can show the arm, else ``"none"``.
     """
 
     def __init__(
@@ -127,6 +141,7 @@ class ModelSetPoseSource:
         support: TableSupport | TableSupportMemory | str | None = DEFAULT_SUPPORT,
         recognition_models: PoseModelSet | str | os.PathLike | None = None,
         resting_models: PoseModelSet | str | os.PathLike | None = None,
+        calibration: str | ArmCalibration | None = None,
     ) -> None:
         self.models = _load(models)
         self.resting_models = None if resting_models is None else _load(resting_models)
@@ -154,6 +169,11 @@ class ModelSetPoseSource:
                     f"{size[0]}x{size[1]}"
                 )
         self.segmenter = make_segmenter(segmenter)
+        if calibration is None:
+            calibration = default_calibration(self.segmenter)
+        self.calibration = make_calibration(calibration)
+        if isinstance(self.calibration, ArmCalibration):
+            ArmCalibration.check_segmenter(self.segmenter)
         if isinstance(cameras, str):
             raise ValueError(f"cameras must be a list of camera names, got the string {cameras!r}")
         extra = [c for c in (cameras or ()) if c != self.camera]
@@ -166,6 +186,8 @@ class ModelSetPoseSource:
         self._recognizer: Any = None
         self.motion = make_motion(motion)
         self._last: WorldPose | None = None  # the last valid answer, for ``motion``
+        #: the last valid estimate before the support prior, with its camera as calibrated then
+        self._seen: tuple[WorldPose, Any] | None = None
         self._masks: dict[str, np.ndarray | None] = {}  # this step's masks, by camera
 
     def _check_resting(self, resting: PoseModelSet) -> None:
@@ -203,9 +225,13 @@ class ModelSetPoseSource:
         }
 
     def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
-        self._last = None
+        self._last = self._seen = None
+        self._masks = {}
         for cam in self.cameras:
             self.segmenter.reset(frame, cam)
+        if self.calibration is not None:
+            pose_cameras = (self.camera, *(str(fb.meta["camera"]) for fb in self.fallback_models))
+            self.calibration.reset(frame, pose_cameras, self.segmenter)
         self.memory.reset()
         reset_support(self.support)
         if frame.object_name is None and len(self.models.object_names) > 1:
@@ -243,13 +269,21 @@ class ModelSetPoseSource:
         """The primary camera's estimate; where it is invalid (e.g. the arm hides the object
         from above), the first valid one of the fallback cameras, for the same object."""
         self._masks = {}
-        pose = self._supported(self._estimate_primary(frame), frame)
+        calibrate_ms = None
+        if self.calibration is not None:
+            t0 = time.perf_counter()
+            frame = self.calibration.update(frame, self.segmenter)
+            calibrate_ms = (time.perf_counter() - t0) * 1e3
+        seen = self._estimate_primary(frame)
+        pose = self._supported(seen, frame)
+        if calibrate_ms is not None:
+            pose.timings_ms = {"calibrate": calibrate_ms, **pose.timings_ms}
         if not (pose.valid or pose.object_name is None):
             timings = dict(pose.timings_ms)  # shared: fallbacks' times add up under "fallback"
             for models in self.fallback_models:
                 alt = self._estimate_with(models, frame, pose.object_name, timings)
                 if alt.valid:
-                    pose = self._supported(alt, frame)
+                    seen, pose = alt, self._supported(alt, frame)
                     break
             else:
                 pose = dataclasses.replace(pose, timings_ms=timings)
@@ -258,9 +292,39 @@ class ModelSetPoseSource:
                     moved = self._moved(frame, pose)
                     timings["motion"] = (time.perf_counter() - t0) * 1e3
                     pose = moved or pose
+                if self.calibration is not None and not pose.valid:
+                    pose = self._recalibrated(frame, pose) or pose
+        if seen.valid:  # what a camera saw, and how it was calibrated then
+            self._seen = (seen, frame.cameras[seen.camera])
         if pose.valid:
             self._last = pose
         return pose
+
+    def _recalibrated(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
+        """The last estimate, seen through its camera as calibrated now, where the calibration
+        has moved it since (by over a millimetre): while the arm
+        hides the object, the plan would otherwise keep an estimate placed through a
+        calibration the arm's silhouette has since corrected."""
+        if self._seen is None or self._last is None:
+            return None
+        seen, camera_then = self._seen
+        if seen.object_name != invalid.object_name:
+            return None
+        now = np.asarray(frame.cameras[seen.camera].world_from_camera, float)
+        M = now @ np.linalg.inv(np.asarray(camera_then.world_from_camera, float))
+        position = M[:3, :3] @ seen.position + M[:3, 3]
+        if np.linalg.norm(position - seen.position) < 1e-3:  # not worth a new answer
+            return None
+        pose = dataclasses.replace(
+            seen,
+            position=position,
+            quaternion=mat_to_quat(M[:3, :3] @ seen.rotation),
+            n_keypoints=0,
+            n_inliers=0,
+            timings_ms=invalid.timings_ms,
+            reason="re-calibrated: the last estimate through the camera as calibrated now",
+        )
+        return self._supported(pose, frame)
 
     def _supported(self, pose: WorldPose, frame: PerceptionFrame) -> WorldPose:
         """``pose`` refined by the support prior (if any) with its camera's calibration."""

@@ -129,6 +129,13 @@ class BackgroundSegmenter(_ArmAwareSegmenter):
         )
         self._excluded.pop(camera, None)
 
+    def foreground(self, frame: PerceptionFrame, camera: str) -> np.ndarray:
+        """Every pixel that differs from the reference frame, the arm's included, ``(H, W)``
+        bool: what a calibration from the arm's silhouette compares the rendered arm with."""
+        if camera not in self._fitted:
+            raise RuntimeError(f"BackgroundSegmenter.foreground before reset for camera {camera!r}")
+        return self._fitted[camera].foreground(np.asarray(frame.observation[f"{camera}_rgb"]))
+
     def segment(self, frame: PerceptionFrame, camera: str) -> np.ndarray | None:
         if camera not in self._fitted:
             raise RuntimeError(f"BackgroundSegmenter.segment before reset for camera {camera!r}")

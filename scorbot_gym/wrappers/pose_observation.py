@@ -438,6 +438,7 @@ def _recordable_source(
 # Stages a pose source reports at top level, and the wrapper's "neighbours" (the other objects,
 # where asked for); their sum is the perception time of one step.
 _TOP_LEVEL_STAGES = (
+    "calibrate",
     "segment",
     "recognise",
     "estimate",
