@@ -89,7 +89,8 @@ def test_chance_runs_the_chance_set_and_the_default_models_recognition(default_m
     # recognised by the default models, named, so that the env's spec can rebuild the source
     assert chance.kwargs["recognizer"] == cmp.MANIFOLD_RECOGNIZER
     assert chance.kwargs["recognition_models"] is two
-    source = ModelSetPoseSource(**{**chance.kwargs, "segmenter": "privileged"})
+    no_images = {"segmenter": "privileged", "calibration": "none"}
+    source = ModelSetPoseSource(**{**chance.kwargs, **no_images})
     source.reset(PerceptionFrame(), None)  # no identity: recognition is set up
     rec = source._recognizer
     assert isinstance(rec, IdentityOnlyRecognizer)
