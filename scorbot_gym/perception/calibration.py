@@ -93,13 +93,10 @@ class ArmCalibration:
     def cameras(self) -> dict[str, Any]:
         """The cameras as currently estimated, by name (each nominal until its correction
         matters, see ``min_correction_m``)."""
-        out = {}
-        for cam, f in self._filters.items():
-            if cam not in self._corrected:
-                if _table_shift(f.nominal_, f.camera) > self.min_correction_m:
-                    self._corrected.add(cam)
-            out[cam] = f.camera if cam in self._corrected else f.nominal_
-        return out
+        return {
+            cam: f.camera if cam in self._corrected else f.nominal_
+            for cam, f in self._filters.items()
+        }
 
     def update(self, frame: PerceptionFrame, segmenter: Any) -> PerceptionFrame:
         """Take this step's images into every camera's estimate; ``frame`` with the cameras
@@ -110,6 +107,10 @@ class ArmCalibration:
             mask, depth = segmenter.arm.render_with_depth(f.camera, obs["joint_pos"], opening)
             image = np.asarray(obs[f"{cam}_rgb"])
             f.update(mask, depth, segmenter.foreground(frame, cam), image, self._reference[cam])
+            if cam not in self._corrected and (
+                _table_shift(f.nominal_, f.camera) > self.min_correction_m
+            ):
+                self._corrected.add(cam)
         return dataclasses.replace(frame, cameras={**frame.cameras, **self.cameras()})
 
 
