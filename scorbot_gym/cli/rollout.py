@@ -148,9 +148,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--calibration",
         choices=CALIBRATIONS,
         default=None,
-        help="with --pose manifold: none (default: the fixed cameras as calibrated) or arm "
-        "(each fixed pose camera re-calibrated at every estimate from the arm's silhouette, "
-        "against a calibration error)",
+        help="with --pose manifold: arm (the default with --segmenter background: each fixed "
+        "pose camera re-calibrated at every estimate from the arm's silhouette, against a "
+        "calibration error; a correction under 3 mm is not applied) or none (the cameras as "
+        "calibrated; the default with the other segmenters)",
     )
     p.add_argument(
         "--estimator",
