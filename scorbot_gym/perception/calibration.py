@@ -65,9 +65,15 @@ class ArmCalibration:
         self._reference: dict[str, np.ndarray] = {}
 
     @staticmethod
+    def supports(segmenter: Any) -> bool:
+        """Whether ``segmenter`` can show the arm: a change mask against a reference frame
+        (``foreground``) and the arm's renderer (``arm``)."""
+        return hasattr(segmenter, "foreground") and hasattr(segmenter, "arm")
+
+    @staticmethod
     def check_segmenter(segmenter: Any) -> None:
         """A one-line error unless ``segmenter`` can show the arm (a reference-frame one)."""
-        if not (hasattr(segmenter, "foreground") and hasattr(segmenter, "arm")):
+        if not ArmCalibration.supports(segmenter):
             raise ValueError(
                 "calibration='arm' needs a segmenter that compares with a reference frame and "
                 f"renders the arm (segmenter='background'), got {type(segmenter).__name__}"
@@ -143,23 +149,17 @@ def default_calibration(segmenter: Any) -> str:
     """:data:`DEFAULT_CALIBRATION` where ``segmenter`` can show the arm (a reference-frame
     segmenter), else ``"none"``: the privileged and depth segmenters keep the cameras as
     given."""
-    supported = hasattr(segmenter, "foreground") and hasattr(segmenter, "arm")
-    return DEFAULT_CALIBRATION if supported else "none"
+    return DEFAULT_CALIBRATION if ArmCalibration.supports(segmenter) else "none"
 
 
 def make_calibration(calibration: str | ArmCalibration | None) -> ArmCalibration | None:
     """A calibration by name (``"arm"``; ``"none"`` or ``None``: the cameras as given) or the
     object itself (anything with ``reset`` and ``update``)."""
-    if calibration is None or isinstance(calibration, str):
-        name = "none" if calibration is None else calibration
-        factory = _CALIBRATIONS.get(name, _CALIBRATIONS)
-        if factory is _CALIBRATIONS:
-            raise ValueError(
-                f"calibration must be one of {', '.join(_CALIBRATIONS)} or an object with "
-                f"reset and update, got {calibration!r}"
-            )
+    name = "none" if calibration is None else calibration
+    if isinstance(name, str) and name in _CALIBRATIONS:
+        factory = _CALIBRATIONS[name]
         return None if factory is None else factory()
-    if hasattr(calibration, "reset") and hasattr(calibration, "update"):
+    if not isinstance(name, str) and hasattr(name, "reset") and hasattr(name, "update"):
         return calibration
     raise ValueError(
         f"calibration must be one of {', '.join(_CALIBRATIONS)} or an object with reset and "

@@ -302,9 +302,9 @@ class ModelSetPoseSource:
 
     def _recalibrated(self, frame: PerceptionFrame, invalid: WorldPose) -> WorldPose | None:
         """The last estimate, seen through its camera as calibrated now, where the calibration
-        has moved it since (by over a millimetre): while the arm
-        hides the object, the plan would otherwise keep an estimate placed through a
-        calibration the arm's silhouette has since corrected."""
+        has moved it since (by over a millimetre): while the arm hides the object, the plan
+        would otherwise keep an estimate placed through a calibration the arm's silhouette
+        has since corrected."""
         if self._seen is None or self._last is None:
             return None
         seen, camera_then = self._seen
