@@ -405,3 +405,83 @@ def test_train_sets_the_noisy_pose_sources_noise(capsys):
     assert main(["train", "--yaw-sigma-deg", "20", "--show-hyperparams"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "apply only to --pose noisy" in err, err
+
+
+# --- a checkpoint written whole: a kill at any moment leaves one complete ---------------------
+def _checkpoint(folder, step: int) -> None:
+    folder.mkdir(parents=True)
+    (folder / "model.safetensors").write_text(f"weights at {step}")
+    (folder / "state.json").write_text(json.dumps({"timesteps": step}))
+
+
+def _kill_during_save(run, at: str) -> None:
+    """``run`` (checkpoint at step 100) as a save of step 200 killed at ``at``."""
+    from scorbot_gym.rl import runs
+
+    staging = run / runs.STAGING_CHECKPOINT
+    if at == "writing the weights":
+        staging.mkdir()
+        (staging / "model.safetensors").write_text("weights at 2")  # half written, no state
+        return
+    _checkpoint(staging, 200)
+    if at == "before the swap":
+        return
+    (run / runs.CHECKPOINT).rename(run / runs.PREVIOUS_CHECKPOINT)
+    if at == "between the renames":
+        return
+    staging.rename(run / runs.CHECKPOINT)  # "before removing the previous one"
+
+
+@pytest.mark.parametrize(
+    ("at", "step"),
+    [
+        ("writing the weights", 100),
+        ("before the swap", 200),
+        ("between the renames", 200),
+        ("before removing the previous one", 200),
+    ],
+)
+def test_a_save_killed_anywhere_leaves_one_complete_checkpoint(tmp_path, at, step):
+    from scorbot_gym.rl import runs
+
+    run = tmp_path / "run"
+    _checkpoint(run / runs.CHECKPOINT, 100)
+    _kill_during_save(run, at)
+    assert runs.has_checkpoint(run)
+    runs.settle_checkpoint(run)
+    assert sorted(p.name for p in run.iterdir()) == [runs.CHECKPOINT]
+    ck = run / runs.CHECKPOINT
+    assert json.loads((ck / "state.json").read_text())["timesteps"] == step
+    assert (ck / "model.safetensors").read_text() == f"weights at {step}"
+
+
+def test_swap_in_replaces_the_checkpoint_and_leaves_nothing_aside(tmp_path):
+    from scorbot_gym.rl import runs
+
+    run = tmp_path / "run"
+    _checkpoint(run / runs.STAGING_CHECKPOINT, 100)
+    runs.swap_in(run)  # the first checkpoint: nothing to set aside
+    _checkpoint(run / runs.STAGING_CHECKPOINT, 200)
+    runs.swap_in(run)
+    assert sorted(p.name for p in run.iterdir()) == [runs.CHECKPOINT]
+    assert json.loads((run / runs.CHECKPOINT / "state.json").read_text())["timesteps"] == 200
+
+
+@pytest.mark.slow
+def test_resume_continues_from_the_checkpoint_a_killed_swap_set_aside(one_run, tmp_path):
+    """A save killed between setting the last checkpoint aside and moving the new one in:
+    ``--resume`` continues from the one set aside (the unfinished one is discarded), and
+    every save leaves one ``checkpoint/`` and no staging folder."""
+    from scorbot_gym.rl import runs
+
+    run = tmp_path / "run"
+    shutil.copytree(one_run, run)
+    before = json.loads((run / runs.CHECKPOINT / runs.STATE).read_text())["timesteps"]
+    (run / runs.CHECKPOINT).rename(run / runs.PREVIOUS_CHECKPOINT)
+    (run / runs.STAGING_CHECKPOINT).mkdir()
+    (run / runs.STAGING_CHECKPOINT / "model.safetensors").write_bytes(b"half a model")
+    state = resume(run, timesteps=before + 80)
+    assert state["timesteps"] == before + 80
+    assert state["eval"][0]["timesteps"] == 0  # the history of the run set aside, continued
+    assert not (run / runs.STAGING_CHECKPOINT).exists()
+    assert not (run / runs.PREVIOUS_CHECKPOINT).exists()

@@ -1,7 +1,7 @@
 """A training checkpoint's files, in formats that cannot run code.
 
-``checkpoint/`` of a run folder holds (each written atomically by :class:`~scorbot_gym.rl.
-training._Run`):
+``checkpoint/`` of a run folder holds (written together into a staging folder by
+:class:`~scorbot_gym.rl.training._Run`, then swapped in by :func:`scorbot_gym.rl.runs.swap_in`):
 
 - ``model.safetensors``: the algorithm with its optimisers and counters
   (:func:`scorbot_gym.policies.sb3_files.save_model` with ``training=True``);

@@ -9,7 +9,8 @@ A run folder (``scorbot-gym train --out DIR``)::
                        a resumed run adds env_0.resume1.monitor.csv, ...), and
                        evaluations.npz (the evaluations, as SB3's EvalCallback writes them)
     checkpoint/        model.safetensors, replay_buffer.npz, vecnormalize.json, state.json
-                       (formats that cannot run code: see scorbot_gym.rl.checkpoint)
+                       (formats that cannot run code: see scorbot_gym.rl.checkpoint); written
+                       whole into .checkpoint.staging/, then swapped in (:func:`swap_in`)
     policy/            the last exported policy (model.safetensors, policy.json, normalize.npz)
     best/              the policy of the best evaluation so far (latest among equals)
     tb/                TensorBoard logs
@@ -46,6 +47,9 @@ HYPERPARAMS = "hyperparams.yml"
 CONF = "conf.yml"
 SEEDS = "seeds.json"
 CHECKPOINT = "checkpoint"
+#: a checkpoint being written, and the one it replaces while the two are swapped
+STAGING_CHECKPOINT = ".checkpoint.staging"
+PREVIOUS_CHECKPOINT = ".checkpoint.previous"
 STATE = "state.json"
 POLICY = "policy"
 BEST = "best"
@@ -53,7 +57,7 @@ MONITOR = "monitor"
 EVALUATIONS = "evaluations.npz"  # in MONITOR, beside the CSVs
 TENSORBOARD = "tb"
 #: what a run writes besides config.json (removed when a run that never checkpointed restarts)
-ARTEFACTS = (HYPERPARAMS, CONF, MONITOR, CHECKPOINT, POLICY, BEST, TENSORBOARD)
+ARTEFACTS = (HYPERPARAMS, CONF, MONITOR, CHECKPOINT, STAGING_CHECKPOINT, POLICY, BEST, TENSORBOARD)
 CHECKPOINTS = ("best", "last")
 MARKER = ".scorbot-gym-run.json"
 LOCK = ".scorbot-gym-run.lock"
@@ -73,7 +77,47 @@ def read_json(path: Path, what: str = "a JSON object") -> dict[str, Any]:
 
 
 def has_checkpoint(run: Path) -> bool:
-    return (Path(run) / CHECKPOINT / STATE).is_file()
+    """Whether ``run`` has a checkpoint (one that a killed swap left aside included)."""
+    run = Path(run)
+    return (run / CHECKPOINT / STATE).is_file() or (run / PREVIOUS_CHECKPOINT / STATE).is_file()
+
+
+def swap_in(run: Path) -> None:
+    """Make the complete checkpoint in ``run/.checkpoint.staging`` the run's ``checkpoint/``.
+
+    Its files (weights, optimisers, replay buffer, state) must describe one moment of the
+    run: written one by one into ``checkpoint/``, a kill between two of them left weights
+    ahead of their state. Two renames and a delete instead; a kill between any two of them
+    leaves either folder whole, which :func:`settle_checkpoint` puts back in place.
+    """
+    run = Path(run)
+    ck, staging, previous = run / CHECKPOINT, run / STAGING_CHECKPOINT, run / PREVIOUS_CHECKPOINT
+    if previous.exists():  # a swap killed after its second rename
+        shutil.rmtree(previous)
+    if ck.exists():
+        os.replace(ck, previous)
+    os.replace(staging, ck)
+    shutil.rmtree(previous, ignore_errors=True)
+
+
+def settle_checkpoint(run: Path) -> None:
+    """After a kill during a checkpoint's write or swap (:func:`swap_in`), leave ``run`` with
+    its newest complete checkpoint as ``checkpoint/``: a staging folder whose ``state.json``
+    (written last) is there is swapped in, an unfinished one removed; a checkpoint that an
+    unfinished swap set aside is put back or, once its successor is in place, removed. Call
+    it holding the run's lock."""
+    run = Path(run)
+    ck, staging, previous = run / CHECKPOINT, run / STAGING_CHECKPOINT, run / PREVIOUS_CHECKPOINT
+    if (staging / STATE).is_file():
+        swap_in(run)
+        return
+    if staging.exists():
+        shutil.rmtree(staging)
+    if previous.exists():
+        if ck.exists():
+            shutil.rmtree(previous)
+        else:
+            os.replace(previous, ck)
 
 
 def seed_runs(folder: Path) -> list[Path]:
@@ -187,6 +231,8 @@ __all__ = [
     "ARTEFACTS",
     "BEST",
     "CHECKPOINT",
+    "PREVIOUS_CHECKPOINT",
+    "STAGING_CHECKPOINT",
     "CONF",
     "CONFIG",
     "EVALUATIONS",
@@ -200,6 +246,8 @@ __all__ = [
     "check_new_run_folder",
     "claim",
     "has_checkpoint",
+    "settle_checkpoint",
+    "swap_in",
     "is_own_run",
     "policy_dir",
     "read_json",

@@ -3,10 +3,10 @@
 A run folder holds everything needed to continue or use the run (layout in
 :mod:`scorbot_gym.rl.runs`): ``config.json`` (the :class:`TrainConfig` with its hyperparameters
 resolved from the shipped YAML files, see :mod:`scorbot_gym.rl.hyperparams`), Monitor CSVs,
-the checkpoint (each file written atomically; ``state.json`` holds timesteps, training wall
-time, the evaluation history and the configuration it was trained with), the last and the best
-exported policy (see :mod:`scorbot_gym.policies.sb3`) and TensorBoard logs (every evaluation is
-dumped as soon as it is made).
+the checkpoint (written whole, then swapped in, so a kill leaves one complete; ``state.json``
+holds timesteps, training wall time, the evaluation history and the configuration it was
+trained with), the last and the best exported policy (see :mod:`scorbot_gym.policies.sb3`) and
+TensorBoard logs (every evaluation is dumped as soon as it is made).
 
 ``config.json`` is written only once the run has started (settings checked, envs and model
 built); a folder whose run stopped before its first checkpoint is started afresh by
@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import math
 import re
+import shutil
 import warnings
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
@@ -678,19 +679,21 @@ class _Run:
         )
 
     def save(self, model) -> None:
-        ck = self.out / runs.CHECKPOINT
-        ck.mkdir(parents=True, exist_ok=True)
-        atomic_save(ck / checkpoint.MODEL, lambda p: save_model(model, p, training=True))
+        """A checkpoint, written whole beside the last one and then swapped in
+        (:func:`~scorbot_gym.rl.runs.swap_in`): a kill at any moment leaves one complete."""
+        ck = self.out / runs.STAGING_CHECKPOINT
+        if ck.exists():  # a save killed mid-way, before this process took the folder
+            shutil.rmtree(ck)
+        ck.mkdir(parents=True)
+        save_model(model, ck / checkpoint.MODEL, training=True)
         if getattr(model, "replay_buffer", None) is not None:
-            atomic_save(
-                ck / checkpoint.REPLAY_BUFFER,
-                lambda p: checkpoint.save_replay_buffer(model.replay_buffer, p),
-            )
+            checkpoint.save_replay_buffer(model.replay_buffer, ck / checkpoint.REPLAY_BUFFER)
         if self.config.normalize:
             checkpoint.save_vec_normalize(self.venv, ck / checkpoint.VEC_NORMALIZE)
-        self.export(model, self.out / runs.POLICY)
         self.state.update(timesteps=int(model.num_timesteps), wall_s=round(self.clock.seconds, 2))
         atomic_write_json(ck / runs.STATE, self.state)
+        runs.swap_in(self.out)
+        self.export(model, self.out / runs.POLICY)
 
     def save_best(self, model, record: dict[str, Any]) -> None:
         """The policy of the best evaluation so far (``rollout --policy RUN`` loads it)."""
@@ -1177,6 +1180,7 @@ def _resume(
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
+    runs.settle_checkpoint(out)  # the last complete checkpoint, after a kill mid-save
     _refuse_old_format(out)
     for p in (ck / checkpoint.MODEL, ck / runs.STATE):
         if not p.is_file():
