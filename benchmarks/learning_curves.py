@@ -178,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
 
         jobs = {}
         for label, (folder,) in arms.items():
-            if not (folder / runs.SEEDS).is_file():  # else: interrupted or shorter, continued
+            if (folder / runs.SEEDS).is_file():  # interrupted or shorter: continued
+                print(f"arm {label}: resuming {folder} (its seeds.json and checkpoints)")
+            else:
                 start_seeds(configs[label], folder, args.seeds)
             jobs.update(seed_jobs(folder, timesteps=args.timesteps, device=args.device))
         run_seed_jobs(jobs, processes=args.parallel)

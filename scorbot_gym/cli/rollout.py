@@ -24,6 +24,7 @@ from scorbot_gym.names import (
     CALIBRATIONS,
     DISTURBANCES,
     FIXED_CAMERAS,
+    IDENTITIES,
     MOTIONS,
     MOVING_CAMERAS,
     POLICIES,
@@ -40,7 +41,6 @@ if TYPE_CHECKING:
     from scorbot_gym.evaluation.rollout import RolloutConfig
 
 CAMERAS = (*FIXED_CAMERAS, *MOVING_CAMERAS)
-IDENTITIES = ("recognize", "given")
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -150,8 +150,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="with --pose manifold: arm (the default with --segmenter background: each fixed "
         "pose camera re-calibrated at every estimate from the arm's silhouette, against a "
-        "calibration error; a correction under 3 mm is not applied) or none (the cameras as "
-        "calibrated; the default with the other segmenters)",
+        "calibration error; a correction that moves the object under 3 mm is not applied) or "
+        "none (the cameras as calibrated; the default with the other segmenters)",
     )
     p.add_argument(
         "--estimator",
