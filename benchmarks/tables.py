@@ -153,35 +153,46 @@ def headline_closed_loop() -> str:
     )
 
 
-#: the config of closed_loop.json that pairs the default against the one it replaced and the
-#: resting-view models on fresh seeds (issue 51)
-FRESH_SEEDS = "fresh_seeds"
+#: the configs of closed_loop.json that pair the default against the defaults it replaced and
+#: the resting-view models on fresh seeds (issue 51), and, beside the second, the first arm
+#: calibration (switched on by the correction at the placement region's corners), which the
+#: default replaced on the same seeds (its label is the default's)
+FRESH_SEEDS = ("fresh_seeds", "fresh_seeds_64000")
+REGION_LATCH = ("fresh_seeds_64000_region_latch", "first arm calibration (latch at the region)")
 
 
 def closed_loop_paired() -> str:
-    """The arms of the fresh-seed run, each paired episode by episode with the first
-    (``failed`` seeds: the others succeeded): Δ, its Newcombe interval and McNemar's p."""
+    """The arms of the fresh-seed runs, each paired episode by episode with the default on
+    the same seeds (``failed`` seeds: the others succeeded): Δ, its Newcombe interval and
+    McNemar's p."""
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
 
-    d = read("closed_loop.json", FRESH_SEEDS)
-    arms = d["arms"]
-    seeds = [str(d["seed"] + i) for i in range(d["episodes_per_arm"])]
-    ok = {label: [s not in a["failed"] for s in seeds] for label, a in arms.items()}
-    ref = _arm_by_config(arms, DEFAULT_ARM)
     rows = []
-    for label, a in arms.items():
-        fails = ", ".join(f"{s} {o} {c}" for s, (o, c) in a["failed"].items()) or "none"
-        if label == ref:
-            vs = "(the default)"
-        else:
-            diff = newcombe_paired_diff(ok[label], ok[ref])
-            lo, hi = diff["ci95"]
-            vs = (f"{100 * diff['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}), "
-                  f"{diff['only_a']} vs {diff['only_b']}, p = {diff['mcnemar_p']:.2f}")  # fmt: skip
-        rows.append([label, f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}", fails, vs])
-    head = ["arm", "success (95 % CI)", "failed (seed, object, cause)",
+    for config in FRESH_SEEDS:
+        d = read("closed_loop.json", config)
+        arms = dict(d["arms"])
+        if config == FRESH_SEEDS[-1]:
+            (previous,) = read("closed_loop.json", REGION_LATCH[0])["arms"].values()
+            arms[REGION_LATCH[1]] = previous
+        seeds = [str(d["seed"] + i) for i in range(d["episodes_per_arm"])]
+        ok = {label: [s not in a["failed"] for s in seeds] for label, a in arms.items()}
+        ref = _arm_by_config(d["arms"], DEFAULT_ARM)
+        for label, a in arms.items():
+            fails = ", ".join(f"{s} {o} {c}" for s, (o, c) in a["failed"].items()) or "none"
+            if label == ref:
+                vs = "(the default)"
+            else:
+                diff = newcombe_paired_diff(ok[label], ok[ref])
+                lo, hi = diff["ci95"]
+                vs = (
+                    f"{100 * diff['diff']:+.1f} ({100 * lo:+.1f} to {100 * hi:+.1f}), "
+                    f"{diff['only_a']} vs {diff['only_b']}, p = {diff['mcnemar_p']:.2f}"
+                )
+            rate = f"{pct(a['success_rate'])} {ci(a['success_rate_ci95'])}"
+            rows.append([f"{seeds[0]}–{seeds[-1][-3:]}", label, rate, fails, vs])
+    head = ["seeds", "arm", "success (95 % CI)", "failed (seed, object, cause)",
             "Δ vs default, points (95 % CI), discordant, McNemar p"]  # fmt: skip
-    return f"Seeds {seeds[0]}–{seeds[-1]}:\n\n" + table(head, rows)
+    return table(head, rows)
 
 
 #: configs of closed_loop.json: the perturbation run (``closed_loop.py --perturbations``) and its

@@ -99,6 +99,12 @@ class SilhouetteExtrinsicsFilter(BaseEstimator):
         change mask has an edge that the current image does not).
     border_px
         Contour points this close to the image border are skipped (the silhouette is cut there).
+    reject_px
+        Residuals from the frame's own fit beyond this (pixels) get no weight (Tukey's
+        biweight, after a first Huber fit; ``None``: Huber only). An edge many pixels off is
+        another edge: a pale part of the body that the change mask missed against a pale
+        table, or another body's. Huber bounds each one's pull, but a bounded pull that is
+        always to the same side still moves the estimate by millimetres.
     min_points
         A frame with fewer usable contour points is skipped: a few points on one side of the
         body (the arm leaving the pose it had in the reference frame, most of its outline
@@ -118,6 +124,7 @@ class SilhouetteExtrinsicsFilter(BaseEstimator):
         contrast: float = 8.0,
         border_px: int = 3,
         min_points: int = 60,
+        reject_px: float | None = 6.0,
     ) -> None:
         self.prior_pos_m = prior_pos_m
         self.prior_rot_deg = prior_rot_deg
@@ -130,6 +137,7 @@ class SilhouetteExtrinsicsFilter(BaseEstimator):
         self.contrast = contrast
         self.border_px = border_px
         self.min_points = min_points
+        self.reject_px = reject_px
 
     def _check_params(self) -> None:
         for name in ("prior_pos_m", "prior_rot_deg", "pixel_sigma", "effective_points", "huber_px"):
@@ -139,6 +147,9 @@ class SilhouetteExtrinsicsFilter(BaseEstimator):
         c = self.contrast
         if isinstance(c, bool) or not (np.isfinite(c) and c >= 0):
             raise ValueError(f"contrast must be a number >= 0, got {c!r}")
+        r = self.reject_px
+        if r is not None and (isinstance(r, bool) or not (np.isfinite(r) and r > 0)):
+            raise ValueError(f"reject_px must be a positive number or None, got {r!r}")
         m = self.memory_frames
         if isinstance(m, bool) or not (np.isfinite(m) and m >= 1):
             raise ValueError(f"memory_frames must be a number >= 1, got {m!r}")
@@ -195,11 +206,13 @@ class SilhouetteExtrinsicsFilter(BaseEstimator):
         vector = keep * self.information_vector_
         w = np.full(len(d), self.effective_points / len(d) / self.pixel_sigma**2)
         weights = w
-        for _ in range(2):  # Huber reweighting against this frame's own best fit
+        for i in range(2):  # Huber reweighting against this frame's own best fit
             H = info + rows.T @ (weights[:, None] * rows)
             x = np.linalg.solve(H, vector + rows.T @ (weights * b))
             r = np.abs(b - rows @ x)
             weights = w * np.minimum(1.0, self.huber_px / np.maximum(r, 1e-9))
+            if i and self.reject_px is not None:  # then Tukey's biweight: far edges are others'
+                weights = weights * np.clip(1.0 - (r / self.reject_px) ** 2, 0.0, None) ** 2
         self.information_ = info + rows.T @ (weights[:, None] * rows)
         self.information_vector_ = vector + rows.T @ (weights * b)
         self.delta_ = np.linalg.solve(self.information_, self.information_vector_)

@@ -21,6 +21,7 @@ proprioception and public calibration only, like the segmenter. Choose it by nam
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any
 
 import numpy as np
@@ -104,9 +105,14 @@ class ArmCalibration:
             for cam, f in self._filters.items()
         }
 
-    def update(self, frame: PerceptionFrame, segmenter: Any) -> PerceptionFrame:
+    def update(
+        self, frame: PerceptionFrame, segmenter: Any, at: np.ndarray | None = None
+    ) -> PerceptionFrame:
         """Take this step's images into every camera's estimate; ``frame`` with the cameras
-        re-calibrated."""
+        re-calibrated. ``at``: the world point (3,) where the correction matters, the
+        object's last estimated position (``None``: not known yet; the placement region is
+        used)."""
+        points = _region_points() if at is None else np.asarray(at, float).reshape(1, 3)
         obs = frame.observation
         opening = float(np.ravel(obs["gripper_opening"])[0])
         for cam, f in self._filters.items():
@@ -114,21 +120,28 @@ class ArmCalibration:
             image = np.asarray(obs[f"{cam}_rgb"])
             f.update(mask, depth, segmenter.foreground(frame, cam), image, self._reference[cam])
             if cam not in self._corrected and (
-                _table_shift(f.nominal_, f.camera) > self.min_correction_m
+                _shift(f.nominal_, f.camera, points) > self.min_correction_m
             ):
                 self._corrected.add(cam)
         return dataclasses.replace(frame, cameras={**frame.cameras, **self.cameras()})
 
 
-def _table_shift(nominal: Any, estimate: Any) -> float:
-    """How far (m) ``estimate`` moves the placement region's corners and centre on the table
-    from where ``nominal`` puts the same pixels."""
+@functools.cache
+def _region_points() -> np.ndarray:
+    """The placement region's corners and centre on the table top (world, m)."""
     from scorbot_gym.sim.scene import TABLE_HEIGHT, WORKSPACE_X, WORKSPACE_Y
 
     xs, ys = (*WORKSPACE_X, sum(WORKSPACE_X) / 2), (*WORKSPACE_Y, sum(WORKSPACE_Y) / 2)
     points = np.array([(x, y, TABLE_HEIGHT) for x in xs for y in ys])
-    uv = nominal.project(points)
-    moved = estimate.backproject_to_plane(uv, TABLE_HEIGHT)
+    points.flags.writeable = False
+    return points
+
+
+def _shift(nominal: Any, estimate: Any, points: np.ndarray) -> float:
+    """How far (m) ``estimate`` moves the farthest of ``points`` (world, each seen on the
+    horizontal plane at its own height) from where ``nominal`` puts the same pixels."""
+    origin, d = estimate.ray(nominal.project(points))
+    moved = origin + ((points[:, 2] - origin[2]) / d[:, 2])[:, None] * d
     return float(np.linalg.norm(moved - points, axis=1).max())
 
 

@@ -272,7 +272,8 @@ class ModelSetPoseSource:
         calibrate_ms = None
         if self.calibration is not None:
             t0 = time.perf_counter()
-            frame = self.calibration.update(frame, self.segmenter)
+            at = None if self._last is None else self._last.position
+            frame = self.calibration.update(frame, self.segmenter, at)
             calibrate_ms = (time.perf_counter() - t0) * 1e3
         seen = self._estimate_primary(frame)
         pose = self._supported(seen, frame)
