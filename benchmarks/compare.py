@@ -19,6 +19,8 @@ names the file (an existing one only with ``--overwrite``); ``--config NAME`` st
 the variant ``configs[NAME]`` of that file instead (e.g. held-out objects, another pose model),
 without a figure, the file's other runs kept. The committed record is rebuilt with ``--out
 benchmarks/results/compare.json --overwrite`` (and a variant of it with ``--config NAME`` too).
+``--objects heldout:heading`` (or ``heldout:symmetric``) runs on objects outside the catalogue
+that no shipped policy trained on (:mod:`scorbot_gym.data.heldout_objects`).
 ``--replot`` redraws the figure of ``--out`` (``.json`` or ``.json.gz``) without running an
 episode.
 
@@ -65,6 +67,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
     parser.add_argument(
+        "--objects",
+        default=None,
+        help="catalogue objects, comma-separated, or heldout:heading / heldout:symmetric: "
+        "objects outside the catalogue (scorbot_gym.data.heldout_objects; default: the "
+        "whole catalogue)",
+    )
+    parser.add_argument(
         "--out",
         type=Path,
         default=None,
@@ -93,6 +102,24 @@ def main(argv: list[str] | None = None) -> int:
         plot_comparison(read_json(args.out), png)
         print(f"written {png}")
         return 0
+    objects = None
+    if args.objects is not None:  # before any work: a bad name is a usage error
+        from scorbot_gym.data import heldout_objects
+        from scorbot_gym.objects import CATALOGUE
+
+        try:
+            if args.objects.startswith("heldout:"):
+                objects = list(heldout_objects.install(args.objects.split(":", 1)[1]))
+            else:
+                objects = [o for o in args.objects.split(",") if o]
+                unknown = [o for o in objects if o not in CATALOGUE]
+                if unknown or not objects:
+                    raise ValueError(
+                        f"unknown objects {unknown}; valid: {', '.join(CATALOGUE)}, or "
+                        f"heldout:{' / heldout:'.join(heldout_objects.GROUPS)}"
+                    )
+        except ValueError as exc:
+            parser.error(f"--objects: {exc}")
     try:  # before any work: an existing file is not replaced unless asked
         args.out = Outputs("compare", args.overwrite).path(
             args.out, "compare.json", companions=[".png"] if args.config is None else []
@@ -115,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         seed=args.seed,
         noise=[v for v in args.noise.split(",") if v],
         pose_model=args.pose_model,
+        objects=objects,
         progress=False,
         jobs=args.jobs,
     )

@@ -134,6 +134,8 @@ def test_every_benchmark_script_imports_and_parses_help():
             marks=pytest.mark.slow,
         ),
         ("table_support.py", ["--tilts", "0", "60"], "--tilts in [0, 45] degrees"),
+        ("compare.py", ["--objects", "heldout:round"], "unknown held-out group 'round'"),
+        ("compare.py", ["--objects", "box,teapot"], "unknown objects ['teapot']"),
         pytest.param(
             "pose_ablation.py", ["--paired", "pca-rbf("], "pca-rbf(", marks=pytest.mark.slow
         ),
@@ -157,6 +159,7 @@ def test_bad_arguments_are_one_line_usage_errors(script, args, message, tmp_path
         "closed_loop.py": ["--out", str(tmp_path / "c.json")],
         "clutter_closed_loop.py": ["--out", str(tmp_path / "c.json")],
         "table_support.py": ["--out", str(tmp_path / "t.json")],
+        "compare.py": ["--out", str(tmp_path / "c.json")],
     }[script]
     line = _usage_error(_run(str(BENCHMARKS / script), *args, *out))
     assert "error:" in line, line

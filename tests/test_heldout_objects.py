@@ -1,0 +1,29 @@
+"""The held-out objects: YCB meshes outside the catalogue, each a valid object the gripper can
+take, installed by group (into this process's catalogue and the specs workers receive)."""
+
+import pytest
+
+from scorbot_gym.data import heldout_objects
+from scorbot_gym.objects import CATALOGUE, MAX_GRASP_WIDTH, user_objects
+
+
+def test_no_held_out_object_is_a_catalogue_object_or_in_two_groups():
+    names = [s.name for specs in heldout_objects.GROUPS.values() for s in specs]
+    sources = [s.source for specs in heldout_objects.GROUPS.values() for s in specs]
+    builtin = {s.source for s in CATALOGUE.values()}
+    assert len(set(names)) == len(names) and not set(sources) & builtin
+
+
+@pytest.mark.parametrize("group", list(heldout_objects.GROUPS))
+def test_a_group_installs_objects_the_gripper_can_take(group):
+    names = heldout_objects.install(group)
+    assert names and heldout_objects.install(group) == names  # installing again is harmless
+    for name in names:
+        model = CATALOGUE[name].model  # the mesh loads
+        assert 0.0 < model.grasp_width <= MAX_GRASP_WIDTH, name
+    assert set(names) <= {s.name for s in user_objects()}  # so workers receive them
+
+
+def test_an_unknown_group_is_a_clear_error():
+    with pytest.raises(ValueError, match="unknown held-out group 'round'; valid: heading"):
+        heldout_objects.install("round")
