@@ -20,7 +20,7 @@ the variant ``configs[NAME]`` of that file instead (e.g. held-out objects, anoth
 without a figure, the file's other runs kept. The committed record is rebuilt with ``--out
 benchmarks/results/compare.json --overwrite`` (and a variant of it with ``--config NAME`` too).
 ``--objects heldout:heading`` (or ``heldout:symmetric``) runs on objects outside the catalogue
-that no shipped policy trained on (:mod:`scorbot_gym.data.heldout_objects`).
+that no shipped policy trained on (:mod:`scorbot_gym.assets.heldout_objects`).
 ``--replot`` redraws the figure of ``--out`` (``.json`` or ``.json.gz``) without running an
 episode.
 
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         "--objects",
         default=None,
         help="catalogue objects, comma-separated, or heldout:heading / heldout:symmetric: "
-        "objects outside the catalogue (scorbot_gym.data.heldout_objects; default: the "
+        "objects outside the catalogue (scorbot_gym.assets.heldout_objects; default: the "
         "whole catalogue)",
     )
     parser.add_argument(
@@ -104,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     objects = None
     if args.objects is not None:  # before any work: a bad name is a usage error
-        from scorbot_gym.data import heldout_objects
+        from scorbot_gym.assets import heldout_objects
         from scorbot_gym.objects import CATALOGUE
 
         try:

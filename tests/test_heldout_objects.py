@@ -3,7 +3,7 @@ take, installed by group (into this process's catalogue and the specs workers re
 
 import pytest
 
-from scorbot_gym.data import heldout_objects
+from scorbot_gym.assets import heldout_objects
 from scorbot_gym.objects import CATALOGUE, MAX_GRASP_WIDTH, user_objects
 
 
