@@ -89,6 +89,13 @@ def main(argv: list[str] | None = None) -> int:
         "--jobs", type=int, default=1, help="processes (each runs a chunk of an arm's seeds)"
     )
     parser.add_argument(
+        "--cartesian-ik",
+        choices=("closed_form", "dls"),
+        default="closed_form",
+        help="the env's IK for Cartesian actions (dls: damped least squares every step, as "
+        "every run before 2026-11-28; default closed_form)",
+    )
+    parser.add_argument(
         "--replot", action="store_true", help="redraw the figure of --out, run nothing"
     )
     args = parser.parse_args(argv)
@@ -145,6 +152,7 @@ def main(argv: list[str] | None = None) -> int:
         objects=objects,
         progress=False,
         jobs=args.jobs,
+        cartesian_ik=args.cartesian_ik,
     )
     report["machine"] = {
         "platform": platform.platform(),

@@ -36,7 +36,9 @@ ours on). Neither renders shadows or reflections by default (``ScorbotGrasp-v0/s
 ours with its shadow map).
 
 scorbot-gym is also timed with Cartesian actions (``ScorbotGrasp-v0/cartesian``: IK every
-step; without images), paired with joint actions in the same repetitions; and ``profile``
+step, closed form as shipped; ``ScorbotGrasp-v0/cartesian_dls``: damped least squares every
+step, as before 2026-11-28; without images), paired with joint actions in the same
+repetitions; and ``profile``
 breaks its step into stages (physics, task bookkeeping, observation, rendering, IK, the rest;
 ``time_env.py --profile``), the median over ``--repeats`` runs of each.
 """
@@ -59,6 +61,8 @@ SCORBOT = "ScorbotGrasp-v0"
 # Its default renders without shadows; the peers render theirs (see render_settings in the JSON).
 SCORBOT_SHADOWS = "ScorbotGrasp-v0/shadows"
 SCORBOT_CARTESIAN = "ScorbotGrasp-v0/cartesian"
+SCORBOT_CARTESIAN_DLS = "ScorbotGrasp-v0/cartesian_dls"  # every step by damped least squares
+CARTESIAN = (SCORBOT_CARTESIAN, SCORBOT_CARTESIAN_DLS)  # timed without images only
 # Fetch renders with MuJoCo's default 4x MSAA, ours without: each matched to the other
 SCORBOT_MSAA4 = "ScorbotGrasp-v0/msaa4"
 FETCH = "FetchPickAndPlace-v4"
@@ -75,9 +79,16 @@ RATIOS = (
     ("camera_320x240", "ScorbotGrasp-v0 / Fetch, MSAA off in both", SCORBOT, FETCH_MSAA0),
     ("camera_320x240", "ScorbotGrasp-v0 / Fetch, 4x MSAA in both", SCORBOT_MSAA4, FETCH),
     ("no_images", "Cartesian / joint actions", SCORBOT_CARTESIAN, SCORBOT),
-)
+    ("no_images", "Cartesian (damped-least-squares IK) / joint actions", SCORBOT_CARTESIAN_DLS,
+     SCORBOT),
+)  # fmt: skip
 # (env, setting) pairs profiled stage by stage
-PROFILED = ((SCORBOT, "no_images"), (SCORBOT_CARTESIAN, "no_images"), (SCORBOT, "camera_320x240"))
+PROFILED = (
+    (SCORBOT, "no_images"),
+    (SCORBOT_CARTESIAN, "no_images"),
+    (SCORBOT_CARTESIAN_DLS, "no_images"),
+    (SCORBOT, "camera_320x240"),
+)
 VENV_ROOT = Path.home() / ".cache" / "scorbot-gym" / "peer-venvs"
 # Each peer's venv and the pins it is built from (versions that install and run here).
 PEERS: dict[str, dict] = {
@@ -162,7 +173,7 @@ def run(envs: dict[str, Path], repeats: int, steps: dict[str, int]) -> tuple[dic
             for env in order if rep % 2 == 0 else order[::-1]:
                 if env in IMAGE_ONLY and not image:
                     continue  # identical to its base env when nothing is rendered
-                if env == SCORBOT_CARTESIAN and image:
+                if env in CARTESIAN and image:
                     continue  # the IK's cost is measured where it is not drowned by rendering
                 r = time_once(envs[env], env, image, steps[setting], seed=rep)
                 runs[setting][env].append(r)
@@ -337,7 +348,13 @@ def main(argv: list[str] | None = None) -> int:
     from pose.fileio import write_result
 
     ours = Path(sys.executable)
-    envs = {SCORBOT: ours, SCORBOT_CARTESIAN: ours, SCORBOT_SHADOWS: ours, SCORBOT_MSAA4: ours}
+    envs = {
+        SCORBOT: ours,
+        SCORBOT_CARTESIAN: ours,
+        SCORBOT_CARTESIAN_DLS: ours,
+        SCORBOT_SHADOWS: ours,
+        SCORBOT_MSAA4: ours,
+    }
     if args.peers:
         peers = args.only_peers or list(PEERS)
         envs.update({n: peer_python(n, args.rebuild_peers, args.peer_venvs) for n in peers})

@@ -15,7 +15,7 @@ pytestmark = pytest.mark.rl
 
 #: the report's keys at each level, as the module docstring documents them
 TOP = {
-    "seeds", "episodes", "objects", "action_type", "estimate_every", "reference",
+    "seeds", "episodes", "objects", "action_type", "cartesian_ik", "estimate_every", "reference",
     "difference_method", "noise_heading_deg_per_m", "wall_s",
     "conditions", "arms", "results", "differences", "noise_curves",
 }  # fmt: skip
@@ -127,6 +127,8 @@ def test_bad_arms_are_one_line_errors_naming_the_valid_ones(capsys, tmp_path):
     assert "policy.json" in capsys.readouterr().err
     with pytest.raises(ValueError, match="given twice"):
         cmp.compare(["scripted", "scripted"], ["oracle"], 1)
+    with pytest.raises(ValueError, match=r"cartesian_ik must be one of \('closed_form', 'dls'\)"):
+        cmp.compare(["scripted"], ["oracle"], 1, cartesian_ik="jacobian")
     with pytest.raises(SystemExit):  # checked while parsing
         main(["compare", "--noise", "0.02:x"])
 

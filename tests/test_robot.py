@@ -77,3 +77,87 @@ def test_stable_baselines3_learns_on_the_env():
     obs, _ = env.reset(seed=0)
     action, _ = model.predict(obs, deterministic=True)
     assert env.action_space.contains(action)
+
+
+def test_closed_form_ik_is_exact_and_keeps_the_branch(robot):
+    """On reachable joint angles inside the limits, the closed form returns those angles (the
+    elbow on its side, the base facing the same way) and its TCP lands on the target."""
+    kin = robot.kinematics
+    rng = np.random.default_rng(3)
+    solved = 0
+    for _ in range(300):
+        q = rng.uniform(JOINT_LOW * 0.95, JOINT_HIGH * 0.95)
+        if abs(q[2]) < 0.05:  # a straight elbow is on both sides
+            continue
+        pos, _ = kin.forward(q)
+        q_init = q + rng.normal(0.0, 0.02, 5)
+        q_init[2] = q[2]
+        sol = kin.ik_closed_form(pos, q[1] + q[2] + q[3], q_init)
+        if sol is None:  # only where the target is near the base axis (a branch change)
+            assert np.hypot(*(pos[:2] - kin.base_pos[:2])) < 0.05
+            continue
+        solved += 1
+        np.testing.assert_allclose(kin.forward(sol)[0], pos, atol=1e-9)
+        np.testing.assert_allclose(sol[:4], q[:4], atol=1e-9)
+        assert sol[4] == q_init[4]
+    assert solved > 250
+
+
+def test_closed_form_ik_leaves_the_hard_cases_to_the_least_squares(robot):
+    kin = robot.kinematics
+    q = np.array(HOME_QPOS)
+    pos, _ = kin.forward(q)
+    pitch = q[1] + q[2] + q[3]
+    far = kin.base_pos + np.array([2.0, 0.0, 0.3])
+    assert kin.ik_closed_form(far, pitch, q) is None  # out of reach
+    # a pitch the wrist cannot take: the wrist would pass its limit
+    assert kin.ik_closed_form(pos, pitch + 2.5, q) is None
+    # the same target from the other elbow side is a jump of more than max_jump
+    q_other = q.copy()
+    q_other[2] = -q[2]
+    assert kin.ik_closed_form(pos, pitch, q_other) is None
+
+
+def test_closed_form_and_least_squares_agree_on_env_steps(robot):
+    """The env's Cartesian step (targets 2 cm and 0.1 rad from the current pose): where the
+    closed form answers, the damped least squares reach the same joint angles within their
+    tolerance."""
+    kin = robot.kinematics
+    rng = np.random.default_rng(5)
+    answered, diffs = 0, []
+    for _ in range(300):
+        q = np.array(HOME_QPOS) + rng.normal(0.0, 0.3, 5)
+        q = np.clip(q, JOINT_LOW, JOINT_HIGH)
+        pos = kin.forward(q)[0] + rng.uniform(-0.02, 0.02, 3)
+        pitch = q[1] + q[2] + q[3] + rng.uniform(-0.1, 0.1)
+        exact = kin.ik_closed_form(pos, pitch, q)
+        if exact is None:
+            continue
+        answered += 1
+        dls, err = kin.ik(pos, pitch, q, iterations=15)
+        if err < 1e-4:
+            diffs.append(np.abs(dls[:4] - exact[:4]).max())
+    assert answered > 200 and len(diffs) > 200  # the rest: past a limit near home's elbow
+    assert np.median(diffs) < 3e-4 and max(diffs) < 2e-3
+
+
+def test_cartesian_ik_keyword_is_checked_and_used():
+    with pytest.raises(ValueError, match=r"cartesian_ik must be one of \('closed_form', 'dls'\)"):
+        gym.make("ScorbotGrasp-v0", action_type="cartesian", cartesian_ik="jacobian")
+    a = np.array([0.5, -0.3, -0.8, 0.2, 0.1, 1.0])
+    targets = {}
+    for ik in ("closed_form", "dls"):
+        env = gym.make(
+            "ScorbotGrasp-v0", object_name="box", action_type="cartesian", cartesian_ik=ik
+        )
+        env.reset(seed=4)
+        u = env.unwrapped
+        q = u.robot.joint_pos
+        targets[ik] = u._cartesian_target(q, a)
+        if ik == "dls":
+            pos = u.robot.tcp_pos + a[:3] * u.max_cartesian_step
+            pitch = q[1] + q[2] + q[3] + a[3] * u.max_angle_step
+            expected, _ = u.robot.kinematics.ik(pos, pitch, q, iterations=15)
+            np.testing.assert_array_equal(targets[ik][:4], expected[:4])
+        env.close()
+    np.testing.assert_allclose(targets["closed_form"], targets["dls"], atol=2e-3)

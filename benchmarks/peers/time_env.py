@@ -76,6 +76,7 @@ def scorbot(
     action_type: str = "joint",
     pose: str | None = None,
     msaa: int | None = None,
+    cartesian_ik: str = "closed_form",
 ) -> Timed:
     """``ScorbotGrasp-v0`` as ``gym.make`` gives it; ``pose="oracle"`` wraps it in
     ``PoseEstimateObservation`` with that source (scoring ``info["perception"]`` every step);
@@ -90,6 +91,7 @@ def scorbot(
         object_name="tomato_soup_can",
         shadows=shadows,
         action_type=action_type,
+        cartesian_ik=cartesian_ik,
         **kw,
     )
     model = env.unwrapped.sim.model
@@ -239,6 +241,10 @@ ENVS: dict[str, Callable[[bool], Timed]] = {
     "ScorbotGrasp-v0": scorbot,
     "ScorbotGrasp-v0/shadows": lambda image: scorbot(image, shadows=True),
     "ScorbotGrasp-v0/cartesian": lambda image: scorbot(image, action_type="cartesian"),
+    # the damped-least-squares IK every step, as before the closed form (2026-11-28)
+    "ScorbotGrasp-v0/cartesian_dls": lambda image: scorbot(
+        image, action_type="cartesian", cartesian_ik="dls"
+    ),
     "ScorbotGrasp-v0/pose-oracle": lambda image: scorbot(image, pose="oracle"),
     # Fetch's multisampling: the render settings matched both ways
     "ScorbotGrasp-v0/msaa4": lambda image: scorbot(image, msaa=4),

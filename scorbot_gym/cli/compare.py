@@ -97,6 +97,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="for scripted/random arms (a learned policy fixes its own)",
     )
     p.add_argument(
+        "--cartesian-ik",
+        choices=("closed_form", "dls"),
+        default="closed_form",
+        help="how Cartesian actions become joint targets (dls: damped least squares every "
+        "step, as results before 2026-11-28; default closed_form)",
+    )
+    p.add_argument(
         "--estimate-every",
         type=non_negative_int,
         default=1,
@@ -179,6 +186,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         jobs=args.jobs,
         ray=args.ray,
+        cartesian_ik=args.cartesian_ik,
     )
     print(format_report(report))
     if args.json:

@@ -36,7 +36,10 @@ them). It is always beside the *default* models: ``pose_model`` changes ``manifo
 **The report** (what :func:`compare` returns and ``--json`` writes):
 
 - ``seeds`` ``[first, last]``, ``episodes`` (per arm), ``objects`` (``null``: the catalogue),
-  ``action_type``, ``estimate_every``, ``reference`` (the policy differences are taken
+  ``action_type``, ``cartesian_ik`` (the env's IK for Cartesian actions: ``closed_form``, or
+  ``dls`` for damped least squares every step; a report without it is from before
+  2026-11-28, when every run used ``dls``), ``estimate_every``, ``reference`` (the policy
+  differences are taken
   against: ``scripted`` when it is an arm, else the first), ``difference_method``,
   ``noise_heading_deg_per_m``, ``wall_s`` (of the whole comparison);
 - ``conditions``: ``[{label, source, noise_pos_m, noise_yaw_deg, identity, segmenter,
@@ -80,6 +83,7 @@ from typing import Any
 import numpy as np
 
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.envs.grasp import CARTESIAN_IKS
 from scorbot_gym.evaluation.chunks import parallel, run_chunked
 from scorbot_gym.evaluation.episodes import EpisodeResult, run_episodes
 from scorbot_gym.evaluation.summary import newcombe_paired_diff, summarize, wilson_interval
@@ -387,6 +391,7 @@ def _run_arm(
     objects: list[str] | None,
     action_type: str,
     estimate_every: int,
+    cartesian_ik: str,
     progress: bool,
     threads: int | None = None,
 ) -> list[EpisodeResult]:
@@ -407,6 +412,7 @@ def _run_arm(
         estimate_every=estimate_every,
         identity=cond.identity,
         objects=objects,
+        cartesian_ik=cartesian_ik,
         **kw,
     )
     try:
@@ -544,6 +550,7 @@ def compare(
     progress: bool = True,
     jobs: int = 1,
     ray: str | None = None,
+    cartesian_ik: str = "closed_form",
 ) -> dict[str, Any]:
     """Run every policy under every pose condition on the same seeds; returns the report
     described in the module docstring (``jobs`` processes, each running a chunk of an arm, or
@@ -557,13 +564,15 @@ def compare(
         raise ValueError(f"give at least one policy ({', '.join(BUILTIN_ARMS)} or a policy folder)")
     if len(set(policies)) != len(policies):
         raise ValueError(f"a policy is given twice: {', '.join(policies)}")
+    if cartesian_ik not in CARTESIAN_IKS:
+        raise ValueError(f"cartesian_ik must be one of {CARTESIAN_IKS}, got {cartesian_ik!r}")
     conds = pose_conditions(poses, noise, pose_model)
     arms = {p: resolve_arm(p) for p in policies}  # bad names fail here, before any episode
     conds = with_models(conds, progress=progress, jobs=jobs)  # once, for every arm
     reference = REFERENCE if REFERENCE in policies else policies[0]
     start = time.perf_counter()
     tasks = [
-        (p, c, episodes, seed, objects, action_type, estimate_every, progress)
+        (p, c, episodes, seed, objects, action_type, estimate_every, cartesian_ik, progress)
         for c in conds
         for p in policies
     ]
@@ -585,6 +594,7 @@ def compare(
         "episodes": episodes,
         "objects": objects,
         "action_type": action_type,
+        "cartesian_ik": cartesian_ik,
         "estimate_every": estimate_every,
         "reference": reference,
         "difference_method": "Newcombe (1998) method 10 paired-proportion interval; McNemar "

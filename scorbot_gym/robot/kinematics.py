@@ -26,6 +26,8 @@ JOINT_LOW = np.deg2rad([JOINT_RANGES_DEG[j][0] for j in ARM_JOINTS])
 JOINT_HIGH = np.deg2rad([JOINT_RANGES_DEG[j][1] for j in ARM_JOINTS])
 ARM_PREFIX = "scorbot/"
 _LOW4, _HIGH4 = JOINT_LOW[:4], JOINT_HIGH[:4]  # the joints IK moves
+_LOW4_LIST, _HIGH4_LIST = _LOW4.tolist(), _HIGH4.tolist()  # floats for the closed form
+_ROLL_LOW, _ROLL_HIGH = float(JOINT_LOW[4]), float(JOINT_HIGH[4])
 _EYE4 = np.eye(4)
 _EYE4.flags.writeable = False
 
@@ -105,6 +107,26 @@ class ArmKinematics:
         # Slices where the indices run in order (a fancy index costs IK ~4 us per iteration).
         self._qpos_at = _as_slice(self._qpos)
         self._dof4 = _as_slice(self._dof[:4])  # the joints IK moves (the wrist roll is kept)
+        self._chain = self._planar_chain()
+
+    def _planar_chain(self) -> tuple[float, float, float, float, float]:
+        """The arm's planar chain read from this model at zero joint angles, where every link
+        points along the base's x axis: the shoulder axis's offset from the base axis and its
+        height above the base, the upper arm, the forearm, and the TCP's distance from the wrist
+        pitch axis (metres); what :meth:`ik_closed_form` needs."""
+        m, d = self.model, self.data
+        d.qpos[self._qpos] = 0.0
+        mujoco.mj_kinematics(m, d)
+        axes = [d.xanchor[m.joint(ARM_PREFIX + j).id].copy() for j in ARM_JOINTS[1:4]]
+        shoulder, elbow, wrist = (a - self.base_pos for a in axes)
+        tcp = d.site_xpos[self._tcp] - self.base_pos
+        return (
+            float(shoulder[0]),
+            float(shoulder[2]),
+            float(np.linalg.norm(elbow - shoulder)),
+            float(np.linalg.norm(wrist - elbow)),
+            float(np.linalg.norm(tcp - wrist)),
+        )
 
     @functools.cached_property
     def hand(self) -> HandGeometry:
@@ -180,6 +202,50 @@ class ArmKinematics:
             q_arm += scale * dq  # then np.clip's arithmetic, in place:
             np.minimum(np.maximum(q_arm, _LOW4, out=q_arm), _HIGH4, out=q_arm)
         return q, err
+
+    def ik_closed_form(
+        self, target_pos: np.ndarray, pitch: float, q_init: np.ndarray, max_jump: float = 0.5
+    ) -> np.ndarray | None:
+        """The exact IK solution for TCP position and tool pitch on ``q_init``'s branch, or
+        ``None`` where :meth:`ik` must decide; wrist roll is kept.
+
+        The base turns about the vertical and the shoulder, elbow and wrist pitch axes are
+        parallel, so the position and pitch fix the base angle and the wrist axis, and the
+        shoulder and elbow follow from a two-link triangle: about 5 us where the damped least
+        squares take about 40 (an env with Cartesian actions solves IK every step). The branch
+        kept is ``q_init``'s: the elbow on its side, the base facing the target or, when that is
+        nearer the current base angle, away from it (reaching over the back).
+
+        ``None`` when the target is out of reach, a joint would pass its limit, or the solution
+        moves some joint more than ``max_jump`` rad from ``q_init`` (a branch change near a
+        singularity): there the damped least squares' compromise, which stays near ``q_init``,
+        is the better answer. Where this solves, :meth:`ik` converges to the same joint angles
+        within its tolerance (0.1 mm, 1 mrad).
+        """
+        q0, _, q2, _, q4 = (float(v) for v in q_init)
+        offset, height, upper, fore, tool = self._chain
+        bx, by, bz = self.base_pos.tolist()
+        x, y, z = float(target_pos[0]) - bx, float(target_pos[1]) - by, float(target_pos[2]) - bz
+        yaw, reach = math.atan2(y, x), math.hypot(x, y)
+        behind = yaw - math.pi if yaw > 0.0 else yaw + math.pi
+        if abs(behind - q0) < abs(yaw - q0):
+            yaw, reach = behind, -reach
+        # the wrist pitch axis, in the arm's plane, from the shoulder axis
+        wx = reach - offset - tool * math.cos(pitch)
+        wz = z - height - tool * math.sin(pitch)
+        cos_elbow = (wx * wx + wz * wz - upper * upper - fore * fore) / (2.0 * upper * fore)
+        if not -1.0 <= cos_elbow <= 1.0:
+            return None  # out of reach
+        elbow = math.acos(cos_elbow) if q2 > 0.0 else -math.acos(cos_elbow)
+        shoulder = math.atan2(wz, wx) - math.atan2(
+            fore * math.sin(elbow), upper + fore * math.cos(elbow)
+        )
+        q = (yaw, shoulder, elbow, pitch - shoulder - elbow)
+        lo, hi = _LOW4_LIST, _HIGH4_LIST
+        for i in range(4):
+            if not lo[i] <= q[i] <= hi[i] or abs(q[i] - float(q_init[i])) > max_jump:
+                return None
+        return np.array((*q, min(max(q4, _ROLL_LOW), _ROLL_HIGH)))
 
     def roll_for_closing_yaw(self, q: np.ndarray, yaw: float, near: float | None = None) -> float:
         """Wrist roll that turns the closing direction to world heading ``yaw`` (tool down).
