@@ -14,6 +14,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--pose-dispersion]   # ... and sees how much they disagree (HistorySpec)
         [--stall-steps 50]   # ... and how long its TCP has been still
         [--expert-keeps-close]  # DAgger labels "close" until the learner closes
+        [--object-features grasp_frame]  # told the object's grasp frame, not its class
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
@@ -111,6 +112,14 @@ def main(argv: list[str] | None = None) -> None:
         "(ImitationConfig.expert_keeps_close)",
     )
     p.add_argument(
+        "--object-features",
+        choices=("class", "grasp_frame"),
+        default="class",
+        help="what the policy is told of the object besides its pose: its class (one-hot over "
+        "the catalogue) or its grasp frame, derived from any object's mesh "
+        "(scorbot_gym.policies.object_features; default class)",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -178,6 +187,7 @@ def main(argv: list[str] | None = None) -> None:
             poses=tuple(v for v in args.poses.split(",") if v),
             beta=args.beta,
             init_policy=args.init_policy,
+            object_features=args.object_features,
             history=HistorySpec(
                 pose_window=args.pose_window,
                 pose_dispersion=args.pose_dispersion,

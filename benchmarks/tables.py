@@ -350,6 +350,32 @@ def compare_heldout_objects() -> str:
     return table(head, rows)
 
 
+def compare_cartesian_ik() -> str:
+    """The closed-form IK against damped least squares, every arm on the same fresh seeds
+    (``compare.json`` configs ``ik_dls`` / ``ik_closed_form``), paired episode by episode."""
+    from scorbot_gym.evaluation.summary import newcombe_paired_diff
+
+    old, new = read("compare.json", "ik_dls"), read("compare.json", "ik_closed_form")
+    assert (old["cartesian_ik"], new["cartesian_ik"]) == ("dls", "closed_form")
+    assert old["seeds"] == new["seeds"]
+    before = {(r["policy"], r["pose"]): r["episode_success"] for r in old["results"]}
+    parts, same, total = [], 0, 0
+    for r in new["results"]:
+        a, b = before[(r["policy"], r["pose"])], r["episode_success"]
+        d = newcombe_paired_diff([x == "1" for x in a], [y == "1" for y in b])
+        same += len(a) - d["only_a"] - d["only_b"]
+        total += len(a)
+        parts.append(
+            f"`{policy_name(r['policy'])}` {a.count('1')} → {b.count('1')} "
+            f"({d['only_a']} vs {d['only_b']} discordant, McNemar p = {d['mcnemar_p']:.2g})"
+        )
+    return (
+        f"Closed-form IK against damped least squares, {old['episodes']} paired episodes per "
+        f"arm (seeds {old['seeds'][0]}–{old['seeds'][1]}, true pose, successes dls → closed "
+        f"form): " + ", ".join(parts) + f"; {same} of {total} episodes end the same.\n"
+    )
+
+
 def compare_arms() -> str:
     """``compare.json``, one row per arm (``scorbot_gym.evaluation.compare.markdown_table``)."""
     from scorbot_gym.evaluation.compare import markdown_table
@@ -1070,6 +1096,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "closed-loop-perturbations": closed_loop_perturbations,
     "compare": compare_arms,
     "compare-heldout-objects": compare_heldout_objects,
+    "compare-cartesian-ik": compare_cartesian_ik,
     "rl-training": rl_training,
     "env-step": env_step,
     "env-step-ratios": env_step_ratios,

@@ -51,6 +51,12 @@ from typing import Any
 
 import numpy as np
 
+from scorbot_gym.policies.object_features import (
+    check_object_features,
+    grasp_frame_features,
+    n_object_features,
+    object_name,
+)
 from scorbot_gym.policies.sb3 import check_action_type, read_policy_json  # one folder format
 from scorbot_gym.policies.scripted import yaw_from_quat
 
@@ -138,8 +144,15 @@ def n_history_features(history: HistorySpec) -> int:
     return 6 * history.previous_actions + history.gripper_commands + (history.stall_steps > 0)
 
 
-def n_features(n_classes: int, history: HistorySpec) -> int:
-    return 47 + n_classes + n_history_features(history) + n_window_features(history)
+def n_features(n_classes: int, history: HistorySpec, object_features: str = "class") -> int:
+    """How many features a policy with ``n_classes`` classes, ``history`` and what it is told
+    of the object (:mod:`~scorbot_gym.policies.object_features`) reads."""
+    return (
+        47
+        + n_object_features(object_features, n_classes)
+        + n_history_features(history)
+        + n_window_features(history)
+    )
 
 
 def _fresh_estimate(obs: dict[str, np.ndarray]) -> tuple[np.ndarray, float] | None:
@@ -235,7 +248,8 @@ class ActionHistory:
 
 
 def observation_features(obs: dict[str, np.ndarray], onehot: np.ndarray) -> np.ndarray:
-    """The observation part of the features (47 + number of classes values)."""
+    """The observation part of the features: 47 values, then ``onehot``, what the policy is
+    told of the object (the class one-hot or the grasp frame)."""
     q = np.asarray(obs["joint_pos"], float)
     ee = np.asarray(obs["ee_pos"], float)
     pos = np.asarray(obs["object_pos"], float)
@@ -344,6 +358,10 @@ def check_numpy_policy_fields(meta_path: Path, meta: dict[str, Any]) -> None:
         raise bad("classes", "a list of object names", classes)
     if meta.get("action_type") not in ("joint", "cartesian"):
         raise bad("action_type", "'joint' or 'cartesian'", meta.get("action_type"))
+    try:
+        check_object_features(meta.get("object_features", "class"))
+    except ValueError:
+        raise bad("object_features", "'class' or 'grasp_frame'", meta["object_features"]) from None
     shapes = meta.get("observation_shapes", {})
     if not (
         isinstance(shapes, dict)
@@ -373,9 +391,12 @@ class ImitationPolicy:
         self.std = np.asarray(std, np.float32)
         self.history_spec = HistorySpec.from_record(meta["history"])
         self.classes = tuple(meta["classes"])
+        #: what the network is told of the object besides its pose (policies saved before
+        #: this key existed were told the class)
+        self.object_features = meta.get("object_features", "class")
         self.history = ActionHistory(self.history_spec)
         self._env_classes: tuple[str, ...] | None = None
-        want = n_features(len(self.classes), self.history_spec)
+        want = n_features(len(self.classes), self.history_spec, self.object_features)
         if not (len(self.mean) == len(self.std) == net.n_inputs == want):
             raise ValueError(
                 f"incompatible policy: {want} features from policy.json, normalisation has "
@@ -395,10 +416,16 @@ class ImitationPolicy:
                 out[self.classes.index(name)] = v
         return out
 
+    def _object_part(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        if self.object_features == "class":
+            return self._onehot(obs)
+        name = object_name(obs, self._env_classes or self.classes)
+        return grasp_frame_features(obs, name)
+
     def features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
         """Raw (unnormalised) features of an observation with a given history."""
         return np.r_[
-            observation_features(obs, self._onehot(obs)),
+            observation_features(obs, self._object_part(obs)),
             history.features(),
             history.pose_features(obs),
         ]
@@ -443,6 +470,11 @@ class ImitationPolicy:
         if "object_class" in have:
             names = tuple(env.get_wrapper_attr("class_names"))
             self._env_classes = names if names != self.classes else None
+        elif self.object_features == "grasp_frame":
+            raise ValueError(
+                "this policy reads the object's grasp frame, which needs its identity: wrap the "
+                "env with PoseEstimateObservation(include_class=True)"
+            )
         return self
 
     def env_kwargs(self) -> dict[str, Any]:

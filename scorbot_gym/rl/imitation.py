@@ -61,6 +61,7 @@ from scorbot_gym.policies.imitation import (
     n_features,
     to_action,
 )
+from scorbot_gym.policies.object_features import check_object_features
 from scorbot_gym.policies.sb3 import FORMAT, VERSION
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 from scorbot_gym.tasks.grasp import FAILURE_CAUSES
@@ -344,6 +345,10 @@ class ImitationConfig:
     #: pose conditions the learner observes, round-robin over episodes (module docstring;
     #: :func:`learner_pose`); the expert labels from the oracle pose under every one
     poses: tuple[str, ...] = ("oracle",)
+    #: what the network is told of the object besides its pose: ``"class"`` (a one-hot over
+    #: the training catalogue) or ``"grasp_frame"`` (derived from any object's mesh;
+    #: :mod:`scorbot_gym.policies.object_features`)
+    object_features: str = "class"
     #: a saved imitation policy folder (or ``"learned"``: the shipped one) whose network the
     #: first fit starts from: fine-tuning it on these episodes (e.g. on estimated poses)
     #: instead of training from scratch; ``None``: from scratch
@@ -373,6 +378,7 @@ class ImitationConfig:
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
         check_expert_options(self.sync_expert, self.expert_keeps_close)
+        check_object_features(self.object_features)
         self.hidden = tuple(int(h) for h in self.hidden)
 
 
@@ -458,6 +464,7 @@ def _skeleton(env: gym.Env, config: ImitationConfig, extra: dict | None = None) 
         "classes": list(classes),
         "observation_shapes": shapes,
         "history": asdict(config.history),
+        "object_features": config.object_features,
         "features": "observation_features + previous actions + gripper-command history "
         "(scorbot_gym.policies.imitation)",
         "network": {
@@ -467,7 +474,7 @@ def _skeleton(env: gym.Env, config: ImitationConfig, extra: dict | None = None) 
         },
         **(extra or {}),
     }
-    n = n_features(len(classes), config.history)
+    n = n_features(len(classes), config.history, config.object_features)
     sizes = [n, *config.hidden, 6]
     weights = [np.zeros((a, b), np.float32) for a, b in zip(sizes, sizes[1:], strict=False)]
     biases = [np.zeros(b, np.float32) for b in sizes[1:]]
