@@ -10,12 +10,11 @@ import pytest
 from scorbot_gym import make_env
 from scorbot_gym.policies.imitation import ImitationPolicy, n_features
 from scorbot_gym.policies.object_features import (
-    N_GRASP_FRAME,
-    grasp_frame_features,
+    grasp_frame_view,
     n_object_features,
     object_name,
 )
-from scorbot_gym.policies.scripted import ScriptedGraspPolicy
+from scorbot_gym.policies.scripted import ScriptedGraspPolicy, yaw_from_quat
 from scorbot_gym.rl.imitation import ImitationConfig, train_imitation
 
 pytestmark = pytest.mark.rl
@@ -29,34 +28,32 @@ def banana_env():
 
 
 def test_the_grasp_frame_is_where_and_how_the_scripted_controller_grasps(banana_env):
-    """The frame's grasp point and closing line are the controller's plan at the first
-    estimate (the banana: asymmetric, so its closing line has one heading mod a half turn)."""
+    """The pose the network reads is the controller's plan at the first estimate: the grasp
+    point, and the closing line as the heading (the banana: asymmetric, so one line)."""
     names = tuple(banana_env.get_wrapper_attr("class_names"))
     for seed in range(6):
         obs, info = banana_env.reset(seed=seed, options={"object_name": "banana"})
         assert object_name(obs, names) == "banana"
-        frame = grasp_frame_features(obs, "banana")
+        view = grasp_frame_view(obs, "banana")
         expert = ScriptedGraspPolicy.for_env(banana_env)
         expert.reset(obs, info)
-        np.testing.assert_allclose(frame[:3] + obs["ee_pos"], expert.grasp, atol=1e-6)
-        q = obs["joint_pos"]
-        doubled = 2.0 * (expert.closing_yaw - q[0])
-        np.testing.assert_allclose([frame[4], frame[7]], [np.sin(doubled), np.cos(doubled)],
-                                   atol=1e-6)  # fmt: skip
-        assert 0.0 < frame[10] < 0.1 and 0.0 < frame[11] < 0.3  # width, height: a banana's
+        np.testing.assert_allclose(view["object_pos"], expert.grasp, atol=1e-6)
+        turn = yaw_from_quat(view["object_quat"]) - expert.closing_yaw
+        assert abs(np.sin(turn)) < 1e-6  # the same line (a half turn is the same grasp)
+        assert view["joint_pos"] is obs["joint_pos"]  # the rest is the observation's
 
 
-def test_no_estimate_or_no_identity_gives_zeros(banana_env):
+def test_no_estimate_or_no_identity_leaves_the_observation(banana_env):
     obs, _ = banana_env.reset(seed=0)
     placeholder = {**obs, "object_quat": np.zeros(4), "object_pos": np.zeros(3)}
-    assert not grasp_frame_features(placeholder, "banana").any()
-    assert not grasp_frame_features(obs, None).any()
+    assert grasp_frame_view(placeholder, "banana") is placeholder
+    assert grasp_frame_view(obs, None) is obs
     assert object_name({**obs, "object_class": np.zeros(2)}, ("banana", "box")) is None
 
 
 def test_sizes_and_bad_names():
     assert n_object_features("class", 11) == 11
-    assert n_object_features("grasp_frame", 11) == N_GRASP_FRAME
+    assert n_object_features("grasp_frame", 11) == 0  # it replaces the pose, adds nothing
     with pytest.raises(
         ValueError, match=r"object_features must be one of \('class', 'grasp_frame'\)"
     ):

@@ -53,7 +53,7 @@ import numpy as np
 
 from scorbot_gym.policies.object_features import (
     check_object_features,
-    grasp_frame_features,
+    grasp_frame_view,
     n_object_features,
     object_name,
 )
@@ -416,19 +416,30 @@ class ImitationPolicy:
                 out[self.classes.index(name)] = v
         return out
 
-    def _object_part(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+    def view(self, obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The observation as the network reads it: as it is, or with ``object_features=
+        "grasp_frame"`` the object's pose replaced by its grasp frame
+        (:mod:`~scorbot_gym.policies.object_features`)."""
         if self.object_features == "class":
-            return self._onehot(obs)
-        name = object_name(obs, self._env_classes or self.classes)
-        return grasp_frame_features(obs, name)
+            return obs
+        return grasp_frame_view(obs, object_name(obs, self._env_classes or self.classes))
 
     def features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
         """Raw (unnormalised) features of an observation with a given history."""
+        return self._features_of_view(self.view(obs), history)
+
+    def _features_of_view(self, view: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
+        onehot = self._onehot(view) if self.object_features == "class" else np.zeros(0)
         return np.r_[
-            observation_features(obs, self._object_part(obs)),
+            observation_features(view, onehot),
             history.features(),
-            history.pose_features(obs),
+            history.pose_features(view),
         ]
+
+    def remember(self, history: ActionHistory, action: np.ndarray, obs: dict[str, np.ndarray]):
+        """``history.push`` of the action chosen on ``obs``, as the network reads ``obs``
+        (its window of fresh estimates holds grasp frames under ``"grasp_frame"``)."""
+        history.push(action, self.view(obs))
 
     def normalise(self, feats: np.ndarray) -> np.ndarray:
         z = (feats - self.mean) / np.maximum(self.std, CONSTANT_STD)
@@ -443,8 +454,9 @@ class ImitationPolicy:
         self.history.reset()
 
     def act(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        action = self.action_from_features(self.features(obs, self.history))
-        self.history.push(action, obs)
+        view = self.view(obs)
+        action = self.action_from_features(self._features_of_view(view, self.history))
+        self.history.push(action, view)
         return action
 
     replans = 0  # the episode runner's replan count: a learned policy does not plan

@@ -102,7 +102,7 @@ class ImitationFeatures(gym.Wrapper):
 
     def step(self, action):
         action = executed_action(action)
-        self.history.push(action, self._last_obs)
+        self.features.remember(self.history, action, self._last_obs)
         obs, reward, terminated, truncated, info = self.env.step(action)
         return self._observe(obs), reward, terminated, truncated, info
 
@@ -206,7 +206,7 @@ def demo_transitions(
             o = {k: ep.observations[k][t] for k in keys}
             feats.append(policy.normalise(policy.features(o, history)))
             if t < len(ep):
-                history.push(executed_action(ep.actions[t]), o)
+                policy.remember(history, executed_action(ep.actions[t]), o)
         feats = np.stack(feats)
         obs.append(feats[:-1])
         next_obs.append(feats[1:])

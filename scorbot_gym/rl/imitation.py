@@ -264,7 +264,7 @@ def collect_episodes(
             else:
                 action = learner.action_from_features(learner.features(obs, history))
             if history is not None:
-                history.push(action, obs)
+                learner.remember(history, action, obs)
             if hasattr(expert, "executed"):
                 expert.executed(action)
             obs, reward, terminated, truncated, info = env.step(action)
@@ -316,7 +316,7 @@ def episode_features(
     for t in range(len(episode)):
         obs = {k: episode.observations[k][t] for k in keys}
         feats.append(policy_like.features(obs, history))
-        history.push(episode.actions[t], obs)
+        policy_like.remember(history, episode.actions[t], obs)
     return np.stack(feats), episode.labels[: len(episode)]
 
 
