@@ -370,9 +370,12 @@ def compare_cartesian_ik() -> str:
             f"({d['only_a']} vs {d['only_b']} discordant, McNemar p = {d['mcnemar_p']:.2g})"
         )
     return (
-        f"Closed-form IK against damped least squares, {old['episodes']} paired episodes per "
-        f"arm (seeds {old['seeds'][0]}–{old['seeds'][1]}, true pose, successes dls → closed "
-        f"form): " + ", ".join(parts) + f"; {same} of {total} episodes end the same.\n"
+        "Configs without `cartesian_ik` ran before 2026-11-28 with damped-least-squares IK "
+        "(`--cartesian-ik dls`). The closed form against it (configs `ik_dls`, "
+        f'`ik_closed_form`: `--seed {old["seeds"][0]} --noise ""`), {old["episodes"]} paired '
+        "episodes per arm, true pose, successes dls → closed form: "
+        + ", ".join(parts)
+        + f"; {same} of {total} episodes end the same.\n"
     )
 
 
