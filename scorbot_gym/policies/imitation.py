@@ -436,7 +436,9 @@ class ImitationPolicy:
             history.pose_features(view),
         ]
 
-    def remember(self, history: ActionHistory, action: np.ndarray, obs: dict[str, np.ndarray]):
+    def remember(
+        self, history: ActionHistory, action: np.ndarray, obs: dict[str, np.ndarray]
+    ) -> None:
         """``history.push`` of the action chosen on ``obs``, as the network reads ``obs``
         (its window of fresh estimates holds grasp frames under ``"grasp_frame"``)."""
         history.push(action, self.view(obs))

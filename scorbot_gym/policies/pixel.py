@@ -315,6 +315,13 @@ class PixelPolicy:
         self.history.push(action, obs)
         return action
 
+    def remember(
+        self, history: ActionHistory, action: np.ndarray, obs: dict[str, np.ndarray]
+    ) -> None:
+        """``history.push`` of the action chosen on ``obs`` (the trainers' one call for every
+        learner; the pixel policy reads the observation as it is)."""
+        history.push(action, obs)
+
     # --- env matching ----------------------------------------------------------------------
     def bind(self, env) -> PixelPolicy:
         """Check that ``env`` renders the camera and gives the proprioception the policy
