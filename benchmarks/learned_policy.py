@@ -120,6 +120,13 @@ def main(argv: list[str] | None = None) -> None:
         "(scorbot_gym.policies.object_features; default class)",
     )
     p.add_argument(
+        "--objects",
+        default=None,
+        help="what the training episodes draw from, comma-separated: catalogue, object names, "
+        "heldout:training (primitive shapes never tested; scorbot_gym.assets.heldout_objects); "
+        "default: the catalogue",
+    )
+    p.add_argument(
         "--init-policy",
         default=None,
         help="fine-tune this saved imitation policy (learned: the shipped one) instead of "
@@ -156,6 +163,24 @@ def main(argv: list[str] | None = None) -> None:
         else:
             args.out = outputs.path(args.out, "policy", "--out")
         args.json = outputs.path(args.json, "learned_policy.json", "--json")
+        train_objects = None
+        if args.objects is not None:
+            from scorbot_gym.assets import heldout_objects
+            from scorbot_gym.objects import CATALOGUE
+
+            train_objects = []
+            for item in (v for v in args.objects.split(",") if v):
+                if item == "catalogue":
+                    train_objects += [n for n in CATALOGUE if n not in train_objects]
+                elif item.startswith("heldout:"):
+                    train_objects += heldout_objects.install(item.split(":", 1)[1])
+                elif item in CATALOGUE:
+                    train_objects.append(item)
+                else:
+                    raise ValueError(
+                        f"--objects: unknown {item!r}; valid: catalogue, heldout:"
+                        f"{' / heldout:'.join(heldout_objects.GROUPS)}, or {', '.join(CATALOGUE)}"
+                    )
         demos = None
         if args.dataset and not args.skip_training:
             from scorbot_gym.rl.datasets import read_dataset
@@ -188,6 +213,7 @@ def main(argv: list[str] | None = None) -> None:
             beta=args.beta,
             init_policy=args.init_policy,
             object_features=args.object_features,
+            objects=train_objects,
             history=HistorySpec(
                 pose_window=args.pose_window,
                 pose_dispersion=args.pose_dispersion,

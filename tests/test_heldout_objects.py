@@ -37,3 +37,20 @@ def test_a_group_installs_objects_the_gripper_can_take(group, catalogue):
 def test_an_unknown_group_is_a_clear_error():
     with pytest.raises(ValueError, match="unknown held-out group 'round'; valid: heading"):
         heldout_objects.install("round")
+
+
+def test_training_objects_are_checked_before_any_episode_and_drawn_from(catalogue):
+    from scorbot_gym.rl.imitation import ImitationConfig, make_learner_envs
+
+    with pytest.raises(ValueError, match=r"unknown objects \['train_bar'\]"):
+        ImitationConfig(objects=("banana", "train_bar"))  # not installed yet
+    with pytest.raises(ValueError, match="non-empty list of names"):
+        ImitationConfig(objects=())
+    names = heldout_objects.install("training")
+    config = ImitationConfig(objects=("banana", *names))
+    (env,) = make_learner_envs(config)
+    try:
+        drawn = {env.reset(seed=s)[1]["object_name"] for s in range(12)}
+    finally:
+        env.close()
+    assert drawn <= {"banana", *names} and len(drawn) > 2

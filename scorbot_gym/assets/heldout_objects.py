@@ -10,6 +10,11 @@ pose (so what a learned policy loses on them is its own), in two groups:
 - ``symmetric``: near-round objects that any heading grasps (strawberry, lemon, plum,
   racquetball) and a die.
 
+A third group, ``training``, is never tested: seven primitive bars, rods and a block (long,
+thin, flat; the scripted controller grasped all 70 episodes of a probe) that a policy may train
+on besides the catalogue, so that it sees more grasp frames than the catalogue's eleven (issue 49,
+item 5: "more varied training objects").
+
 Left out after a probe of 10 episodes each with the true pose (2026-11-28): objects wider than
 :data:`~scorbot_gym.objects.MAX_GRASP_WIDTH` at their narrowest, which ``register_object``
 refuses (gelatin and pudding boxes, tuna can, mug); the adjustable wrench, hammer, fork, medium
@@ -24,6 +29,16 @@ into :func:`scorbot_gym.objects.user_objects`, which worker processes receive).
 from __future__ import annotations
 
 from scorbot_gym.objects import CATALOGUE, ObjectSpec, Symmetry, install_objects
+
+#: a box's symmetry (a half turn about its height, a flip) and a cylinder's (any turn about its
+#: axis, a flip), as the catalogue's primitives have them
+_BOX = Symmetry("discrete", (0.0, 0.0, 1.0), order=2, flips=((1.0, 0.0, 0.0),))
+_ROD = Symmetry("axial", (0.0, 0.0, 1.0), flips=((1.0, 0.0, 0.0),))
+_LYING = ((0.7071067811865476, 0.7071067811865476, 0.0, 0.0),)  # the axis along the table
+
+
+def _shape(name: str, source: str, mass: float, symmetry: Symmetry, **kw) -> ObjectSpec:
+    return ObjectSpec(name, source, mass, symmetry, description=f"training shape {source}", **kw)
 
 
 def _ycb(name: str, ycb_id: str, mass: float, symmetry: Symmetry | None = None) -> ObjectSpec:
@@ -47,6 +62,15 @@ GROUPS: dict[str, tuple[ObjectSpec, ...]] = {
         _ycb("plum", "018_plum", 0.025),
         _ycb("racquetball", "057_racquetball", 0.041),
         _ycb("dice", "062_dice", 0.0052),
+    ),
+    "training": (
+        _shape("train_bar", "box:0.17,0.024,0.024", 0.09, _BOX),
+        _shape("train_flat_bar", "box:0.13,0.032,0.014", 0.06, _BOX),
+        _shape("train_block", "box:0.10,0.05,0.03", 0.10, _BOX),
+        _shape("train_small_bar", "box:0.09,0.028,0.02", 0.05, _BOX),
+        _shape("train_rod", "cylinder:0.012,0.16", 0.08, _ROD, resting_quats=_LYING),
+        _shape("train_short_rod", "cylinder:0.017,0.09", 0.06, _ROD, resting_quats=_LYING),
+        _shape("train_thin_rod", "cylinder:0.009,0.13", 0.04, _ROD, resting_quats=_LYING),
     ),
 }
 

@@ -50,6 +50,7 @@ import numpy as np
 
 from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.envs.factory import make_env
+from scorbot_gym.objects import CATALOGUE
 from scorbot_gym.policies.imitation import (
     AGE_FEATURE,
     ALGO,
@@ -349,6 +350,8 @@ class ImitationConfig:
     #: the training catalogue) or ``"grasp_frame"`` (derived from any object's mesh;
     #: :mod:`scorbot_gym.policies.object_features`)
     object_features: str = "class"
+    #: the objects the training episodes draw from (registered names); ``None``: the catalogue
+    objects: tuple[str, ...] | None = None
     #: a saved imitation policy folder (or ``"learned"``: the shipped one) whose network the
     #: first fit starts from: fine-tuning it on these episodes (e.g. on estimated poses)
     #: instead of training from scratch; ``None``: from scratch
@@ -379,6 +382,16 @@ class ImitationConfig:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
         check_expert_options(self.sync_expert, self.expert_keeps_close)
         check_object_features(self.object_features)
+        if self.objects is not None:
+            if isinstance(self.objects, str) or not self.objects:
+                raise ValueError(f"objects must be a non-empty list of names, got {self.objects!r}")
+            self.objects = tuple(self.objects)
+            unknown = [n for n in self.objects if n not in CATALOGUE]
+            if unknown:
+                raise ValueError(
+                    f"unknown objects {unknown}; valid: {', '.join(CATALOGUE)} (register or "
+                    "install others first)"
+                )
         self.hidden = tuple(int(h) for h in self.hidden)
 
 
@@ -419,8 +432,10 @@ def make_learner_envs(
     config: ImitationConfig, env_id: str = "ScorbotGraspCartesian-v0", **env_kwargs: Any
 ) -> list[gym.Env]:
     """One env per ``config.poses`` entry, in order (what :func:`train_imitation` takes);
-    ``env_kwargs`` go to every one (e.g. ``objects``). ``manifold`` gets the default models
-    (trained on first use and cached), loaded once for all."""
+    ``env_kwargs`` go to every one (``objects`` defaults to ``config.objects``). ``manifold``
+    gets the default models (trained on first use and cached), loaded once for all."""
+    if config.objects is not None:
+        env_kwargs.setdefault("objects", list(config.objects))
     envs = []
     models = None
     for name in config.poses:
@@ -430,6 +445,12 @@ def make_learner_envs(
                 from scorbot_gym.perception.training import default_pose_models
 
                 models = default_pose_models(progress=False)
+            missing = sorted(set(env_kwargs.get("objects") or ()) - set(models.object_names()))
+            if missing:
+                raise ValueError(
+                    f"the manifold learner pose has no pose models of {missing}: train "
+                    "those objects with oracle or noisy poses only"
+                )
             kwargs["models"] = models
         envs.append(
             make_env(env_id, pose=source, pose_kwargs=kwargs, identity=identity, **env_kwargs)
