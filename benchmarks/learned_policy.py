@@ -42,12 +42,17 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
-def _evaluate(label: str, policy: str, episodes: int, seed: int) -> dict:
+def _evaluate(label: str, policy: str, episodes: int, seed: int, objects: tuple[str, ...]) -> dict:
     from scorbot_gym.evaluation.rollout import RolloutConfig, run_rollout
 
     t0 = time.perf_counter()
     config = RolloutConfig(
-        policy=policy, pose="oracle", action_type="cartesian", episodes=episodes, seed=seed
+        policy=policy,
+        pose="oracle",
+        action_type="cartesian",
+        episodes=episodes,
+        seed=seed,
+        objects=objects,
     )
     summary, _ = run_rollout(config, progress=False)
     summary.pop("results", None)
@@ -163,15 +168,17 @@ def main(argv: list[str] | None = None) -> None:
         else:
             args.out = outputs.path(args.out, "policy", "--out")
         args.json = outputs.path(args.json, "learned_policy.json", "--json")
+        from scorbot_gym.objects import CATALOGUE
+
+        catalogue = tuple(CATALOGUE)  # what the evaluation draws from, whatever trains
         train_objects = None
         if args.objects is not None:
             from scorbot_gym.assets import heldout_objects
-            from scorbot_gym.objects import CATALOGUE
 
             train_objects = []
             for item in (v for v in args.objects.split(",") if v):
                 if item == "catalogue":
-                    train_objects += [n for n in CATALOGUE if n not in train_objects]
+                    train_objects += [n for n in catalogue if n not in train_objects]
                 elif item.startswith("heldout:"):
                     train_objects += heldout_objects.install(item.split(":", 1)[1])
                 elif item in CATALOGUE:
@@ -231,8 +238,8 @@ def main(argv: list[str] | None = None) -> None:
     policy = ImitationPolicy.load(args.out)
     training = policy.meta["training"]
     arms = {
-        "learned": _evaluate("learned", str(args.out), args.episodes, args.eval_seed),
-        "scripted": _evaluate("scripted", "scripted", args.episodes, args.eval_seed),
+        "learned": _evaluate("learned", str(args.out), args.episodes, args.eval_seed, catalogue),
+        "scripted": _evaluate("scripted", "scripted", args.episodes, args.eval_seed, catalogue),
     }
     size_kb = sum(f.stat().st_size for f in Path(args.out).iterdir()) / 1024
     out = {

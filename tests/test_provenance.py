@@ -312,3 +312,19 @@ def test_learned_policy_benchmark_refuses_a_joint_dataset_while_parsing(
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert exc.value.code == 2 and "holds joint actions" in err
     assert not (tmp_path / "runs").exists(), "refused before anything was written"
+
+
+def test_learned_policy_benchmark_refuses_unknown_training_objects_while_parsing(
+    tmp_path, monkeypatch, capsys
+):
+    monkeypatch.chdir(tmp_path)
+    bench = runpy.run_path(str(ROOT / "benchmarks" / "learned_policy.py"), run_name="t")["main"]
+    with pytest.raises(SystemExit) as exc:
+        bench(["--objects", "catalogue,heldout:nope"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exc.value.code == 2 and "unknown held-out group 'nope'" in err
+    with pytest.raises(SystemExit) as exc:
+        bench(["--objects", "spoon"])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "--objects: unknown 'spoon'; valid: catalogue, heldout:heading" in err
+    assert not (tmp_path / "runs").exists(), "refused before anything was written"
