@@ -15,6 +15,7 @@ Records the training cost (wall time, demonstrations, env steps) next to the suc
         [--stall-steps 50]   # ... and how long its TCP has been still
         [--expert-keeps-close]  # DAgger labels "close" until the learner closes
         [--object-features grasp_frame]  # told the object's grasp frame, not its class
+        [--objects catalogue,heldout:training]  # train on more shapes (evaluated on the catalogue)
 
 ``--poses`` (``ImitationConfig.poses``): the pose conditions the learner's observations come
 from, round-robin over episodes, while the scripted controller labels from the oracle pose:
