@@ -94,3 +94,35 @@ def test_a_policy_saved_before_the_key_is_told_the_class():
     assert "object_features" not in meta
     assert ImitationPolicy.load(SHIPPED_LEARNED_POLICY).object_features == "class"
     assert ImitationConfig().object_features == "class"
+
+
+def test_a_grasp_frame_policy_reads_the_frame_of_an_object_it_never_trained_on(
+    banana_env, tmp_path
+):
+    """Its env keeps the env's own classes, so a new object has an identity and a frame (with
+    the training classes pinned, a new object's one-hot would be empty)."""
+    config = ImitationConfig(
+        demos=1, dagger_rounds=0, fit_steps=5, hidden=(8,), object_features="grasp_frame"
+    )
+    policy, _ = train_imitation(banana_env, config)  # trained on banana and box
+    assert "classes" not in policy.env_kwargs()
+    kw = {k: v for k, v in policy.env_kwargs().items() if k != "env_id"}
+    env = make_env("ScorbotGraspCartesian-v0", pose="oracle", objects=["cylinder"], **kw)
+    try:
+        policy.bind(env)
+        obs, info = env.reset(seed=2)
+        view = policy.view(obs)
+        assert view is not obs  # the frame, not the object's own pose
+        expert = ScriptedGraspPolicy.for_env(env)
+        expert.reset(obs, info)
+        np.testing.assert_allclose(view["object_pos"], expert.grasp, atol=1e-6)
+    finally:
+        env.close()
+    pinned = make_env(
+        "ScorbotGraspCartesian-v0", pose="oracle", objects=["cylinder"], classes=["banana", "box"]
+    )
+    try:
+        obs, _ = pinned.reset(seed=2)
+        assert policy.bind(pinned).view(obs) is obs  # what pinning the classes did
+    finally:
+        pinned.close()

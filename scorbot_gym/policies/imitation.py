@@ -495,6 +495,11 @@ class ImitationPolicy:
         """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations."""
         cartesian = self.meta["action_type"] == "cartesian"
         env_id = "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0"
+        if self.object_features == "grasp_frame":
+            # the identity only picks the mesh, so the one-hot covers the env's own objects
+            # (pinned to the training classes, an object outside them would have no identity,
+            # and no grasp frame)
+            return {"env_id": env_id}
         return {"env_id": env_id, "classes": list(self.classes)}
 
     # --- files -----------------------------------------------------------------------------
