@@ -91,7 +91,11 @@ from scorbot_gym.perception.calibration import DEFAULT_CALIBRATION
 from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.imitation import SHIPPED_FINETUNED_POLICY, SHIPPED_LEARNED_POLICY
+from scorbot_gym.policies.imitation import (
+    SHIPPED_FINETUNED_POLICY,
+    SHIPPED_GRASP_FRAME_POLICY,
+    SHIPPED_LEARNED_POLICY,
+)
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY
 from scorbot_gym.rl import runs
 
@@ -264,6 +268,7 @@ BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
     "rl": _shipped(SHIPPED_POLICY),
     "learned": _shipped(SHIPPED_LEARNED_POLICY),
     "finetuned": _shipped(SHIPPED_FINETUNED_POLICY),
+    "learned_grasp_frame": _shipped(SHIPPED_GRASP_FRAME_POLICY),
 }
 
 

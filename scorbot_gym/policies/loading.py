@@ -4,8 +4,9 @@
 stand-alone); ``"pixel_imitation"`` → :class:`~scorbot_gym.policies.pixel.PixelPolicy` (CNN on
 the top camera image, no pose estimate); ``sac``/``tqc``/``ppo`` →
 :class:`~scorbot_gym.policies.sb3.SB3Policy`. The names ``rl`` (the shipped residual) and
-``learned`` (the shipped stand-alone imitation policy) and ``finetuned`` (that policy after
-RL fine-tuning) stand for the policies in the package.
+``learned`` (the shipped stand-alone imitation policy), ``finetuned`` (that policy after
+RL fine-tuning) and ``learned_grasp_frame`` (``learned``'s recipe reading the object's grasp
+frame instead of its class) stand for the policies in the package.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 from scorbot_gym.policies.imitation import (
     ALGO,
     SHIPPED_FINETUNED_POLICY,
+    SHIPPED_GRASP_FRAME_POLICY,
     SHIPPED_LEARNED_POLICY,
 )
 from scorbot_gym.policies.sb3 import SHIPPED_POLICY, read_policy_json
@@ -26,6 +28,7 @@ SHIPPED = {
     "rl": SHIPPED_POLICY,
     "learned": SHIPPED_LEARNED_POLICY,
     "finetuned": SHIPPED_FINETUNED_POLICY,
+    "learned_grasp_frame": SHIPPED_GRASP_FRAME_POLICY,
 }
 
 
