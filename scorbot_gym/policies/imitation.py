@@ -251,8 +251,8 @@ class ActionHistory:
 
 
 def observation_features(obs: dict[str, np.ndarray], onehot: np.ndarray) -> np.ndarray:
-    """The observation part of the features: 47 values, then ``onehot``, what the policy is
-    told of the object (the class one-hot or the grasp frame)."""
+    """The observation part of the features: 47 values, then ``onehot`` (the class one-hot;
+    empty for a grasp-frame policy, whose pose entries already are the object's grasp frame)."""
     q = np.asarray(obs["joint_pos"], float)
     ee = np.asarray(obs["ee_pos"], float)
     pos = np.asarray(obs["object_pos"], float)
