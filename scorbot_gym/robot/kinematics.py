@@ -108,6 +108,7 @@ class ArmKinematics:
         self._qpos_at = _as_slice(self._qpos)
         self._dof4 = _as_slice(self._dof[:4])  # the joints IK moves (the wrist roll is kept)
         self._chain = self._planar_chain()
+        self._base_xyz = tuple(self.base_pos.tolist())  # floats, once (IK runs every step)
 
     def _planar_chain(self) -> tuple[float, float, float, float, float]:
         """The arm's planar chain read from this model at zero joint angles, where every link
@@ -224,7 +225,7 @@ class ArmKinematics:
         """
         q0, _, q2, _, q4 = (float(v) for v in q_init)
         offset, height, upper, fore, tool = self._chain
-        bx, by, bz = self.base_pos.tolist()
+        bx, by, bz = self._base_xyz
         x, y, z = float(target_pos[0]) - bx, float(target_pos[1]) - by, float(target_pos[2]) - bz
         yaw, reach = math.atan2(y, x), math.hypot(x, y)
         behind = yaw - math.pi if yaw > 0.0 else yaw + math.pi
