@@ -126,3 +126,49 @@ def test_a_grasp_frame_policy_reads_the_frame_of_an_object_it_never_trained_on(
         assert policy.bind(pinned).view(obs) is obs  # what pinning the classes did
     finally:
         pinned.close()
+
+
+def test_the_sb3_grasp_frame_observation_is_the_frame_relative_to_the_hand(banana_env):
+    """What an SB3 policy with ``object_features: grasp_frame`` reads: the frame in place of
+    the pose, the frame minus the TCP, doubled headings, no class; a flag says when there is
+    no frame (no identity), so the fallback to the object's own pose is an input."""
+    from scorbot_gym.policies.object_features import (
+        GRASP_FRAME_ENTRIES,
+        GraspFrameObservation,
+        grasp_frame_observation,
+    )
+
+    names = tuple(banana_env.get_wrapper_attr("class_names"))
+    obs, _ = banana_env.reset(seed=4, options={"object_name": "banana"})
+    out = grasp_frame_observation(obs, names)
+    view = grasp_frame_view(obs, "banana")
+    assert "object_class" not in out
+    np.testing.assert_allclose(out["object_pos"], view["object_pos"])
+    np.testing.assert_allclose(out["grasp_offset"], view["object_pos"] - obs["ee_pos"], atol=1e-6)
+    yaw = yaw_from_quat(view["object_quat"])
+    assert out["grasp_heading"][0] == pytest.approx(np.sin(2 * yaw), abs=1e-6)
+    assert out["grasp_heading"][4] == pytest.approx(np.cos(2 * yaw), abs=1e-6)
+    assert out["grasp_frame_valid"][0] == 1.0
+    anonymous = grasp_frame_observation({**obs, "object_class": np.zeros(2)}, names)
+    assert anonymous["grasp_frame_valid"][0] == 0.0
+    np.testing.assert_allclose(anonymous["object_pos"], obs["object_pos"])
+    wrapped = GraspFrameObservation(banana_env)
+    sizes = {k: s.shape[0] for k, s in banana_env.observation_space.spaces.items()}
+    del sizes["object_class"]
+    assert {k: s.shape[0] for k, s in wrapped.observation_space.spaces.items()} == {
+        **sizes,
+        **GRASP_FRAME_ENTRIES,
+    }
+    obs, _ = wrapped.reset(seed=5)
+    assert set(obs) == set(wrapped.observation_space.spaces)
+    assert wrapped.observation_space.contains(
+        {k: np.asarray(v, wrapped.observation_space[k].dtype) for k, v in obs.items()}
+    )
+    no_class = make_env(
+        "ScorbotGraspCartesian-v0", pose="oracle", objects=["box"], include_class=False
+    )
+    try:
+        with pytest.raises(ValueError, match="needs the object_class one-hot"):
+            GraspFrameObservation(no_class)
+    finally:
+        no_class.close()

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from scorbot_gym.policies.object_features import grasp_frame_observation, grasp_frame_space
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 
 FORMAT = "scorbot-gym-policy"
@@ -176,6 +177,10 @@ class SB3Policy:
         self.base = ScriptedGraspPolicy(**res["base"]) if res else None
         self.classes = tuple(meta.get("classes") or ())
         self._env_classes: tuple[str, ...] | None = None
+        #: "grasp_frame": the model reads :func:`grasp_frame_observation`'s view (no class)
+        self.object_features = (
+            (meta.get("config") or {}).get("hyperparams", {}).get("object_features", "class")
+        )
 
     # --- loading ---------------------------------------------------------------------------
     @classmethod
@@ -250,12 +255,17 @@ class SB3Policy:
         box`` makes a one-class env; a user-added object is a class the model never saw) is
         re-ordered into the model's. Returns ``self``."""
         check_action_type(env, self.meta["action_type"])
-        have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
+        space = env.observation_space
+        if self.object_features == "grasp_frame":
+            space = grasp_frame_space(space)
+        have = {k: tuple(s.shape) for k, s in space.spaces.items()}
         if self.base is not None:
             have["base_action"] = tuple(env.action_space.shape)
         want = {k: tuple(v) for k, v in self.meta["observation_shapes"].items()}
         self._env_classes = None
-        if "object_class" in want and "object_class" in have:
+        if self.object_features == "grasp_frame":  # the frame's mesh: named by the env's one-hot
+            self._env_classes = tuple(env.get_wrapper_attr("class_names"))
+        elif "object_class" in want and "object_class" in have:
             names = tuple(env.get_wrapper_attr("class_names"))
             self._env_classes = names if names != self.classes else None
             have["object_class"] = want["object_class"]
@@ -279,6 +289,8 @@ class SB3Policy:
         """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations."""
         cartesian = self.meta["action_type"] == "cartesian"
         env_id = "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0"
+        if self.object_features == "grasp_frame":  # any object the env has: its own one-hot
+            return {"env_id": env_id, "classes": None}
         return {"env_id": env_id, "classes": list(self.classes) or None}
 
     # --- Policy protocol -------------------------------------------------------------------
@@ -291,7 +303,9 @@ class SB3Policy:
         if self.base is not None:
             base = np.asarray(self.base.act(obs), np.float32)
             obs = {**obs, "base_action": base}
-        if self._env_classes is not None:
+        if self.object_features == "grasp_frame":
+            obs = grasp_frame_observation(obs, self._env_classes or self.classes)
+        elif self._env_classes is not None:
             obs = {**obs, "object_class": self._model_onehot(obs["object_class"])}
         x = {k: np.asarray(obs[k]) for k in self.meta["observation_shapes"]}
         if self.normalizer is not None:

@@ -43,6 +43,8 @@ OFF_POLICY = ("sac", "tqc")
 #: the env's reward types (scorbot_gym.tasks.grasp.REWARD_TYPES; repeated here, as this module
 #: imports PyYAML only, and a test checks that the two agree)
 REWARD_TYPES = ("dense", "normalized_dense", "sparse")
+#: what the policy is told of the object (scorbot_gym.policies.object_features.OBJECT_FEATURES)
+OBJECT_FEATURES = ("class", "grasp_frame")
 
 
 def _int(low: int) -> Callable[[Any], int]:
@@ -104,6 +106,12 @@ def _reward_type(v: Any) -> str:
     return v
 
 
+def _object_features(v: Any) -> str:
+    if v not in OBJECT_FEATURES:
+        raise ValueError(f"must be one of {', '.join(OBJECT_FEATURES)}")
+    return v
+
+
 def _finite(v: Any) -> float:
     return _float(-math.inf)(v)
 
@@ -151,6 +159,8 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     # the env's reward, tuned with the rest (RL Zoo's env_kwargs)
     "reward_type": (ALGOS, _reward_type, "the env's reward (scorbot_gym.tasks.grasp)"),
     "reward_scale": (ALGOS, _float(0.0, low_open=True), "what the learner's rewards are times"),
+    # the policy's inputs (an env wrapper, as RL Zoo's env_wrapper)
+    "object_features": (ALGOS, _object_features, "the object's class one-hot, or its grasp frame"),
 }
 
 #: keys that only the fine-tuning setting reads (they weigh its demonstrations)

@@ -164,7 +164,12 @@ class TrainConfig:
             )
         if self.init_policy is not None:
             self._check_finetune()
-        self.resolved_hyperparams()
+        hp = self.resolved_hyperparams()
+        if hp.get("object_features") == "grasp_frame" and (self.residual or self.finetune):
+            raise ValueError(
+                "object_features grasp_frame is for a policy that acts alone: not with "
+                "--residual (its scripted base reads the class) or --init-policy"
+            )
         return self
 
     @property
@@ -314,7 +319,8 @@ class TrainConfig:
         data = {"hyperparams_entry": None, "device": "cpu", "identity": identity, **data}
         hp = data.get("hyperparams")
         if isinstance(hp, dict) and hp:  # a resolved set from before these keys: their values
-            then = {"reward_type": "dense", "reward_scale": 1.0}  # then (not the entry's now)
+            # then (not the entry's now)
+            then = {"reward_type": "dense", "reward_scale": 1.0, "object_features": "class"}
             data = {**data, "hyperparams": {**then, **hp}}
         return data
 
@@ -356,6 +362,10 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     """One training env: the policy env, wrapped as a residual problem if asked, or as the
     initial imitation policy's features when fine-tuning it."""
     env = make_policy_env(config)
+    if config.resolved_hyperparams().get("object_features", "class") == "grasp_frame":
+        from scorbot_gym.policies.object_features import GraspFrameObservation
+
+        env = GraspFrameObservation(env)
     if config.residual:
         env = ResidualActionWrapper(
             env, scale=config.residual_scale, gripper=config.residual_gripper
