@@ -215,16 +215,19 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
 
     from pose.fileio import write_result
-    from scorbot_gym.evaluation.compare import compare, resolve_arm
+    from scorbot_gym.evaluation.compare import compare, noise_level, resolve_arm
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.rl.runs import policy_dir
 
     arms = [a for a in args.arms.split(",") if a]
-    if ARM_IMITATION not in arms:
-        arms.append(ARM_IMITATION)  # the paired baseline of every fine-tuned policy
+    baseline = args.init_policy  # the paired baseline of every fine-tuned policy: its start
+    if baseline not in arms:
+        arms.append(baseline)
     try:  # every setting is checked before any training: a usage error, not a traceback
         for arm in arms:
             resolve_arm(arm)
+        for level in args.noise:
+            noise_level(level)
         configs = _configs(args, hparams.parse_overrides(args.hyperparams))
         out_json = Outputs("finetune", args.overwrite).path(
             args.out, "finetune.json", companions=[".png"] if args.config is None else []
@@ -258,12 +261,12 @@ def main(argv: list[str] | None = None) -> None:
     diffs = []
     for cond in report["conditions"]:
         by = {r["policy"]: r for r in report["results"] if r["pose"] == cond["label"]}
-        base = by[ARM_IMITATION]
+        base = by[baseline]
         for name in runs:
             d = newcombe_paired_diff(_paired(by[name]), _paired(base))
-            diffs.append({"pose": cond["label"], "a": name, "b": ARM_IMITATION, **d})
+            diffs.append({"pose": cond["label"], "a": name, "b": baseline, **d})
     out = {
-        "description": "RLPD-style SAC fine-tuning of the shipped stand-alone imitation policy "
+        "description": f"RLPD-style SAC fine-tuning of the imitation policy {baseline!r} "
         "(demonstrations in every batch, critic warm-up, actor initialised from the imitation "
         "MLP); imitation vs fine-tuned vs scripted on the same seeded episodes, whole "
         "catalogue, cartesian actions",

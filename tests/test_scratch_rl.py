@@ -173,37 +173,46 @@ def test_the_learner_sees_the_reward_times_reward_scale():
     np.testing.assert_allclose(rewards[200], 200 * rewards[1], rtol=1e-6)
 
 
-def test_a_grasp_frame_run_trains_exports_and_acts_on_a_new_object(tmp_path):
+@pytest.mark.parametrize("residual", [False, True])
+def test_a_grasp_frame_run_trains_exports_and_acts_on_a_new_object(tmp_path, residual):
     """The scratch entry's policy reads the grasp frame (no class): its run records it, the
-    exported policy rebuilds the same observation from a plain env, binds to an env of an
-    object it never trained on, and refuses a residual run (whose base reads the class)."""
+    exported policy rebuilds the same observation from a plain env and binds to an env of an
+    object it never trained on; a residual's scripted base still reads the class, the
+    correction the frame."""
     from scorbot_gym import make_env
     from scorbot_gym.policies.sb3 import SB3Policy
 
     assert hparams.load_defaults("sac", "scratch")["object_features"] == "grasp_frame"
     assert hparams.load_defaults("sac", "default").get("object_features", "class") == "class"
     out = tmp_path / "run"
+    kind = ["--residual"] if residual else ["--hyperparams-entry", "scratch"]
+    hp = ["buffer_size=200", "batch_size=8", "net_arch=[8,8]"]
+    hp += ["object_features=grasp_frame"] if residual else []
     argv = [
-        "train", "--hyperparams-entry", "scratch", "--objects", "box", "--timesteps", "40",
+        "train", *kind, "--objects", "box", "--timesteps", "40",
         "--learning-starts", "20", "--eval-every", "40", "--eval-episodes", "1",
         "--checkpoint-every", "40", "--no-progress", "--no-tensorboard", "--device", "cpu",
-        "--hyperparams", "buffer_size=200", "batch_size=8", "net_arch=[8,8]", "--out", str(out),
+        "--hyperparams", *hp, "--out", str(out),
     ]  # fmt: skip
     assert main(argv) == 0
     policy = SB3Policy.load(out / "policy")
+    assert (policy.base is not None) == residual
     assert policy.object_features == "grasp_frame"
     assert "object_class" not in policy.meta["observation_shapes"]
     assert policy.env_kwargs()["classes"] is None
     env = make_env(policy.env_kwargs()["env_id"], pose="oracle", objects=["banana"])
     try:
         policy.bind(env)
-        obs, _ = env.reset(seed=3)
+        obs, info = env.reset(seed=3)
+        policy.reset(obs, info)
         action = policy.act(obs)
         assert action.shape == (6,) and np.all(np.abs(action) <= 1.0)
     finally:
         env.close()
-    with pytest.raises(ValueError, match="grasp_frame is for a policy that acts alone"):
-        TrainConfig(residual=True, hyperparams={"object_features": "grasp_frame"}).validate()
+    with pytest.raises(ValueError, match="does not apply to --init-policy"):
+        TrainConfig(
+            init_policy="learned", normalize=False, hyperparams={"object_features": "grasp_frame"}
+        ).validate()
     with pytest.raises(ValueError, match="object_features must be one of class, grasp_frame"):
         TrainConfig(hyperparams={"object_features": "shape"}).validate()
     # a run from before the key read the class one-hot

@@ -265,6 +265,8 @@ class SB3Policy:
         self._env_classes = None
         if self.object_features == "grasp_frame":  # the frame's mesh: named by the env's one-hot
             self._env_classes = tuple(env.get_wrapper_attr("class_names"))
+            if self.base is not None:
+                self.base.classes = self._env_classes
         elif "object_class" in want and "object_class" in have:
             names = tuple(env.get_wrapper_attr("class_names"))
             self._env_classes = names if names != self.classes else None

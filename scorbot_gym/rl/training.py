@@ -165,10 +165,10 @@ class TrainConfig:
         if self.init_policy is not None:
             self._check_finetune()
         hp = self.resolved_hyperparams()
-        if hp.get("object_features") == "grasp_frame" and (self.residual or self.finetune):
+        if hp.get("object_features") == "grasp_frame" and self.finetune:
             raise ValueError(
-                "object_features grasp_frame is for a policy that acts alone: not with "
-                "--residual (its scripted base reads the class) or --init-policy"
+                "object_features grasp_frame does not apply to --init-policy: the imitation "
+                "policy's own features are used (a grasp-frame imitation policy reads the frame)"
             )
         return self
 
@@ -362,14 +362,15 @@ def make_training_env(config: TrainConfig) -> gym.Env:
     """One training env: the policy env, wrapped as a residual problem if asked, or as the
     initial imitation policy's features when fine-tuning it."""
     env = make_policy_env(config)
-    if config.resolved_hyperparams().get("object_features", "class") == "grasp_frame":
-        from scorbot_gym.policies.object_features import GraspFrameObservation
-
-        env = GraspFrameObservation(env)
     if config.residual:
         env = ResidualActionWrapper(
             env, scale=config.residual_scale, gripper=config.residual_gripper
         )
+    if config.resolved_hyperparams().get("object_features", "class") == "grasp_frame":
+        from scorbot_gym.policies.object_features import GraspFrameObservation
+
+        # outside the residual wrapper: its scripted base reads the class one-hot
+        env = GraspFrameObservation(env)
     if config.finetune:
         from scorbot_gym.rl.finetune import ImitationFeatures, load_init_policy
 
