@@ -12,7 +12,16 @@ from __future__ import annotations
 
 #: who acts in ``scorbot-gym rollout`` (besides a policy or training-run folder);
 #: :mod:`scorbot_gym.evaluation.rollout` takes them from here
-POLICIES = ("scripted", "random", "rl", "learned", "finetuned", "learned_grasp_frame")
+POLICIES = (
+    "scripted",
+    "random",
+    "rl",
+    "learned",
+    "finetuned",
+    "learned_grasp_frame",
+    "finetuned_grasp_frame",
+    "rl_grasp_frame",
+)
 #: the pose sources :mod:`scorbot_gym.perception.registry` registers itself (sorted)
 POSE_SOURCES = (
     "constant",

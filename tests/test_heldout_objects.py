@@ -54,3 +54,24 @@ def test_training_objects_are_checked_before_any_episode_and_drawn_from(catalogu
     finally:
         env.close()
     assert drawn <= {"banana", *names} and len(drawn) > 2
+
+
+@pytest.mark.parametrize("name", ["learned_grasp_frame", "finetuned_grasp_frame", "rl_grasp_frame"])
+def test_the_shipped_grasp_frame_arms_grasp_a_new_object_whose_heading_matters(name, catalogue):
+    """Each shipped arm that reads the grasp frame (no class) takes a screwdriver it never
+    trained on, from its own ``env_kwargs`` (the env's classes, so the object has a frame)."""
+    from scorbot_gym import make_env
+    from scorbot_gym.evaluation import run_episodes
+    from scorbot_gym.policies.loading import load_policy
+
+    assert "phillips_screwdriver" in heldout_objects.install("heading")
+    policy = load_policy(name)
+    assert policy.object_features == "grasp_frame"
+    kwargs = dict(policy.env_kwargs())
+    env = make_env(kwargs.pop("env_id"), pose="oracle", objects=["phillips_screwdriver"], **kwargs)
+    try:
+        policy.bind(env)
+        results = run_episodes(env, policy, 2, 50000, progress=False)
+    finally:
+        env.close()
+    assert [r.success for r in results] == [True, True]

@@ -57,7 +57,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default="scripted",
         help=f"who acts: {', '.join(POLICIES)} (scripted: PBVS controller; rl: the shipped "
         "residual; learned: the shipped imitation policy; finetuned: it after RL fine-tuning; "
-        "learned_grasp_frame: learned's recipe reading the grasp frame, not the class), "
+        "learned_grasp_frame, finetuned_grasp_frame, rl_grasp_frame: learned, finetuned and "
+        "rl reading the object's grasp frame, not its class), "
         "or a folder: a policy, or a `scorbot-gym train` run (replays its --checkpoint)",
     )
     p.add_argument(

@@ -91,12 +91,7 @@ from scorbot_gym.perception.calibration import DEFAULT_CALIBRATION
 from scorbot_gym.perception.recognizers import DEFAULT_RECOGNIZER
 from scorbot_gym.perception.support import DEFAULT_SUPPORT
 from scorbot_gym.policies import RandomPolicy, ScriptedGraspPolicy
-from scorbot_gym.policies.imitation import (
-    SHIPPED_FINETUNED_POLICY,
-    SHIPPED_GRASP_FRAME_POLICY,
-    SHIPPED_LEARNED_POLICY,
-)
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY
+from scorbot_gym.policies.loading import SHIPPED
 from scorbot_gym.rl import runs
 
 DEG_PER_M = 500.0  # heading noise (deg) per metre of position noise in noisy@S conditions
@@ -261,14 +256,11 @@ def _shipped(folder: Path) -> Callable[[str], Arm]:
     return lambda name: saved_arm(folder, name=name)
 
 
-#: built-in policy names -> arm factory; a new shipped policy is one entry here
+#: built-in policy names -> arm factory; a new shipped policy is one entry of ``SHIPPED``
 BUILTIN_ARMS: dict[str, Callable[[str], Arm]] = {
     "scripted": _scripted_arm,
     "random": _random_arm,
-    "rl": _shipped(SHIPPED_POLICY),
-    "learned": _shipped(SHIPPED_LEARNED_POLICY),
-    "finetuned": _shipped(SHIPPED_FINETUNED_POLICY),
-    "learned_grasp_frame": _shipped(SHIPPED_GRASP_FRAME_POLICY),
+    **{name: _shipped(folder) for name, folder in SHIPPED.items()},
 }
 
 

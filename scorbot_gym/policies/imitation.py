@@ -68,6 +68,8 @@ SHIPPED_FINETUNED_POLICY = Path(__file__).parent / "data" / "imitation_rlpd_orac
 #: ``learned``'s recipe told the object's grasp frame instead of its class
 #: (``object_features="grasp_frame"``): the stand-alone arm that carries to new objects
 SHIPPED_GRASP_FRAME_POLICY = Path(__file__).parent / "data" / "imitation_grasp_frame"
+#: ``learned_grasp_frame`` after the RLPD-style fine-tune that made ``finetuned`` from ``learned``
+SHIPPED_GRASP_FRAME_FINETUNED_POLICY = Path(__file__).parent / "data" / "imitation_rlpd_grasp_frame"
 #: pose_age is scaled as log1p(age) / log1p(AGE_SCALE): 0 fresh, 1 never estimated
 AGE_SCALE = 1000.0
 #: proprioception and pose entries the features read (besides ``object_class``)

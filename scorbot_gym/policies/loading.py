@@ -5,8 +5,10 @@ stand-alone); ``"pixel_imitation"`` → :class:`~scorbot_gym.policies.pixel.Pixe
 the top camera image, no pose estimate); ``sac``/``tqc``/``ppo`` →
 :class:`~scorbot_gym.policies.sb3.SB3Policy`. The names ``rl`` (the shipped residual) and
 ``learned`` (the shipped stand-alone imitation policy), ``finetuned`` (that policy after
-RL fine-tuning) and ``learned_grasp_frame`` (``learned``'s recipe reading the object's grasp
-frame instead of its class) stand for the policies in the package.
+RL fine-tuning), ``learned_grasp_frame`` (``learned``'s recipe reading the object's grasp
+frame instead of its class), ``finetuned_grasp_frame`` (it after the same fine-tune) and
+``rl_grasp_frame`` (the residual reading the grasp frame) stand for the policies in the
+package (:data:`SHIPPED`).
 """
 
 from __future__ import annotations
@@ -17,10 +19,15 @@ from typing import Any
 from scorbot_gym.policies.imitation import (
     ALGO,
     SHIPPED_FINETUNED_POLICY,
+    SHIPPED_GRASP_FRAME_FINETUNED_POLICY,
     SHIPPED_GRASP_FRAME_POLICY,
     SHIPPED_LEARNED_POLICY,
 )
-from scorbot_gym.policies.sb3 import SHIPPED_POLICY, read_policy_json
+from scorbot_gym.policies.sb3 import (
+    SHIPPED_GRASP_FRAME_RESIDUAL,
+    SHIPPED_POLICY,
+    read_policy_json,
+)
 
 PIXEL_ALGO = "pixel_imitation"  # scorbot_gym.policies.pixel.ALGO, without importing cv2/torch
 
@@ -29,6 +36,8 @@ SHIPPED = {
     "learned": SHIPPED_LEARNED_POLICY,
     "finetuned": SHIPPED_FINETUNED_POLICY,
     "learned_grasp_frame": SHIPPED_GRASP_FRAME_POLICY,
+    "finetuned_grasp_frame": SHIPPED_GRASP_FRAME_FINETUNED_POLICY,
+    "rl_grasp_frame": SHIPPED_GRASP_FRAME_RESIDUAL,
 }
 
 

@@ -30,6 +30,8 @@ from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 
 FORMAT = "scorbot-gym-policy"
 VERSION = 1
+#: the residual reading the grasp frame (``object_features: grasp_frame``), not the class
+SHIPPED_GRASP_FRAME_RESIDUAL = Path(__file__).parent / "data" / "residual_sac_grasp_frame"
 SHIPPED_POLICY = Path(__file__).parent / "data" / "residual_sac_oracle"
 
 
