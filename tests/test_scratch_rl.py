@@ -197,6 +197,8 @@ def test_a_grasp_frame_run_trains_exports_and_acts_on_a_new_object(tmp_path, res
     assert main(argv) == 0
     policy = SB3Policy.load(out / "policy")
     assert (policy.base is not None) == residual
+    assert policy.meta["training"]["env_steps"] == 40  # the cost travels with a shipped copy
+    assert policy.meta["training"]["wall_time_s"] > 0
     assert policy.object_features == "grasp_frame"
     assert "object_class" not in policy.meta["observation_shapes"]
     assert policy.env_kwargs()["classes"] is None

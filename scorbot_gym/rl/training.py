@@ -685,9 +685,16 @@ class _Run:
         return SB3Policy(model, self._meta(model), self.normalizer())
 
     def _meta(self, model) -> dict[str, Any]:
-        return policy_meta(
+        meta = policy_meta(
             self.config, self.meta_env, model.num_timesteps, self.state["provenance"]
         )
+        # the run's cost travels with the policy (a shipped copy has no run folder beside it)
+        meta["training"] = {
+            "env_steps": int(model.num_timesteps),
+            "wall_time_s": round(self.clock.seconds, 2),
+            "seeds": [int(self.config.seed)],
+        }
+        return meta
 
     def save(self, model) -> None:
         """A checkpoint, written whole beside the last one and then swapped in
