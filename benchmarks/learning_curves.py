@@ -106,6 +106,15 @@ def main(argv: list[str] | None = None) -> int:
         help="with --train: runs (seeds of every arm) trained at a time, each in its own process",
     )
     parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="with --train: every run a Ray task, on a local instance of --parallel CPUs or the "
+        "cluster at ADDRESS (its workers need scorbot-gym and the run folders at the same paths)",
+    )
+    parser.add_argument(
         "--hyperparams",
         nargs="+",
         default=[],
@@ -183,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 start_seeds(configs[label], folder, args.seeds)
             jobs.update(seed_jobs(folder, timesteps=args.timesteps, device=args.device))
-        run_seed_jobs(jobs, processes=args.parallel)
+        run_seed_jobs(jobs, processes=args.parallel, ray=args.ray)
         for label in arms:
             trained[label] = {
                 "preset": PRESETS[label],
@@ -193,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
                 "n_envs": args.n_envs,
                 "seeds": args.seeds,
                 "parallel": args.parallel,
+                "ray": args.ray,
             }
 
     try:

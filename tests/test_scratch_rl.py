@@ -149,6 +149,44 @@ def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
     assert arm["first_reached"]["0.5"]["seeds_reached"] in (0, 1, 2)
 
 
+@pytest.mark.slow
+@pytest.mark.ray
+def test_seeds_train_and_resume_as_ray_tasks_as_they_do_in_processes(tmp_path):
+    """Each seed a task of a local Ray instance, then continued as tasks: a seed's first
+    segment evaluates as the same seed trained in this process; a single run refuses --ray
+    (it has no seeds to spread)."""
+    from scorbot_gym.rl.training import resume, train_seeds
+
+    config = TrainConfig(
+        objects=["box"],
+        timesteps=40,
+        hyperparams_entry="scratch",
+        hyperparams={"learning_starts": 20, "batch_size": 8, "buffer_size": 200, "net_arch": [8]},
+        eval_every=40,
+        eval_episodes=1,
+        checkpoint_every=40,
+        progress_bar=False,
+        tensorboard=False,
+        device="cpu",
+    )
+    ray = pytest.importorskip("ray")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)  # one for both calls
+    try:
+        states = train_seeds(config, tmp_path / "ray", [0, 1], processes=2, ray="local")["seeds"]
+        assert sorted(states) == [0, 1] and all(s["timesteps"] == 40 for s in states.values())
+        states = resume(tmp_path / "ray", timesteps=80, processes=2, ray="local")["seeds"]
+        assert all(s["timesteps"] == 80 for s in states.values())
+    finally:
+        ray.shutdown()
+    here = train_seeds(config, tmp_path / "here", [1])["seeds"][1]  # in this process
+    assert [e["mean_return"] for e in states[1]["eval"][:2]] == [
+        e["mean_return"] for e in here["eval"]
+    ]
+    with pytest.raises(ValueError, match="--ray runs the seeds of a --seeds run"):
+        resume(tmp_path / "ray" / "seed_0", timesteps=90, ray="local")
+    assert main(["train", "--ray", "--out", str(tmp_path / "one")]) == 2
+
+
 def test_the_learner_sees_the_reward_times_reward_scale():
     """reward_scale multiplies what the learner is given; the env keeps its [0, 1] reward."""
     import numpy as np

@@ -146,7 +146,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=1,
         metavar="N",
         help="with --seeds (or --resume of a --seeds folder): train N seeds at a time, each in "
-        "a process of its own (default 1: one after another)",
+        "a process of its own (default 1: one after another); with --ray local, its CPUs",
+    )
+    p.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="with --seeds (or --resume of a --seeds folder): each seed a Ray task, on a local "
+        "instance or the cluster at ADDRESS (auto, ray://host:port; its workers need "
+        "scorbot-gym and the run folder at the same path)",
     )
     p.add_argument(
         "--out",
@@ -337,15 +347,23 @@ def run(args: argparse.Namespace) -> int:
             progress_bar=False if args.no_progress else None,
             device=args.device,
             processes=args.parallel,
+            ray=args.ray,
         )
     else:
         out, config = args.out, config_from_args(args)
         if args.parallel > 1 and not args.seeds:
             raise ValueError("--parallel runs several seeds: give --seeds S,S,...")
+        if args.ray is not None and not args.seeds:
+            raise ValueError("--ray runs the seeds as Ray tasks: give --seeds S,S,...")
         conf = args.conf
         if args.seeds:
             state = train_seeds(
-                config, out, args.seeds, processes=args.parallel, hyperparams_file=conf
+                config,
+                out,
+                args.seeds,
+                processes=args.parallel,
+                hyperparams_file=conf,
+                ray=args.ray,
             )
         else:
             state = train(config, out, hyperparams_file=conf)

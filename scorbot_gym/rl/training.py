@@ -930,17 +930,19 @@ def train_seeds(
     seeds: list[int],
     processes: int = 1,
     hyperparams_file: str | Path | None = None,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     """Train ``config`` once per seed into ``out/seed_<s>/``, ``processes`` seeds at a time
-    (each in a process of its own, see :func:`run_seed_jobs`; 1: one after another in this
-    process); ``seeds.json`` records the seeds and the configuration, so :func:`resume`
-    continues all of them. ``hyperparams_file`` as for :func:`train` (copied into every
-    seed's folder). The folder is locked while it trains. Returns ``{"seeds": {seed: state}}``."""
+    (each in a process of its own, or a Ray task with ``ray``, see :func:`run_seed_jobs`; 1:
+    one after another in this process); ``seeds.json`` records the seeds and the
+    configuration, so :func:`resume` continues all of them. ``hyperparams_file`` as for
+    :func:`train` (copied into every seed's folder). The folder is locked while it trains.
+    Returns ``{"seeds": {seed: state}}``."""
     _check_processes(processes)
     config = _check_seeds(config, seeds, hyperparams_file)
     with runs.claim(out, new=True) as out:
         _write_seeds(out, seeds, config, hyperparams_file)
-        return {"seeds": _by_seed(run_seed_jobs(seed_jobs(out), processes))}
+        return {"seeds": _by_seed(run_seed_jobs(seed_jobs(out), processes, ray))}
 
 
 def start_seeds(
@@ -1033,20 +1035,51 @@ def train_seed(config: dict[str, Any], run: str | Path) -> dict[str, Any]:
     return train(TrainConfig.from_json(config), run, conf)
 
 
-def run_seed_jobs(jobs: dict[Path, dict[str, Any]], processes: int = 1) -> dict[Path, dict]:
+def _seed_task(job: tuple[dict[str, Any], str]) -> dict[str, Any]:
+    """One run as a Ray task: its state, or its error as text (the other tasks go on)."""
+    config, run = job
+    try:
+        return {"state": train_seed({**config, "progress_bar": False}, run)}
+    except Exception as exc:  # reported with the others' by run_seed_jobs
+        return {"error": f"{type(exc).__name__}: {exc}"}
+
+
+def run_seed_jobs(
+    jobs: dict[Path, dict[str, Any]], processes: int = 1, ray: str | None = None
+) -> dict[Path, dict]:
     """Train or continue every run of ``jobs`` (from :func:`seed_jobs`, several folders' may be
     merged), ``processes`` at a time, each in a spawned process that dies with this one (1: one
     after another in this process). A failed run does not stop the others; the failures are
-    raised together at the end. Returns run folder -> state."""
-    _check_processes(processes)
-    if processes == 1 or len(jobs) == 1:
-        return {run: train_seed(c, run) for run, c in jobs.items()}
-    from scorbot_gym.experiments.workers import worker_pool
+    raised together at the end. Returns run folder -> state.
 
+    ``ray`` runs each run as a Ray task (one CPU) instead, as the sweeps and the comparison do:
+    ``"local"`` starts a local Ray instance of ``processes`` CPUs; an address (``"auto"``,
+    ``"ray://head:10001"``) joins a cluster, whose workers need the package and must see the
+    run folders at the same paths (a shared file system): each task writes its checkpoints
+    there, so a stopped cluster job resumes like any other run."""
+    _check_processes(processes)
+    if ray is None and (processes == 1 or len(jobs) == 1):
+        return {run: train_seed(c, run) for run, c in jobs.items()}
     for c in jobs.values():  # default pose models are trained here once, not by every worker
         TrainConfig.from_json(c).pose_args()
     states: dict[Path, dict] = {}
     errors: list[str] = []
+    if ray is not None:
+        from scorbot_gym.experiments.runners import RayRunner
+
+        local = ray == "local"
+        runner = RayRunner(None if local else ray, num_cpus=processes if local else None)
+        order = list(jobs)
+        outs = runner.map([(jobs[run], str(run)) for run in order], _seed_task)
+        for run, out in zip(order, outs, strict=True):
+            if "error" in out:
+                errors.append(f"{run}: {out['error']}")
+            else:
+                states[run] = out["state"]
+        _raise_failures(errors, len(jobs))
+        return {run: states[run] for run in jobs}
+    from scorbot_gym.experiments.workers import worker_pool
+
     with worker_pool(min(processes, len(jobs))) as pool:
         # progress bars of several processes would overwrite each other
         futures = {
@@ -1059,12 +1092,16 @@ def run_seed_jobs(jobs: dict[Path, dict[str, Any]], processes: int = 1) -> dict[
                 states[run] = future.result()
             except Exception as exc:  # the others go on; every failure is reported below
                 errors.append(f"{run}: {type(exc).__name__}: {exc}")
+    _raise_failures(errors, len(jobs))
+    return {run: states[run] for run in jobs}
+
+
+def _raise_failures(errors: list[str], n: int) -> None:
     if errors:
         raise RuntimeError(
-            f"{len(errors)} of {len(jobs)} runs failed ({'; '.join(errors)}); the same call, "
+            f"{len(errors)} of {n} runs failed ({'; '.join(errors)}); the same call, "
             "or --resume of their folder, continues them"
         )
-    return {run: states[run] for run in jobs}
 
 
 def _by_seed(states: dict[Path, dict]) -> dict[int, dict]:
@@ -1180,21 +1217,29 @@ def resume(
     progress_bar: bool | None = None,
     device: str | None = None,
     processes: int = 1,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     """Continue the run in ``out`` from its last checkpoint (to ``timesteps`` in total, default
     the configured number; ``progress_bar`` and ``device`` default as configured); returns the
-    state. A ``--seeds`` folder continues every seed, ``processes`` at a time. The folder is
-    locked while it trains."""
+    state. A ``--seeds`` folder continues every seed, ``processes`` at a time (or as Ray tasks
+    with ``ray``, see :func:`run_seed_jobs`). The folder is locked while it trains."""
     _check_processes(processes)
     with runs.claim(out, new=False) as out:
-        return _resume(out, timesteps, progress_bar, device, processes)
+        return _resume(out, timesteps, progress_bar, device, processes, ray)
 
 
 def _resume(
-    out: Path, timesteps: int | None, progress_bar: bool | None, device: str | None, processes: int
+    out: Path,
+    timesteps: int | None,
+    progress_bar: bool | None,
+    device: str | None,
+    processes: int,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     if (out / runs.SEEDS).is_file():
-        return _resume_seeds(out, timesteps, progress_bar, device, processes)
+        return _resume_seeds(out, timesteps, progress_bar, device, processes, ray)
+    if ray is not None:
+        raise ValueError(f"--ray runs the seeds of a --seeds run; {out} is a single run")
     ck = out / runs.CHECKPOINT
     if not (out / runs.CONFIG).is_file():
         raise FileNotFoundError(f"cannot resume {out}: {runs.CONFIG} is missing (not a run folder)")
@@ -1275,11 +1320,12 @@ def _resume_seeds(
     progress_bar: bool | None,
     device: str | None = None,
     processes: int = 1,
+    ray: str | None = None,
 ) -> dict[str, Any]:
     if timesteps is not None and timesteps < 1:
         raise ValueError(f"timesteps must be >= 1, got {timesteps}")
     jobs = seed_jobs(out, timesteps, progress_bar, device)
-    return {"seeds": _by_seed(run_seed_jobs(jobs, processes))}
+    return {"seeds": _by_seed(run_seed_jobs(jobs, processes, ray))}
 
 
 __all__ = [
