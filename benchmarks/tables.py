@@ -361,7 +361,7 @@ def compare_heldout_objects() -> str:
         split.append(f"on {objects} {_versus_scripted(d, r)} ({d['episodes']} episodes)")
     name = policy_name(read("compare.json", "heldout_objects")["results"][1]["policy"])
     line = f"A residual trained on 8 catalogue objects (`{name}`): " + "; ".join(split) + "."
-    return table(head, rows) + "\n" + line
+    return table(head, rows) + "\n" + line + "\n"
 
 
 def compare_cartesian_ik() -> str:
@@ -934,10 +934,18 @@ def finetune() -> str:
     return table(["pose", "arms", "paired difference (95 % CI)", "McNemar p"], rows)
 
 
+#: learning_curves.json's variants shown beside the main run (the from-scratch recipe of #49)
+CURVE_CONFIGS = ("scratch_grasp_frame",)
+
+
 def learning_curves() -> str:
     d = read("learning_curves.json")
+    arms = dict(d["arms"].items())
+    for config in CURVE_CONFIGS:
+        for name, a in read("learning_curves.json", config)["arms"].items():
+            arms[f"{name} (config `{config}`)"] = a
     rows = []
-    for name, a in d["arms"].items():
+    for name, a in arms.items():
         b = a["by_timesteps"]
         band = (
             f" ({100 * b['ci95_low'][-1]:.0f}–{100 * b['ci95_high'][-1]:.0f})"
@@ -954,7 +962,15 @@ def learning_curves() -> str:
             ]
         )
     head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time"]
-    return table(head, rows)
+    learned = read("compare.json")["arms"]["learned"]["training"]
+    oracle = next(r for r in read("compare.json")["results"]
+                  if r["policy"] == "learned" and r["pose"] == "oracle")  # fmt: skip
+    return table(head, rows) + (
+        f"\nFor scale, imitation (`learned`): {learned['demonstration_episodes']} scripted "
+        f"demonstrations plus DAgger, {learned['env_steps']:,} env steps and "
+        f"{learned['wall_time_s']:,.0f} s of training, {pct(oracle['success_rate'])} on the 200 "
+        "test seeds with the true pose (`compare.json`).\n"
+    )
 
 
 def table_support() -> str:
