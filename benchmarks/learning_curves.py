@@ -31,7 +31,7 @@ import platform
 import sys
 from pathlib import Path
 
-from scorbot_gym.cli._args import seed_list
+from scorbot_gym.cli._args import add_ray, seed_list
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -105,13 +105,9 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="with --train: runs (seeds of every arm) trained at a time, each in its own process",
     )
-    parser.add_argument(
-        "--ray",
-        nargs="?",
-        const="local",
-        default=None,
-        metavar="ADDRESS",
-        help="with --train: every run a Ray task, on a local instance of --parallel CPUs or the "
+    add_ray(
+        parser,
+        "with --train: every run a Ray task, on a local instance of --parallel CPUs or the "
         "cluster at ADDRESS (its workers need scorbot-gym and the run folders at the same paths)",
     )
     parser.add_argument(

@@ -110,16 +110,9 @@ def test_train_records_the_entry_and_the_reward(tmp_path):
     assert policy["config"]["hyperparams"]["reward_type"] == "normalized_dense"
 
 
-@pytest.mark.slow
-def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
-    """Two seeds at once (spawned workers), then continued further, two at once again; each
-    evaluation records the return, and the curves carry it with the steps to each level."""
-    import dataclasses
-
-    from scorbot_gym.rl.curves import learning_curves
-    from scorbot_gym.rl.training import resume, train_seeds
-
-    config = TrainConfig(
+def _tiny_scratch_config() -> TrainConfig:
+    """The scratch entry on one object, 40 steps, networks of 8: a run of seconds."""
+    return TrainConfig(
         objects=["box"],
         timesteps=40,
         hyperparams_entry="scratch",
@@ -131,6 +124,18 @@ def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
         tensorboard=False,
         device="cpu",
     )
+
+
+@pytest.mark.slow
+def test_seeds_train_in_parallel_processes_and_resume_in_parallel(tmp_path):
+    """Two seeds at once (spawned workers), then continued further, two at once again; each
+    evaluation records the return, and the curves carry it with the steps to each level."""
+    import dataclasses
+
+    from scorbot_gym.rl.curves import learning_curves
+    from scorbot_gym.rl.training import resume, train_seeds
+
+    config = _tiny_scratch_config()
     out = tmp_path / "seeds"
     with pytest.raises(ValueError, match="processes must be an integer >= 1"):
         train_seeds(config, out, [0, 1], processes=0)
@@ -157,18 +162,7 @@ def test_seeds_train_and_resume_as_ray_tasks_as_they_do_in_processes(tmp_path):
     (it has no seeds to spread)."""
     from scorbot_gym.rl.training import resume, train_seeds
 
-    config = TrainConfig(
-        objects=["box"],
-        timesteps=40,
-        hyperparams_entry="scratch",
-        hyperparams={"learning_starts": 20, "batch_size": 8, "buffer_size": 200, "net_arch": [8]},
-        eval_every=40,
-        eval_episodes=1,
-        checkpoint_every=40,
-        progress_bar=False,
-        tensorboard=False,
-        device="cpu",
-    )
+    config = _tiny_scratch_config()
     ray = pytest.importorskip("ray")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)  # one for both calls
     try:

@@ -80,6 +80,13 @@ def seed_list(text: str) -> list[int]:
     return seeds
 
 
+def add_ray(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--ray [ADDRESS]``: ``"local"`` without an address, else the cluster's address."""
+    parser.add_argument(
+        "--ray", nargs="?", const="local", default=None, metavar="ADDRESS", help=help
+    )
+
+
 def add_episode_workers(parser: argparse.ArgumentParser) -> None:
     """``--jobs N`` and ``--ray [ADDRESS]``: where the episodes run. Every episode depends on
     its seed alone, so the results are the same for any choice."""
@@ -90,12 +97,8 @@ def add_episode_workers(parser: argparse.ArgumentParser) -> None:
         help="processes, each running a chunk of an arm's episodes (results do not depend on "
         "it; with --ray local, the local Ray instance's CPUs)",
     )
-    parser.add_argument(
-        "--ray",
-        nargs="?",
-        const="local",
-        default=None,
-        metavar="ADDRESS",
-        help="run the chunks as Ray tasks: a local instance, or join ADDRESS (auto, "
+    add_ray(
+        parser,
+        "run the chunks as Ray tasks: a local instance, or join ADDRESS (auto, "
         "ray://host:port; its workers need scorbot-gym installed)",
     )

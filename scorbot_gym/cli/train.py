@@ -9,6 +9,7 @@ from pathlib import Path
 
 from scorbot_gym.cli._args import (
     add_name_list,
+    add_ray,
     non_negative_float,
     non_negative_int,
     positive_int,
@@ -148,13 +149,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="with --seeds (or --resume of a --seeds folder): train N seeds at a time, each in "
         "a process of its own (default 1: one after another); with --ray local, its CPUs",
     )
-    p.add_argument(
-        "--ray",
-        nargs="?",
-        const="local",
-        default=None,
-        metavar="ADDRESS",
-        help="with --seeds (or --resume of a --seeds folder): each seed a Ray task, on a local "
+    add_ray(
+        p,
+        "with --seeds (or --resume of a --seeds folder): each seed a Ray task, on a local "
         "instance or the cluster at ADDRESS (auto, ray://host:port; its workers need "
         "scorbot-gym and the run folder at the same path)",
     )
