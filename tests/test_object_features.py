@@ -172,3 +172,20 @@ def test_the_sb3_grasp_frame_observation_is_the_frame_relative_to_the_hand(banan
             GraspFrameObservation(no_class)
     finally:
         no_class.close()
+
+
+def test_the_reward_reaches_for_the_grasp_frame_of_every_catalogue_object():
+    """What the scratch policy reads and what its reward pays for agree: the normalised
+    reward's reach target (the task's grasp point) is the grasp frame's point, every object."""
+    from scorbot_gym.policies.object_features import grasp_frame_observation
+
+    env = make_env("ScorbotGraspCartesian-v0", pose="oracle")
+    try:
+        names = tuple(env.get_wrapper_attr("class_names"))
+        for name in names:
+            obs, _ = env.reset(seed=7, options={"object_name": name})
+            target = env.unwrapped.task.grasp_point_world()  # ground truth, for the test only
+            frame = grasp_frame_observation(obs, names)["object_pos"]
+            np.testing.assert_allclose(frame, target, atol=0.003, err_msg=name)
+    finally:
+        env.close()
