@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scorbot_gym.objects import ObjectSpec
-from scorbot_gym.robot.kinematics import HandGeometry, wrap_half_turn
+from scorbot_gym.robot.kinematics import HandGeometry, horizontal_closing_yaw, wrap_half_turn
 
 #: clearance (m) beyond which every closing line is as good as another
 COMFORTABLE_CLEARANCE = 0.015
@@ -66,18 +66,6 @@ class GraspCandidate:
     aperture: float
     clearance: float
     slide: float = 0.0  # m off the object's centre, across the closing line
-
-
-def horizontal_closing_yaw(R: np.ndarray, closing_axis: float) -> float:
-    """Heading of the horizontal closing line nearest the object's closing axis (object-frame
-    direction ``closing_axis`` in its xy plane) under rotation ``R``: the axis projected onto
-    the table plane. Where it points nearly straight up (a tilt near 90 degrees about the
-    perpendicular axis), the other footprint axis projected instead."""
-    axis = R @ np.array([np.cos(closing_axis), np.sin(closing_axis), 0.0])
-    if np.hypot(axis[0], axis[1]) < 0.3:
-        axis = R @ np.array([-np.sin(closing_axis), np.cos(closing_axis), 0.0])
-        return float(np.arctan2(axis[1], axis[0]) + np.pi / 2)
-    return float(np.arctan2(axis[1], axis[0]))
 
 
 def closing_axes(spec: ObjectSpec, R: np.ndarray) -> list[np.ndarray]:

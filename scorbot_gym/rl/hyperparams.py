@@ -42,7 +42,7 @@ FINETUNE = "finetune"  # the setting of --init-policy (sac.yml only)
 OFF_POLICY = ("sac", "tqc")
 #: the env's reward types (scorbot_gym.tasks.grasp.REWARD_TYPES; repeated here, as this module
 #: imports PyYAML only, and a test checks that the two agree)
-REWARD_TYPES = ("dense", "normalized_dense", "sparse")
+REWARD_TYPES = ("dense", "normalized_dense", "normalized_pregrasp", "sparse")
 #: what the policy is told of the object (scorbot_gym.policies.object_features.OBJECT_FEATURES)
 OBJECT_FEATURES = ("class", "grasp_frame")
 

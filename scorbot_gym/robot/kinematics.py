@@ -59,6 +59,18 @@ def wrap_half_turn(angle: float) -> float:
     return (angle + np.pi / 2) % np.pi - np.pi / 2
 
 
+def horizontal_closing_yaw(R: np.ndarray, closing_axis: float) -> float:
+    """Heading of the horizontal closing line nearest the object's closing axis (object-frame
+    direction ``closing_axis`` in its xy plane) under rotation ``R``: the axis projected onto
+    the table plane. Where it points nearly straight up (a tilt near 90 degrees about the
+    perpendicular axis), the other footprint axis projected instead."""
+    axis = R @ np.array([np.cos(closing_axis), np.sin(closing_axis), 0.0])
+    if np.hypot(axis[0], axis[1]) < 0.3:
+        axis = R @ np.array([-np.sin(closing_axis), np.cos(closing_axis), 0.0])
+        return float(np.arctan2(axis[1], axis[0]) + np.pi / 2)
+    return float(np.arctan2(axis[1], axis[0]))
+
+
 def tool_pitch(q: np.ndarray) -> float:
     """Tool pitch above the horizontal (shoulder, elbow and wrist axes are parallel)."""
     return float(q[1] + q[2] + q[3])
