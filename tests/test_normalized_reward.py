@@ -1,4 +1,5 @@
-"""The normalised dense reward (``reward_type="normalized_dense"``): its documented arithmetic,
+"""The normalised dense reward (``reward_type="normalized_dense"``, and ``"normalized_pregrasp"``
+with its pre-grasp stage): its documented arithmetic,
 checked on the real env (bounds, success against never finishing, the reach slope where
 episodes start, what a collision costs)."""
 
@@ -17,10 +18,13 @@ from scorbot_gym.rl import hyperparams as hparams
 from scorbot_gym.tasks.grasp import (
     NORMALIZED_REWARD_TERMS,
     NORMALIZED_SHAPING_MAX,
+    PREGRASP_OPENING,
+    PREGRASP_REWARD_TERMS,
     REWARD_GAMMA,
     REWARD_TYPES,
     SUCCESS_BONUS,
     normalized_grasp_reward,
+    pregrasp_progress,
 )
 
 W = NORMALIZED_SHAPING_MAX
@@ -154,3 +158,41 @@ def test_a_collision_step_pays_nothing():
     assert info["reward_collision"] == pytest.approx(-shaping)
     assert r == 0.0
     assert paid["dense"][0] > 0  # collisions cost nothing under the old reward
+
+
+def test_pregrasp_progress_rewards_the_open_turned_hand_and_never_moving_closer_less():
+    """The pre-grasp stage: heading half (a half turn is the same grasp), open-hand half
+    (counted as open within PREGRASP_RADIUS of the grasp point), 1 while grasped."""
+    assert pregrasp_progress(0.3, 0.0, PREGRASP_OPENING, False) == pytest.approx(1.0)
+    assert pregrasp_progress(0.3, math.pi, PREGRASP_OPENING, False) == pytest.approx(1.0)
+    assert pregrasp_progress(0.3, math.pi / 2, 0.0, False) == pytest.approx(0.0)
+    assert pregrasp_progress(0.3, math.pi / 2, 0.0, True) == 1.0
+    # the hovering failure measured from scratch: closed hand above the object scores half
+    assert pregrasp_progress(0.05, 0.0, 0.002, False) == pytest.approx(0.5 + 0.5 * 0.002 / 0.06)
+    # at the grasp point closing costs nothing
+    assert pregrasp_progress(0.0, 0.0, 0.0, False) == pytest.approx(1.0)
+    # moving closer never lowers it, whatever the opening
+    reaches = np.linspace(0.1, 0.0, 50)
+    for opening in (0.0, 0.01, 0.03, 0.06):
+        p = [pregrasp_progress(d, 0.3, opening, False) for d in reaches]
+        assert all(b >= a - 1e-12 for a, b in zip(p, p[1:], strict=False))
+    # five stages: the bound of a non-success step stays w
+    best, terms = normalized_grasp_reward(0.0, True, 1.0, 10.0, False, False, 0.05, 0.5, 1.0)
+    assert best == pytest.approx(W) and set(terms) == set(PREGRASP_REWARD_TERMS)
+
+
+def test_the_scripted_pregrasp_pose_scores_full_on_the_real_env():
+    """The scripted controller opens, turns the hand to the closing line and closes at the
+    grasp point: on the real env its pre-grasp term is at the stage's maximum (w / 5) on most
+    steps before the fingers close; every reward stays in [0, 1] with the terms summing to it."""
+    rewards, infos = _scripted_episode(seed=0, reward_type="normalized_pregrasp")
+    assert infos[-1]["is_success"]
+    assert all(0.0 <= r <= 1.0 for r in rewards)
+    for r, i in zip(rewards, infos, strict=True):
+        assert sum(i[f"reward_{k}"] for k in PREGRASP_REWARD_TERMS) == pytest.approx(r, abs=1e-12)
+    first_grasp = next(t for t, i in enumerate(infos) if i["grasped"])
+    stage = W / 5
+    before = np.array([i["reward_pregrasp"] for i in infos[10:first_grasp]])
+    assert np.median(before) == pytest.approx(stage, rel=1e-6)
+    assert (before > 0.95 * stage).mean() > 0.8
+    assert rewards[:-1].max() <= W and rewards[-1] >= 1.0 - W

@@ -72,8 +72,11 @@ class ScorbotGraspEnv(gym.Env):
     never finishing is worth at most 0.5 and a success within 68 steps more; terms in
     ``info["reward_reach" | "reward_grasp" | "reward_lift" | "reward_hold" |
     "reward_collision" | "reward_success"]``, see
-    :func:`scorbot_gym.tasks.grasp.normalized_grasp_reward`. ``reward_type="sparse"``: 1 on
-    success, else 0.
+    :func:`scorbot_gym.tasks.grasp.normalized_grasp_reward`.
+    ``reward_type="normalized_pregrasp"``: the same with a fifth stage after reach, the hand in
+    a pre-grasp pose (closing line turned to the object's, the hand open until 2 cm from the
+    grasp point; ``info["reward_pregrasp"]``; :func:`scorbot_gym.tasks.grasp.pregrasp_progress`).
+    ``reward_type="sparse"``: 1 on success, else 0.
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
     reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,

@@ -44,6 +44,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -401,6 +402,9 @@ class ImitationPolicy:
         self.object_features = meta.get("object_features", "class")
         self.history = ActionHistory(self.history_spec)
         self._env_classes: tuple[str, ...] | None = None
+        #: steps since load on which a grasp-frame policy read the object's own pose instead
+        #: of its grasp frame (an estimate without an identity; see :meth:`view`)
+        self.frame_fallbacks = 0
         want = n_features(len(self.classes), self.history_spec, self.object_features)
         if not (len(self.mean) == len(self.std) == net.n_inputs == want):
             raise ValueError(
@@ -427,7 +431,20 @@ class ImitationPolicy:
         (:mod:`~scorbot_gym.policies.object_features`)."""
         if self.object_features == "class":
             return obs
-        return grasp_frame_view(obs, object_name(obs, self._env_classes or self.classes))
+        name = object_name(obs, self._env_classes or self.classes)
+        if name is None and np.any(obs["object_quat"]):
+            # An estimate with no identity (an unrecognised object): there is no mesh to derive
+            # the frame from, so the network reads the object's own pose in its place, which
+            # it was not trained on. Said once, and counted, rather than done silently.
+            if not self.frame_fallbacks:
+                warnings.warn(
+                    "the observation has an object pose but no identity: this grasp-frame "
+                    "policy reads the object's own pose in place of its grasp frame",
+                    RuntimeWarning,
+                    stacklevel=2,
+                )
+            self.frame_fallbacks += 1
+        return grasp_frame_view(obs, name)
 
     def features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
         """Raw (unnormalised) features of an observation with a given history."""
