@@ -160,21 +160,28 @@ def test_a_collision_step_pays_nothing():
     assert paid["dense"][0] > 0  # collisions cost nothing under the old reward
 
 
-def test_pregrasp_progress_rewards_the_open_turned_hand_and_never_moving_closer_less():
-    """The pre-grasp stage: heading half (a half turn is the same grasp), open-hand half
-    (counted as open within PREGRASP_RADIUS of the grasp point), 1 while grasped."""
-    assert pregrasp_progress(0.3, 0.0, PREGRASP_OPENING, False) == pytest.approx(1.0)
-    assert pregrasp_progress(0.3, math.pi, PREGRASP_OPENING, False) == pytest.approx(1.0)
-    assert pregrasp_progress(0.3, math.pi / 2, 0.0, False) == pytest.approx(0.0)
-    assert pregrasp_progress(0.3, math.pi / 2, 0.0, True) == 1.0
-    # the hovering failure measured from scratch: closed hand above the object scores half
-    assert pregrasp_progress(0.05, 0.0, 0.002, False) == pytest.approx(0.5 + 0.5 * 0.002 / 0.06)
+def test_pregrasp_progress_rewards_the_open_turned_vertical_hand_and_never_moving_closer_less():
+    """The pre-grasp stage: heading (a half turn is the same grasp), verticality and an open
+    hand (counted as open within PREGRASP_RADIUS of the grasp point), a third each, each falling
+    linearly to 0 at a quarter turn; 1 while grasped."""
+    q = math.pi / 2
+    assert pregrasp_progress(0.3, 0.0, 0.0, PREGRASP_OPENING, False) == pytest.approx(1.0)
+    assert pregrasp_progress(0.3, math.pi, 0.0, PREGRASP_OPENING, False) == pytest.approx(1.0)
+    assert pregrasp_progress(0.3, -0.2, 0.0, PREGRASP_OPENING, False) == pytest.approx(
+        pregrasp_progress(0.3, 0.2, 0.0, PREGRASP_OPENING, False)
+    )
+    assert pregrasp_progress(0.3, q, q, 0.0, False) == pytest.approx(0.0)
+    assert pregrasp_progress(0.3, q, q, 0.0, True) == 1.0
+    # each part a third: a 30-degree tilt past vertical costs a third of a third
+    assert pregrasp_progress(0.3, 0.0, -q / 3, PREGRASP_OPENING, False) == pytest.approx(1 - 1 / 9)
+    # the hovering failure measured from scratch: closed hand above the object
+    assert pregrasp_progress(0.05, 0.0, 0.0, 0.0, False) == pytest.approx(2 / 3)
     # at the grasp point closing costs nothing
-    assert pregrasp_progress(0.0, 0.0, 0.0, False) == pytest.approx(1.0)
+    assert pregrasp_progress(0.0, 0.0, 0.0, 0.0, False) == pytest.approx(1.0)
     # moving closer never lowers it, whatever the opening
     reaches = np.linspace(0.1, 0.0, 50)
     for opening in (0.0, 0.01, 0.03, 0.06):
-        p = [pregrasp_progress(d, 0.3, opening, False) for d in reaches]
+        p = [pregrasp_progress(d, 0.3, 0.2, opening, False) for d in reaches]
         assert all(b >= a - 1e-12 for a, b in zip(p, p[1:], strict=False))
     # five stages: the bound of a non-success step stays w
     best, terms = normalized_grasp_reward(0.0, True, 1.0, 10.0, False, False, 0.05, 0.5, 1.0)
@@ -193,6 +200,6 @@ def test_the_scripted_pregrasp_pose_scores_full_on_the_real_env():
     first_grasp = next(t for t, i in enumerate(infos) if i["grasped"])
     stage = W / 5
     before = np.array([i["reward_pregrasp"] for i in infos[10:first_grasp]])
-    assert np.median(before) == pytest.approx(stage, rel=1e-6)
+    assert np.median(before) == pytest.approx(stage, rel=0.01)
     assert (before > 0.95 * stage).mean() > 0.8
     assert rewards[:-1].max() <= W and rewards[-1] >= 1.0 - W

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scorbot_gym.robot import Robot
-from scorbot_gym.robot.kinematics import horizontal_closing_yaw
+from scorbot_gym.robot.kinematics import horizontal_closing_yaw, tool_pitch
 from scorbot_gym.sim.simulation import ARM_PREFIX, Simulation, quat_to_mat
 
 # "wrong_object" (a distractor lifted instead of the target) is decided by the ClutterTask.
@@ -80,29 +80,36 @@ def grasp_reward(
     return float(sum(terms.values())), terms
 
 
-def pregrasp_progress(reach: float, heading_error: float, opening: float, grasped: bool) -> float:
-    """How far the hand is in a pre-grasp pose, in [0, 1]: half for the closing line's
-    heading, ``(1 + cos 2e) / 2`` for a heading error ``e`` (the fingers are the same after a
-    half turn), half for an open hand, counted as open anyway within ``PREGRASP_RADIUS`` of the
-    grasp point (where it is to close); 1 while grasped.
+def pregrasp_progress(
+    reach: float, heading_error: float, tilt: float, opening: float, grasped: bool
+) -> float:
+    """How far the hand is in the pre-grasp pose, in [0, 1]: the mean of three parts, each
+    falling linearly to 0 at a quarter turn: the closing line turned to the object's
+    (``heading_error`` wrapped to a half turn: the fingers are the same after one), the tool
+    pointing straight down (``tilt`` from vertical), and the hand open (pads
+    ``PREGRASP_OPENING`` apart; counted as open within ``PREGRASP_RADIUS`` of the grasp point,
+    where it is to close). 1 while grasped.
 
     Why (measured, ``benchmarks/notes/2026-11-27-rl-from-scratch.md``): with reach, grasp,
     lift and hold alone, SAC from scratch learned in 20k steps to hover 3–7 cm above the grasp
-    point with the hand nearly closed and stayed there for 160k steps on all three seeds: going
-    lower with a closed or turned hand pushes the object (reach gets worse) or touches it with
-    the palm (a collision, the step pays 0), and nothing rewards the open, turned hand that
-    makes the last centimetres possible. Meta-World's pick rewards pay for the fingers caging
-    the object for the same reason. Every term is the scripted controller's own pre-grasp
-    (open, turned to the closing line, then close at the point), in the reward, not in the
-    policy. Moving closer never lowers it (the "open anyway" radius grows towards the point),
-    and closing at the point costs nothing.
+    point with the hand nearly closed, and stayed there for 160k steps on three seeds: lower,
+    a closed, turned or tilted hand pushes the object away (reach falls) or touches it with the
+    palm (a collision: the step pays 0), and nothing paid for the pose that makes the last
+    centimetres possible. With the heading and the open hand alone, it learned both in 20k
+    steps and hovered 6–9 cm away with the tool tilted 30° past vertical. This is the
+    scripted controller's own pre-grasp (the grasp frame is upright: a vertical approach,
+    turned to the closing line, open until the point), in the reward, not in the policy;
+    Meta-World's pick rewards pay for the fingers caging the object for the same reason.
+    Moving closer never lowers it, and closing at the grasp point costs nothing.
     """
     if grasped:
         return 1.0
-    heading = 0.5 * (1.0 + math.cos(2.0 * heading_error))
+    quarter = math.pi / 2
+    heading = 1.0 - abs((heading_error + quarter) % math.pi - quarter) / quarter
+    vertical = 1.0 - min(abs(tilt) / quarter, 1.0)
     near = 1.0 - min(reach / PREGRASP_RADIUS, 1.0)
     open_hand = max(min(opening / PREGRASP_OPENING, 1.0), near)
-    return 0.5 * heading + 0.5 * open_hand
+    return (heading + vertical + open_hand) / 3.0
 
 
 def normalized_grasp_reward(
@@ -251,7 +258,8 @@ class GraspTask:
         gap = self.robot.tcp_pos - self.grasp_point_world()
         reach = math.sqrt(gap @ gap)  # np.linalg.norm's arithmetic, without its overhead
         if self.reward_type == "normalized_pregrasp":
-            pregrasp = pregrasp_progress(reach, self.heading_error(), opening, grasped)
+            tilt = tool_pitch(self.robot.joint_pos) + math.pi / 2  # 0: pointing straight down
+            pregrasp = pregrasp_progress(reach, self.heading_error(), tilt, opening, grasped)
         else:
             pregrasp = None
         return {
