@@ -74,8 +74,9 @@ class ScorbotGraspEnv(gym.Env):
     "reward_collision" | "reward_success"]``, see
     :func:`scorbot_gym.tasks.grasp.normalized_grasp_reward`.
     ``reward_type="normalized_pregrasp"``: the same with a fifth stage after reach, the hand in
-    a pre-grasp pose (closing line turned to the object's, the hand open until 2 cm from the
-    grasp point; ``info["reward_pregrasp"]``; :func:`scorbot_gym.tasks.grasp.pregrasp_progress`).
+    a pre-grasp pose (closing line turned to the object's, the tool pointing down, the hand
+    open until 2 cm from the grasp point; ``info["reward_pregrasp"]``;
+    :func:`scorbot_gym.tasks.grasp.pregrasp_progress`).
     ``reward_type="sparse"``: 1 on success, else 0.
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
