@@ -30,6 +30,8 @@ def test_seeds_are_averaged_on_the_steps_they_all_reached_with_a_t_band(tmp_path
     report = learning_curves({"sac": [seeds]}, points=5)
     arm = report["sac"]
     assert arm["seeds"] == [0, 1] and arm["final_success_rate"] == [0.6, 0.2]
+    # runs from before the stall diagnostic was recorded: unknown, not zero
+    assert arm["final_failed_grasp_distance_m"] == [{"final": None, "closest": None}] * 2
     steps = arm["by_timesteps"]
     assert steps["timesteps"] == [100.0, 200.0]  # no extrapolation past seed 1's last point
     np.testing.assert_allclose(steps["mean"], [0.15, 0.3])
@@ -40,6 +42,18 @@ def test_seeds_are_averaged_on_the_steps_they_all_reached_with_a_t_band(tmp_path
     assert wall["wall_s"][0] == 12.0 and wall["wall_s"][-1] == 24.0 and len(wall["wall_s"]) == 5
     plot_learning_curves(report, tmp_path / "c.png")
     assert (tmp_path / "c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_the_last_evaluations_stall_diagnostic_is_reported_per_seed(tmp_path):
+    run = _run(tmp_path / "r", 0, [(100, 1.0, 0.0), (200, 2.0, 0.1)])
+    path = run / runs.CHECKPOINT / runs.STATE
+    state = json.loads(path.read_text())
+    state["eval"][-1].update(
+        failed_median_final_grasp_distance_m=0.061, failed_median_closest_grasp_distance_m=0.04
+    )
+    path.write_text(json.dumps(state))
+    arm = learning_curves({"r": [run]})["r"]
+    assert arm["final_failed_grasp_distance_m"] == [{"final": 0.061, "closest": 0.04}]
 
 
 def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp_path):

@@ -112,6 +112,12 @@ def test_evaluations_npz_is_what_sb3s_eval_callback_writes(conf_run):
         for row, rec in zip(npz["successes"], state["eval"], strict=True):
             assert row.mean() == rec["success_rate"]
         assert (npz["ep_lengths"] >= 1).all() and (npz["ep_lengths"] <= 150).all()
+    for rec in state["eval"]:  # where failed episodes ended: the stall diagnostic
+        failed = rec["episodes"] - round(rec["success_rate"] * rec["episodes"])
+        final = rec["failed_median_final_grasp_distance_m"]
+        closest = rec["failed_median_closest_grasp_distance_m"]
+        assert (final is None) == (closest is None) == (failed == 0)
+        assert final is None or 0 <= closest <= final < 2.0
 
 
 @pytest.mark.slow

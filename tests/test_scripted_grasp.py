@@ -51,6 +51,23 @@ def test_random_policy_fails_with_a_cause(envs):
     assert not r.success and r.failure_cause in ("missed", "collision", "timeout", "dropped")
 
 
+def test_episodes_record_where_the_hand_ended_and_came_closest(envs):
+    """``info["grasp_distance"]`` (ground truth, for scoring) is the TCP's distance to the
+    grasp point; an episode records its last and its smallest value: the scripted grasp closes
+    at the point, a random policy stays far from it."""
+    env = envs["cartesian"]
+    _, info = env.reset(seed=3, options={"object_name": "box"})
+    base = env.unwrapped
+    truth = np.linalg.norm(base.robot.tcp_pos - base.task.grasp_point_world())
+    assert info["grasp_distance"] == pytest.approx(truth) and info["grasp_distance"] > 0.1
+    won = _scripted(env, 0, "box")
+    assert won.success and won.extra["closest_grasp_distance_m"] < 0.01
+    r = run_episode(env, RandomPolicy(env.action_space), 0, {"object_name": "box"})
+    lost = r.extra
+    assert lost["closest_grasp_distance_m"] <= lost["final_grasp_distance_m"]
+    assert lost["closest_grasp_distance_m"] > 0.05
+
+
 def test_random_policy_episodes_are_reproducible(envs):
     env = envs["joint"]
     a = run_episode(env, RandomPolicy(env.action_space), 4, {"object_name": "box"})

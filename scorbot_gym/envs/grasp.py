@@ -514,6 +514,11 @@ class ScorbotGraspEnv(gym.Env):
             "object_name": self.sim.object_spec.name,
             "failure_cause": cause,
             "held_time": st.held_time,
+            # ground truth, for scoring: the TCP's distance to the grasp point, m (where an
+            # episode that failed ended; the learning curves' stall diagnostic)
+            "grasp_distance": float(
+                facts["reach"] if facts and "reach" in facts else self._grasp_distance()
+            ),
         }
         if self._clutter is not None:
             info["target_name"] = self.sim.object_spec.name
@@ -528,6 +533,9 @@ class ScorbotGraspEnv(gym.Env):
         if cams:
             info["camera_params"] = {cam: self.camera_params(cam) for cam in cams}
         return info
+
+    def _grasp_distance(self) -> float:
+        return float(np.linalg.norm(self.robot.tcp_pos - self.task.grasp_point_world()))
 
     def render(self):
         if self.render_mode is None:

@@ -8,6 +8,7 @@ wall-clock ``perception_timings``, is collected for the record; the policy never
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
@@ -131,17 +132,22 @@ def run_episode(
     if on_step:
         on_step(obs, info)
     total, steps = 0.0, 0
+    closest = info.get("grasp_distance", math.inf)
     while True:
         obs, reward, terminated, truncated, info = env.step(policy.act(obs))
         total += float(reward)
         steps += 1
         if "perception" in info:
             records.append(record(info))
+        closest = min(closest, info.get("grasp_distance", math.inf))
         if on_step:
             on_step(obs, info)
         if terminated or truncated:
             break
     extra = {"replans": policy.replans} if hasattr(policy, "replans") else {}
+    if "grasp_distance" in info:  # where the hand ended, and came closest (ground truth)
+        extra["final_grasp_distance_m"] = round(float(info["grasp_distance"]), 5)
+        extra["closest_grasp_distance_m"] = round(float(closest), 5)
     if getattr(policy, "regrasps", 0):  # the scripted controller's retries after a miss
         extra["regrasps"] = int(policy.regrasp_count)
     if "distractors_knocked_over" in info:  # a table with distractors

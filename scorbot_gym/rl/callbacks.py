@@ -106,6 +106,9 @@ class SuccessEvalCallback(BaseCallback):
             "mean_return": sum(r.total_reward for r in results) / len(results),
             "mean_steps_to_success": s["mean_steps_to_success"],
             "failure_causes": s["failure_causes"],
+            # where the failed episodes' hands ended and came closest to the grasp point (m,
+            # median): a policy that stalls short of the object shows here first
+            **_failed_distances(results),
             # per episode, for evaluations.npz
             "returns": [round(float(r.total_reward), 6) for r in results],
             "lengths": [int(r.steps) for r in results],
@@ -124,6 +127,15 @@ class SuccessEvalCallback(BaseCallback):
             self.on_best(self.model, rec)
         self._next = (self.num_timesteps // self.every + 1) * self.every
         return rec
+
+
+def _failed_distances(results: list) -> dict[str, float | None]:
+    failed = [r.extra for r in results if not r.success and "final_grasp_distance_m" in r.extra]
+    out: dict[str, float | None] = {}
+    for key in ("final_grasp_distance_m", "closest_grasp_distance_m"):
+        values = [e[key] for e in failed]
+        out[f"failed_median_{key}"] = round(float(np.median(values)), 4) if values else None
+    return out
 
 
 def write_evaluations(path: Path, history: list[dict]) -> None:

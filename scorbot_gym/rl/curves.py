@@ -60,6 +60,11 @@ def eval_history(run: str | Path) -> dict[str, Any]:
         "success_rate": np.array([e["success_rate"] for e in evals], float),
         # NaN for evaluations from before the return was recorded
         "mean_return": np.array([e.get("mean_return", np.nan) for e in evals], float),
+        # where the last evaluation's failed episodes ended and came closest to the grasp
+        # point (median, m; None before runs recorded it, or when none failed)
+        "failed_grasp_distance_m": {
+            k: evals[-1].get(f"failed_median_{k}_grasp_distance_m") for k in ("final", "closest")
+        },
     }
 
 
@@ -128,6 +133,7 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
             "runs": [h["run"] for h in histories],
             "seeds": [h["seed"] for h in histories],
             "final_success_rate": [float(h["success_rate"][-1]) for h in histories],
+            "final_failed_grasp_distance_m": [h["failed_grasp_distance_m"] for h in histories],
             "by_timesteps": curve(histories, "timesteps", points),
             "by_wall_s": curve(histories, "wall_s", points),
             "first_reached": {f"{lv:g}": first_reached(histories, lv) for lv in (0.5, 0.8)},
