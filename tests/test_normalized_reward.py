@@ -23,6 +23,7 @@ from scorbot_gym.tasks.grasp import (
     REWARD_GAMMA,
     REWARD_TYPES,
     SUCCESS_BONUS,
+    closing_progress,
     normalized_grasp_reward,
     pregrasp_progress,
 )
@@ -34,8 +35,8 @@ def _terms_sum(info: dict) -> float:
     return sum(info[f"reward_{k}"] for k in NORMALIZED_REWARD_TERMS)
 
 
-def _scripted_episode(seed: int, reward_type: str = "normalized_dense"):
-    env = make_env("ScorbotGraspCartesian-v0", pose="oracle", reward_type=reward_type)
+def _scripted_episode(seed: int, reward_type: str = "normalized_dense", **env_kwargs):
+    env = make_env("ScorbotGraspCartesian-v0", pose="oracle", reward_type=reward_type, **env_kwargs)
     policy = ScriptedGraspPolicy.for_env(env)
     obs, info = env.reset(seed=seed)
     policy.reset(obs, info)
@@ -186,6 +187,23 @@ def test_pregrasp_progress_rewards_the_open_turned_vertical_hand_and_never_movin
     # five stages: the bound of a non-success step stays w
     best, terms = normalized_grasp_reward(0.0, True, 1.0, 10.0, False, False, 0.05, 0.5, 1.0)
     assert best == pytest.approx(W) and set(terms) == set(PREGRASP_REWARD_TERMS)
+    # a collision costs the approach's pay (reach and pre-grasp), not the grasp's or lift's
+    hit, terms = normalized_grasp_reward(0.0, True, 1.0, 10.0, True, False, 0.05, 0.5, 1.0, 1.0)
+    assert terms["collision"] == pytest.approx(-2 * W / 5) and hit == pytest.approx(3 * W / 5)
+    far, _ = normalized_grasp_reward(0.3, False, 0.0, 0.0, True, False, 0.05, 0.5, 0.8, 0.0)
+    assert far == pytest.approx(0.0)
+
+
+def test_closing_near_the_grasp_point_pays_up_to_half_a_grasp():
+    assert closing_progress(0.3, 0.0, True) == 1.0
+    assert closing_progress(0.3, 0.0, False) == 0.0  # closed far away: nothing
+    assert closing_progress(0.0, PREGRASP_OPENING, False) == 0.0  # open at the point: nothing
+    assert closing_progress(0.0, 0.0, False) == pytest.approx(0.5)  # never as much as a grasp
+    assert closing_progress(0.01, 0.03, False) == pytest.approx(0.5 * 0.5 * 0.5)
+    # at the point, closing raises it; nearer, the same closing raises it more
+    at = [closing_progress(0.005, o, False) for o in np.linspace(0.06, 0.0, 20)]
+    assert all(b > a for a, b in zip(at, at[1:], strict=False))
+    assert closing_progress(0.005, 0.02, False) > closing_progress(0.015, 0.02, False)
 
 
 def test_the_scripted_pregrasp_pose_scores_full_on_the_real_env():
@@ -202,4 +220,11 @@ def test_the_scripted_pregrasp_pose_scores_full_on_the_real_env():
     before = np.array([i["reward_pregrasp"] for i in infos[10:first_grasp]])
     assert np.median(before) == pytest.approx(stage, rel=0.01)
     assert (before > 0.95 * stage).mean() > 0.8
+    # a thin object (the marker): the grasp stage rises as the hand closes at
+    # the point, before the fingers touch
+    _, infos = _scripted_episode(0, "normalized_pregrasp", object_name="large_marker")
+    first_grasp = next(t for t, i in enumerate(infos) if i["grasped"])
+    closing = [i["reward_grasp"] for i in infos[first_grasp - 6 : first_grasp]]
+    assert 0 < max(closing) <= 0.5 * stage and closing[-1] > closing[0]
+    assert infos[first_grasp]["reward_grasp"] == pytest.approx(stage)
     assert rewards[:-1].max() <= W and rewards[-1] >= 1.0 - W
