@@ -935,7 +935,16 @@ def finetune() -> str:
 
 
 #: learning_curves.json's variants shown beside the main run (the from-scratch recipe of #49)
-CURVE_CONFIGS = ("scratch_grasp_frame",)
+CURVE_CONFIGS = ("scratch_grasp_frame", "scratch_pregrasp")
+
+
+def _stall(arm: dict) -> str:
+    """Where the last evaluation's failed episodes ended, median cm, per seed ("–": not
+    recorded by runs from before the diagnostic)."""
+    seen = [d["final"] for d in arm.get("final_failed_grasp_distance_m", [])]
+    if not seen or all(v is None for v in seen):
+        return "–"
+    return " / ".join("–" if v is None else f"{100 * v:.0f}" for v in seen)
 
 
 def learning_curves() -> str:
@@ -959,9 +968,11 @@ def learning_curves() -> str:
                 f"{int(b['timesteps'][-1]):,}",
                 f"{100 * b['mean'][-1]:.0f} %{band}",
                 f"{a['by_wall_s']['wall_s'][-1]:,.0f} s",
+                _stall(a),
             ]
         )
-    head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time"]
+    head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time",
+            "failed episodes end (cm from the grasp point)"]  # fmt: skip
     learned = read("compare.json")["arms"]["learned"]["training"]
     oracle = next(r for r in read("compare.json")["results"]
                   if r["policy"] == "learned" and r["pose"] == "oracle")  # fmt: skip
