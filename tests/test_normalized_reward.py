@@ -16,7 +16,6 @@ from scorbot_gym.envs.factory import make_env
 from scorbot_gym.policies.scripted import ScriptedGraspPolicy
 from scorbot_gym.rl import hyperparams as hparams
 from scorbot_gym.tasks.grasp import (
-    APPROACH_HEIGHT,
     NORMALIZED_REWARD_TERMS,
     NORMALIZED_SHAPING_MAX,
     PREGRASP_OPENING,
@@ -24,7 +23,6 @@ from scorbot_gym.tasks.grasp import (
     REWARD_GAMMA,
     REWARD_TYPES,
     SUCCESS_BONUS,
-    approach_gap,
     closing_progress,
     normalized_grasp_reward,
     pregrasp_progress,
@@ -194,23 +192,6 @@ def test_pregrasp_progress_rewards_the_open_turned_vertical_hand_and_never_movin
     assert terms["collision"] == pytest.approx(-2 * W / 5) and hit == pytest.approx(3 * W / 5)
     far, _ = normalized_grasp_reward(0.3, False, 0.0, 0.0, True, False, 0.05, 0.5, 0.8, 0.0)
     assert far == pytest.approx(0.0)
-
-
-def test_the_approach_funnel_comes_down_onto_the_grasp_point_from_above():
-    """Right above the point the target is the point; off to the side it is raised (at most
-    APPROACH_HEIGHT), so a hand pressed on the table beside the object is farther from it than
-    one above, and only the grasp point itself is at distance 0."""
-    assert approach_gap(np.zeros(3)) == 0.0
-    assert approach_gap(np.array([0.0, 0.0, 0.05])) == pytest.approx(0.05)
-    beside_low = approach_gap(np.array([0.04, 0.0, -0.01]))
-    beside_high = approach_gap(np.array([0.04, 0.0, 0.06]))
-    assert beside_high < beside_low
-    far = approach_gap(np.array([0.3, 0.0, 0.0]))
-    assert far == pytest.approx(math.hypot(0.3, APPROACH_HEIGHT))
-    # coming down along the funnel's edge, only the horizontal offset is left to close
-    xs = np.linspace(0.06, 0.0, 10)
-    path = [approach_gap(np.array([x, 0.0, 1.5 * x])) for x in xs]
-    np.testing.assert_allclose(path, xs, atol=1e-12)
 
 
 def test_closing_near_the_grasp_point_pays_up_to_half_a_grasp():

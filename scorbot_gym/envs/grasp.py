@@ -73,8 +73,7 @@ class ScorbotGraspEnv(gym.Env):
     ``info["reward_reach" | "reward_grasp" | "reward_lift" | "reward_hold" |
     "reward_collision" | "reward_success"]``, see
     :func:`scorbot_gym.tasks.grasp.normalized_grasp_reward`.
-    ``reward_type="normalized_pregrasp"``: the same, reaching for a target that comes down onto
-    the grasp point as the hand comes over it, with a fifth stage after reach, the hand in
+    ``reward_type="normalized_pregrasp"``: the same with a fifth stage after reach, the hand in
     a pre-grasp pose (closing line turned to the object's, the tool pointing down, the hand
     open until 2 cm from the grasp point; ``info["reward_pregrasp"]``;
     :func:`scorbot_gym.tasks.grasp.pregrasp_progress`).

@@ -39,10 +39,6 @@ PREGRASP_REWARD_TERMS = ("reach", "pregrasp", "grasp", "lift", "hold", "collisio
 PREGRASP_OPENING = 0.06
 #: Within this distance (m) of the grasp point the hand may close at no cost to the stage.
 PREGRASP_RADIUS = 0.02
-#: The reach target of ``normalized_pregrasp`` (:func:`approach_gap`) is raised above the grasp
-#: point by this much per metre the TCP is off it horizontally, up to ``APPROACH_HEIGHT`` (m).
-APPROACH_SLOPE = 1.5
-APPROACH_HEIGHT = 0.10
 #: ``k`` of the normalised reach term ``1 - tanh(k d)``, 1/m: ManiSkill's PickCube uses 5 for
 #: start distances of ~0.15 m; ours are twice that (median 0.34 m), where 5 leaves 6 % of the
 #: term and 3 leaves 23 %, with a slope that still rises 2.5-fold towards the grasp point.
@@ -82,23 +78,6 @@ def grasp_reward(
         "success": SUCCESS_BONUS * float(success),
     }
     return float(sum(terms.values())), terms
-
-
-def approach_gap(gap: np.ndarray) -> float:
-    """The reach distance of ``normalized_pregrasp``: from the TCP to a target above the grasp
-    point, raised ``APPROACH_SLOPE`` m per metre the TCP is off the point horizontally (at most
-    ``APPROACH_HEIGHT``), so the target comes down onto the grasp point as the hand comes over
-    it: the scripted controller's vertical approach, as a funnel. ``gap`` is the TCP minus the
-    grasp point. 0 only at the grasp point.
-
-    Why (measured, the notes of 2026-11-28): with the plain distance, SAC from scratch pressed
-    the hand down onto the table or the object's top 1–6 cm to the side of the grasp point
-    (commanding down at 70–90 % of the step, not moving): lower was nearer, and the way round,
-    up and over, was farther.
-    """
-    gx, gy, gz = float(gap[0]), float(gap[1]), float(gap[2])
-    rise = min(APPROACH_SLOPE * math.hypot(gx, gy), APPROACH_HEIGHT)
-    return math.sqrt(gx * gx + gy * gy + (gz - rise) ** 2)
 
 
 def pregrasp_progress(
@@ -313,12 +292,9 @@ class GraspTask:
             tilt = tool_pitch(self.robot.joint_pos) + math.pi / 2  # 0: pointing straight down
             pregrasp = pregrasp_progress(reach, self.heading_error(), tilt, opening, grasped)
             closing = closing_progress(reach, opening, grasped)
-            approach = approach_gap(gap)
         else:
             pregrasp = closing = None
-            approach = reach
         return {
-            "approach": approach,
             "pregrasp": pregrasp,
             "closing": closing,
             "grasped": grasped,
@@ -351,7 +327,7 @@ class GraspTask:
             return float(st.success), {"success": float(st.success)}
         if self.reward_type in ("normalized_dense", "normalized_pregrasp"):
             return normalized_grasp_reward(
-                facts["approach"],
+                facts["reach"],
                 facts["grasped"],
                 facts["lift"],
                 st.held_time,
