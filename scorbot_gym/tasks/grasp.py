@@ -90,13 +90,10 @@ def pregrasp_progress(
     ``PREGRASP_OPENING`` apart; counted as open within ``PREGRASP_RADIUS`` of the grasp point,
     where it is to close). 1 while grasped.
 
-    Why (measured, ``benchmarks/notes/2026-11-27-rl-from-scratch.md``): with reach, grasp,
-    lift and hold alone, SAC from scratch learned in 20k steps to hover 3–7 cm above the grasp
-    point with the hand nearly closed, and stayed there for 160k steps on three seeds: lower,
-    a closed, turned or tilted hand pushes the object away (reach falls) or touches it with the
-    palm (a collision: the step pays 0), and nothing paid for the pose that makes the last
-    centimetres possible. With the heading and the open hand alone, it learned both in 20k
-    steps and hovered 6–9 cm away with the tool tilted 30° past vertical. This is the
+    Why: with reach, grasp, lift and hold alone, a learner from scratch finds a hover above
+    the object and stays there: lower, a closed, turned or tilted hand pushes the object away
+    or touches it with the palm, and nothing pays for the pose that makes the last centimetres
+    possible (measured in ``benchmarks/notes/2026-11-27-rl-from-scratch.md``). This is the
     scripted controller's own pre-grasp (the grasp frame is upright: a vertical approach,
     turned to the closing line, open until the point), in the reward, not in the policy;
     Meta-World's pick rewards pay for the fingers caging the object for the same reason.
@@ -118,12 +115,10 @@ def closing_progress(reach: float, opening: float, grasped: bool) -> float:
     times how near within ``PREGRASP_RADIUS``), so that a hand at the point is paid for
     starting to close before the fingers touch. Never as much as a grasp.
 
-    Why (measured, the notes of 2026-11-28): with the pre-grasp stage, SAC from scratch learned
-    the open, turned, vertical hand within 20k steps, then hovered 5–10 cm from the grasp
-    point for 100k steps with no training success: the last centimetres were worth 3 % of a
-    step's reward, and closing there nothing until the fingers touched, so the one sequence
-    that pays (reach, close, lift, hold) was never tried. Meta-World's pick rewards pay for
-    closing the gripper near the object for the same reason.
+    Why: the fingers touch only after the hand has closed part of the way, so without it
+    the one sequence that pays (reach, close, lift, hold) starts with steps that pay nothing
+    (the notes above). Meta-World's pick rewards pay for closing the gripper near the object
+    for the same reason.
     """
     if grasped:
         return 1.0
@@ -187,10 +182,9 @@ def normalized_grasp_reward(
     stage after reach; the five progresses' mean times ``w``, so every bound above holds.
     ``closing`` (the same reward type, :func:`closing_progress`): the grasp stage's progress
     in place of ``grasped`` alone, still in [0, 1]. With the pre-grasp stage a collision costs
-    the approach's pay (reach and pre-grasp), not the step's: measured, SAC's evaluation
-    episodes ended in a collision in 14–23 of 50 once it came near the object, and a step's
-    whole pay against 3 % for the last centimetres kept the hand hovering 5–10 cm away; the
-    anchors' dense rewards (ManiSkill PickCube, robosuite Lift, Meta-World) charge nothing.
+    the approach's pay (reach and pre-grasp), not the step's: a step's whole pay against the
+    little the last centimetres earn keeps a learner away from the object (the notes above);
+    the anchors' dense rewards (ManiSkill PickCube, robosuite Lift, Meta-World) charge nothing.
     """
     progress = {"reach": 1.0 - math.tanh(NORMALIZED_REACH_K * reach)}
     if pregrasp is not None:
