@@ -12,8 +12,18 @@ pixel - state on the same episodes is what the explicit pose estimate buys.
 
     nice -n 5 python benchmarks/pixel_policy.py [--demos 400] [--dagger-rounds 3]
         [--dagger-episodes 60] [--fit-steps 8000] [--shift 0] [--encoder nature|spatial_softmax]
-        [--keypoints 32] [--episodes 200] [--eval-seed 50000]
+        [--keypoints 32] [--cameras top[,eye_in_hand]] [--frame-stack 1] [--stall-steps 0]
+        [--expert-keeps-close] [--val-demos 0] [--val-episodes 0] [--val-every 0]
+        [--episodes 200] [--eval-seed 50000]
         [--jobs 3] [--out DIR] [--json FILE] [--overwrite] [--config NAME] [--skip-training]
+
+The state policy's recipe with the confounds removed (its memory, its two fixes, its
+demonstrations; both cameras; the anchors' augmentation, encoder and checkpoint choice):
+
+    python benchmarks/pixel_policy.py --demos 200 --dagger-rounds 4 --dagger-episodes 80 \
+        --cameras top,eye_in_hand --frame-stack 3 --stall-steps 50 --expert-keeps-close \
+        --shift 4 --encoder spatial_softmax --fit-steps 8000 --val-demos 20 \
+        --val-episodes 50 --val-every 4000 --jobs 14 --config matched
 
 Training uses CUDA when available; ``--jobs`` also collects the training episodes in that many
 processes (the same episodes for any number). Writes the policy folder (``--out``, not into the
@@ -131,6 +141,20 @@ def arm_record(name: str, results: list) -> dict:
     }
 
 
+def camera_list(text: str) -> tuple[str, ...]:
+    """``--cameras``: comma-separated camera names, each one the env renders."""
+    from scorbot_gym.names import FIXED_CAMERAS, MOVING_CAMERAS
+
+    cameras = (*FIXED_CAMERAS, *MOVING_CAMERAS)
+    names = tuple(c.strip() for c in text.split(",") if c.strip())
+    bad = [c for c in names if c not in cameras]
+    if not names or bad or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"expected distinct names from {', '.join(cameras)} separated by commas, got {text!r}"
+        )
+    return names
+
+
 def main(argv: list[str] | None = None) -> None:
     from scorbot_gym import seeds
     from scorbot_gym.cli._args import non_negative_float, non_negative_int, positive_int
@@ -160,6 +184,44 @@ def main(argv: list[str] | None = None) -> None:
         help="image encoder: the Nature-DQN stack or spatial-softmax keypoints",
     )
     p.add_argument("--keypoints", type=positive_int, default=32, help="spatial_softmax only")
+    p.add_argument(
+        "--cameras",
+        type=camera_list,
+        default=("top",),
+        help="comma-separated cameras the policy sees, each with its own encoder "
+        "(top, side, overview, eye_in_hand; default: top)",
+    )
+    p.add_argument(
+        "--frame-stack",
+        type=positive_int,
+        default=1,
+        help="frames of each camera the policy sees, the newest last (its memory)",
+    )
+    p.add_argument(
+        "--stall-steps",
+        type=non_negative_int,
+        default=0,
+        help="input how long the TCP has been still, counted up to this many steps (the "
+        "state policy's: 50; 0: none)",
+    )
+    p.add_argument(
+        "--val-demos",
+        type=non_negative_int,
+        default=0,
+        help="held-out demonstrations (never fitted) for the label error off the training set",
+    )
+    p.add_argument(
+        "--val-episodes",
+        type=non_negative_int,
+        default=0,
+        help="validation rollouts per checkpoint; the best checkpoint is kept (0: the last)",
+    )
+    p.add_argument(
+        "--val-every",
+        type=non_negative_int,
+        default=0,
+        help="fitting steps between checkpoints (0: only at the end of each fit)",
+    )
     p.add_argument(
         "--expert-keeps-close",
         action="store_true",
@@ -196,6 +258,8 @@ def main(argv: list[str] | None = None) -> None:
     args = p.parse_args(argv)
     outputs = Outputs("pixel_policy", args.overwrite)
     try:  # before any work: a usage error, not a file replaced
+        if args.val_every and not args.val_episodes:
+            raise ValueError("--val-every needs --val-episodes > 0 (rollouts choose a checkpoint)")
         if args.skip_training:
             if args.out is None or not (Path(args.out) / "policy.json").is_file():
                 raise ValueError("--skip-training evaluates --out: name a policy folder")
@@ -210,6 +274,7 @@ def main(argv: list[str] | None = None) -> None:
     from pose.fileio import write_result
     from scorbot_gym.envs.factory import make_env
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
+    from scorbot_gym.policies.imitation import HistorySpec
     from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
     from scorbot_gym.rl.pixel import PixelImitationConfig, train_pixel_imitation
 
@@ -227,8 +292,16 @@ def main(argv: list[str] | None = None) -> None:
             shift=args.shift,
             learning_rate=args.learning_rate,
             net=NetSpec(
-                channels=1 if args.grayscale else 3, encoder=args.encoder, keypoints=args.keypoints
+                channels=1 if args.grayscale else 3,
+                encoder=args.encoder,
+                keypoints=args.keypoints,
+                frame_stack=args.frame_stack,
             ),
+            cameras=args.cameras,
+            history=HistorySpec(stall_steps=args.stall_steps),
+            val_demos=args.val_demos,
+            val_episodes=args.val_episodes,
+            val_every=args.val_every,
             seed=args.seed,
             torch_threads=args.threads,
             jobs=args.jobs,
@@ -240,7 +313,7 @@ def main(argv: list[str] | None = None) -> None:
             "env_id": "ScorbotGraspCartesian-v0",
             "pose": "oracle",
             "include_class": True,
-            "cameras": [config.camera],
+            "cameras": list(config.cameras),
             "image_width": width,
             "image_height": height,
         }
@@ -286,7 +359,8 @@ def main(argv: list[str] | None = None) -> None:
     )
     size_kb = sum(f.stat().st_size for f in Path(args.out).iterdir()) / 1024
     out = {
-        "description": "pixel policy (BC + DART + DAgger on the top camera's 84x84 RGB frame, "
+        "description": "pixel policy (BC + DART + DAgger on the 84x84 RGB frames of "
+        f"{'+'.join(policy.cameras)}, {policy.net_spec.frame_stack} per camera, "
         "no pose estimator) vs the shipped state imitation policy (same recipe, oracle pose) "
         "and the scripted controller; same seeds, whole catalogue, cartesian actions. The "
         "state and scripted arms read the oracle pose; the pixel arm reads no pose entry.",
@@ -314,10 +388,15 @@ def main(argv: list[str] | None = None) -> None:
                 "rounds",
                 "config",
                 "augmentation",
+                "cameras",
+                "frame_stack",
+                "validation",
             )
         },
         "pixel_observation": {
-            "camera": policy.camera,
+            "cameras": list(policy.cameras),
+            "frame_stack": policy.net_spec.frame_stack,
+            "history": policy.meta["history"],
             "render_size": policy.meta["render_size"],
             "frame_size": policy.net_spec.frame_size,
             "channels": policy.net_spec.channels,

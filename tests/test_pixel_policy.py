@@ -270,8 +270,12 @@ def test_damaged_or_incompatible_files_give_one_line_errors(trained, tmp_path):
     (wrong_net / "policy.json").write_text(json.dumps(meta))
     no_camera = copy("no_camera")
     meta = json.loads((no_camera / "policy.json").read_text())
-    del meta["camera"]
+    del meta["camera"], meta["cameras"]
     (no_camera / "policy.json").write_text(json.dumps(meta))
+    two_cameras = copy("two_cameras")  # a second camera the network has no encoder for
+    meta = json.loads((two_cameras / "policy.json").read_text())
+    meta["cameras"] = ["top", "eye_in_hand"]
+    (two_cameras / "policy.json").write_text(json.dumps(meta))
     pose_window = copy("pose_window")
     meta = json.loads((pose_window / "policy.json").read_text())
     meta["history"]["pose_window"] = 8
@@ -282,6 +286,7 @@ def test_damaged_or_incompatible_files_give_one_line_errors(trained, tmp_path):
         (bad_json, "not valid JSON"),
         (wrong_net, "do not fit the network"),
         (no_camera, "incomplete or malformed"),
+        (two_cameras, "2 cameras"),
     ]:
         with pytest.raises(ValueError, match=words) as err:
             load_policy(folder)

@@ -2,9 +2,13 @@
 
 The end-to-end arm against which the pose-manifold pipeline is judged. The policy sees
 
-- the **top camera's RGB image**, downsized to ``frame_size`` x ``frame_size`` (84 by default,
-  area interpolation; whatever size the env renders, so the policy also runs on the 320x240
-  frames a pose source reads, though it was trained on the size its ``policy.json`` names);
+- the RGB image of **each of its cameras** (``top`` by default; ``top`` and the wrist camera
+  ``eye_in_hand`` as robomimic's image policies see the scene and the gripper), downsized to
+  ``frame_size`` x ``frame_size`` (84 by default, area interpolation; whatever size the env
+  renders, so the policy also runs on the 320x240 frames a pose source reads, though it was
+  trained on the size its ``policy.json`` names), with the last ``frame_stack`` frames of each
+  stacked (DrQ's memory: the object, hidden by the arm for most of an approach, is still in an
+  earlier frame; :class:`FrameHistory` keeps them);
 - **proprioception** (joint angles and velocities, gripper opening, TCP position and quaternion);
 - the **target class** one-hot (``object_class`` from the pose wrapper with the identity given,
   or the cluttered env's ``target_class``; zeros where the env gives neither): the same task
@@ -15,13 +19,14 @@ The end-to-end arm against which the pose-manifold pipeline is judged. The polic
 
 It never reads ``object_pos``, ``object_quat``, ``pose_valid``, ``pose_confidence`` or
 ``pose_age`` (:data:`POSE_KEYS`): where the object is, and how it is turned, has to come from
-the image. The network is an image encoder (:class:`NetSpec` names it: the Nature-DQN stack of
-Mnih et al. 2015, or a spatial-softmax keypoint encoder) whose 256-unit embedding is
-concatenated with the normalised proprioceptive features and passed through a 256-unit MLP to
-the same outputs as the state policy: 5 arm values (tanh) and 1 gripper logit (sign).
+the image. The network has one image encoder per camera (:class:`NetSpec` names it: the
+Nature-DQN stack of Mnih et al. 2015, or a spatial-softmax keypoint encoder) whose 256-unit
+embeddings are concatenated with the normalised proprioceptive features and passed through a
+256-unit MLP to the same outputs as the state policy: 5 arm values (tanh) and 1 gripper
+logit (sign).
 
 A saved policy is a folder: ``policy.json`` (``"algo": "pixel_imitation"``,
-``"observation": "pixels"``, ``"uses_scripted_controller": false``, the camera, frame size,
+``"observation": "pixels"``, ``"uses_scripted_controller": false``, the cameras, frame size,
 history, normalisation, network layout and how it was trained) and ``weights.npz`` (the
 network's tensors as plain arrays, no pickle). Inference runs on the CPU with torch.
 """
@@ -78,6 +83,10 @@ class NetSpec:
 
     frame_size: int = 84
     channels: int = 3  # 3: RGB, 1: grayscale
+    #: frames of each camera the network sees, the newest last (1: the current one only)
+    frame_stack: int = 1
+    #: cameras, each with its own encoder and embedding (``policy.json`` names them)
+    cameras: int = 1
     embedding: int = 256
     hidden: int = 256
     encoder: str = "nature"
@@ -90,8 +99,14 @@ class NetSpec:
             raise ValueError(f"frame_size must be >= 36, got {self.frame_size}")
         if self.channels not in (1, 3):
             raise ValueError(f"channels must be 1 (grayscale) or 3 (RGB), got {self.channels}")
-        if self.embedding < 1 or self.hidden < 1 or self.keypoints < 1:
-            raise ValueError(f"embedding, hidden and keypoints must be >= 1, got {self}")
+        for name in ("embedding", "hidden", "keypoints", "frame_stack", "cameras"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    @property
+    def input_channels(self) -> int:
+        """Channels of the network's image input: per camera, its stacked frames."""
+        return self.cameras * self.frame_stack * self.channels
 
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> NetSpec:
@@ -107,11 +122,15 @@ class NetSpec:
             hidden=int(record["hidden"]),
             encoder=encoder,
             keypoints=int(record.get("keypoints", 32)),
+            frame_stack=int(record.get("frame_stack", 1)),
+            cameras=int(record.get("cameras", 1)),
         )
 
 
 def build_network(spec: NetSpec, n_vector: int):
-    """The torch module: CNN embedding of the frame ⊕ vector features → MLP → 6 outputs."""
+    """The torch module: a CNN embedding per camera (of its stacked frames) ⊕ vector features
+    → MLP → 6 outputs. The first camera's modules keep the names (``encoder``, ``embed``) that
+    single-camera files were written with; camera ``i`` > 0 has ``encoder{i}``, ``embed{i}``."""
     import torch as th
     from torch import nn
 
@@ -133,9 +152,11 @@ def build_network(spec: NetSpec, n_vector: int):
             logits = self.project(x).flatten(2) / self.log_temperature.exp()
             return (th.softmax(logits, dim=-1) @ self.grid).flatten(1)
 
+    per_camera = spec.frame_stack * spec.channels
+
     def convs(layers: list[tuple[int, int, int]]) -> list[nn.Module]:
-        """Conv2d + ReLU per (channels out, kernel, stride), from the frame's channels."""
-        out, c = [], spec.channels
+        """Conv2d + ReLU per (channels out, kernel, stride), from one camera's channels."""
+        out, c = [], per_camera
         for n, k, stride in layers:
             out += [nn.Conv2d(c, n, k, stride=stride), nn.ReLU()]
             c = n
@@ -146,20 +167,27 @@ def build_network(spec: NetSpec, n_vector: int):
             return nn.Sequential(*convs([(32, 8, 4), (64, 4, 2), (64, 3, 1)]), nn.Flatten())
         trunk = nn.Sequential(*convs([(32, 5, 2), (32, 3, 1), (32, 3, 1)]))
         with th.no_grad():
-            frame = th.zeros(1, spec.channels, spec.frame_size, spec.frame_size)
+            frame = th.zeros(1, per_camera, spec.frame_size, spec.frame_size)
             _, n, h, w = trunk(frame).shape
         return nn.Sequential(trunk, SpatialSoftmax(n, h, w, spec.keypoints))
 
     class PixelNet(nn.Module):
         def __init__(self) -> None:
             super().__init__()
-            c = spec.channels
-            self.encoder = encoder()
-            with th.no_grad():
-                n_flat = self.encoder(th.zeros(1, c, spec.frame_size, spec.frame_size)).shape[1]
-            self.embed = nn.Sequential(nn.Linear(n_flat, spec.embedding), nn.ReLU())
+            self.names = [("encoder", "embed")] + [
+                (f"encoder{i}", f"embed{i}") for i in range(1, spec.cameras)
+            ]
+            for enc_name, embed_name in self.names:
+                enc = encoder()
+                with th.no_grad():
+                    size = spec.frame_size
+                    n_flat = enc(th.zeros(1, per_camera, size, size)).shape[1]
+                setattr(self, enc_name, enc)
+                setattr(
+                    self, embed_name, nn.Sequential(nn.Linear(n_flat, spec.embedding), nn.ReLU())
+                )
             self.head = nn.Sequential(
-                nn.Linear(spec.embedding + n_vector, spec.hidden),
+                nn.Linear(spec.cameras * spec.embedding + n_vector, spec.hidden),
                 nn.ReLU(),
                 nn.Linear(spec.hidden, spec.hidden),
                 nn.ReLU(),
@@ -167,11 +195,60 @@ def build_network(spec: NetSpec, n_vector: int):
             )
 
         def forward(self, frames: th.Tensor, vectors: th.Tensor) -> th.Tensor:
-            """``frames`` uint8 (B, C, H, W) or float in [0, 1]; ``vectors`` normalised."""
+            """``frames`` uint8 (B, cameras x stack x C, H, W) or float in [0, 1], camera-major
+            (:func:`stack_frames`); ``vectors`` normalised."""
             x = frames.float() / 255.0 if frames.dtype == th.uint8 else frames
-            return self.head(th.cat([self.embed(self.encoder(x)), vectors], dim=1))
+            parts = th.split(x, per_camera, dim=1)
+            codes = [
+                getattr(self, embed)(getattr(self, enc)(part))
+                for (enc, embed), part in zip(self.names, parts, strict=True)
+            ]
+            return self.head(th.cat([*codes, vectors], dim=1))
 
     return PixelNet()
+
+
+def stack_frames(frames, cameras: int):
+    """Frames (..., K, cameras x C, S, S), the oldest first (numpy or torch), as the network's
+    input (..., cameras x K x C, S, S): each camera's K frames side by side in its own group of
+    channels, the group its encoder reads."""
+    *lead, k, cc, h, w = frames.shape
+    c = cc // cameras
+    x = frames.reshape(*lead, k, cameras, c, h, w)
+    n = len(lead)
+    order = (*range(n), n + 1, n, n + 2, n + 3, n + 4)
+    x = x.transpose(order) if isinstance(x, np.ndarray) else x.permute(*order)
+    return x.reshape(*lead, cameras * k * c, h, w)
+
+
+class FrameHistory(ActionHistory):
+    """:class:`~scorbot_gym.policies.imitation.ActionHistory` plus the frames the policy saw:
+    the last ``frame_stack - 1`` (each camera's, as :meth:`PixelPolicy.current_frames` gives
+    them), pushed with the action chosen on them."""
+
+    def __init__(self, spec: HistorySpec, policy: PixelPolicy) -> None:
+        self.policy = policy
+        super().__init__(spec)
+
+    def reset(self) -> None:
+        super().reset()
+        self.frames: list[np.ndarray] = []
+
+    def push(self, action: np.ndarray, obs: dict[str, np.ndarray] | None = None) -> None:
+        super().push(action, obs)
+        keep = self.policy.net_spec.frame_stack - 1
+        if keep:
+            if obs is None:
+                raise ValueError("a frame stack needs the observation in push")
+            self.frames = [*self.frames, self.policy.current_frames(obs)][-keep:]
+
+    def stacked(self, current: np.ndarray) -> np.ndarray:
+        """The last ``frame_stack`` frames, ``current`` the newest; before the episode has
+        that many, its first frame repeated (as Gymnasium's ``FrameStackObservation`` pads
+        with the reset's)."""
+        k = self.policy.net_spec.frame_stack
+        seen = [*self.frames, current][-k:]
+        return np.stack([seen[0]] * (k - len(seen)) + seen)
 
 
 def to_frame(image: np.ndarray, spec: NetSpec) -> np.ndarray:
@@ -188,7 +265,7 @@ def to_frame(image: np.ndarray, spec: NetSpec) -> np.ndarray:
 
 
 class PixelPolicy:
-    """Top-camera frame + proprioception + class + own action history → CNN/MLP → action.
+    """Camera frames + proprioception + class + own action history → CNN/MLP → action.
 
     ``features(obs, history)`` gives ``(frame, vector)``: the same duck type as
     :class:`~scorbot_gym.policies.imitation.ImitationPolicy`, so the imitation trainer's
@@ -209,13 +286,20 @@ class PixelPolicy:
         import torch as th
 
         self.net_spec, self.meta = net_spec, meta
-        self.camera = str(meta["camera"])
-        self.image_key = f"{self.camera}_rgb"
+        self.cameras = tuple(str(c) for c in meta.get("cameras") or [meta["camera"]])
+        self.camera = self.cameras[0]
+        self.image_keys = tuple(f"{c}_rgb" for c in self.cameras)
+        self.image_key = self.image_keys[0]
+        if len(self.cameras) != net_spec.cameras:
+            raise ValueError(
+                f"incompatible policy: {len(self.cameras)} cameras {list(self.cameras)}, the "
+                f"network reads {net_spec.cameras}"
+            )
         self.classes = tuple(meta["classes"])
         self.history_spec = HistorySpec.from_record(meta["history"])
         if self.history_spec.pose_window:
             raise ValueError("a pixel policy reads no pose estimate: its pose_window must be 0")
-        self.history = ActionHistory(self.history_spec)
+        self.history = self.new_history()
         self.n_vector = n_vector_features(len(self.classes), self.history_spec)
         self.mean = np.asarray(mean, np.float32)
         self.std = np.asarray(std, np.float32)
@@ -268,27 +352,48 @@ class PixelPolicy:
         for key in ("object_class", "target_class"):
             if key in obs:
                 out[key] = np.asarray(obs[key])
-        img, s = np.asarray(obs[self.image_key]), self.net_spec.frame_size
-        if img.shape[:2] != (s, s):  # the same resize as to_frame: features are unchanged
-            img = cv2.resize(img, (s, s), interpolation=cv2.INTER_AREA)
-        out[self.image_key] = img
+        s = self.net_spec.frame_size
+        for key in self.image_keys:
+            img = np.asarray(obs[key])
+            if img.shape[:2] != (s, s):  # the same resize as to_frame: features are unchanged
+                img = cv2.resize(img, (s, s), interpolation=cv2.INTER_AREA)
+            out[key] = img
         return out
+
+    def new_history(self) -> FrameHistory:
+        """The per-episode memory the features read: executed actions and recent frames
+        (the trainers' collection loops ask the learner for it)."""
+        return FrameHistory(self.history_spec, self)
+
+    def current_frames(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """This step's frame of every camera, (cameras x C, S, S) uint8."""
+        missing = [k for k in self.image_keys if k not in obs]
+        if missing:
+            raise KeyError(
+                f"the pixel policy reads {missing}: make the env with "
+                f"cameras={list(self.cameras)} (policy.env_kwargs() gives the settings)"
+            )
+        return np.concatenate([to_frame(obs[k], self.net_spec) for k in self.image_keys])
+
+    def vector_features(self, obs: dict[str, np.ndarray], history: ActionHistory) -> np.ndarray:
+        """The raw (unnormalised) vector: proprioception, class one-hot, action history."""
+        return np.concatenate(
+            [np.asarray(obs[k], np.float32).ravel() for k in PROPRIO_KEYS]
+            + [self._onehot(obs).astype(np.float32), history.features()]
+        )
 
     def features(
         self, obs: dict[str, np.ndarray], history: ActionHistory
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``(frame, vector)``: the (C, S, S) uint8 frame and the raw (unnormalised) vector of
-        proprioception, class one-hot and action history. No pose key is read."""
-        if self.image_key not in obs:
-            raise KeyError(
-                f"the pixel policy reads {self.image_key!r}: make the env with "
-                f"cameras=[{self.camera!r}] (policy.env_kwargs() gives the settings)"
-            )
-        vector = np.concatenate(
-            [np.asarray(obs[k], np.float32).ravel() for k in PROPRIO_KEYS]
-            + [self._onehot(obs).astype(np.float32), history.features()]
-        )
-        return to_frame(obs[self.image_key], self.net_spec), vector
+        """``(frames, vector)``: the network's uint8 image input (cameras x stack x C, S, S;
+        with a frame stack, ``history`` must be this policy's :meth:`new_history`) and the
+        raw vector. No pose key is read."""
+        current = self.current_frames(obs)
+        if self.net_spec.frame_stack > 1:
+            if not isinstance(history, FrameHistory):
+                raise TypeError("a frame-stacking policy needs its own new_history()")
+            current = stack_frames(history.stacked(current), self.net_spec.cameras)
+        return current, self.vector_features(obs, history)
 
     def normalise(self, vectors: np.ndarray) -> np.ndarray:
         z = (vectors - self.mean) / np.maximum(self.std, CONSTANT_STD)
@@ -328,15 +433,16 @@ class PixelPolicy:
         reads and takes its actions; remember the env's class order. Returns ``self``."""
         check_action_type(env, self.meta["action_type"])
         have = env.observation_space.spaces
-        missing = [k for k in (*PROPRIO_KEYS, self.image_key) if k not in have]
+        missing = [k for k in (*PROPRIO_KEYS, *self.image_keys) if k not in have]
         if missing:
             raise ValueError(
                 f"the pixel policy reads {missing}, which the env does not give: make it with "
                 f"{self.env_kwargs()}"
             )
-        shape = tuple(have[self.image_key].shape)
-        if len(shape) != 3 or shape[-1] != 3:
-            raise ValueError(f"{self.image_key} must be an H x W x 3 image, the env gives {shape}")
+        for key in self.image_keys:
+            shape = tuple(have[key].shape)
+            if len(shape) != 3 or shape[-1] != 3:
+                raise ValueError(f"{key} must be an H x W x 3 image, the env gives {shape}")
         self._env_classes = None
         if "object_class" in have or "target_class" in have:
             attr = "class_names" if "object_class" in have else "target_classes"
@@ -346,7 +452,7 @@ class PixelPolicy:
 
     def env_kwargs(self) -> dict[str, Any]:
         """Keywords for :func:`scorbot_gym.make_env` that give this policy its observations:
-        the camera it was trained on, rendered at the training size."""
+        the cameras it was trained on, rendered at the training size."""
         cartesian = self.meta["action_type"] == "cartesian"
         return {
             "env_id": "ScorbotGraspCartesian-v0" if cartesian else "ScorbotGrasp-v0",
@@ -358,7 +464,7 @@ class PixelPolicy:
     def env_requirements(self) -> dict[str, Any]:
         """The env settings the policy needs (as a pose source's ``env_requirements``)."""
         width, height = self.meta["render_size"]
-        return {"cameras": [self.camera], "image_width": width, "image_height": height}
+        return {"cameras": list(self.cameras), "image_width": width, "image_height": height}
 
     # --- files -----------------------------------------------------------------------------
     def save(self, path: str | Path) -> Path:
@@ -384,7 +490,7 @@ class PixelPolicy:
             mean, std = np.asarray(norm["mean"], float), np.asarray(norm["std"], float)
             spec = NetSpec.from_record(meta["network"])
             HistorySpec.from_record(meta["history"])
-            meta["classes"], meta["action_type"], meta["camera"]
+            meta["classes"], meta["action_type"], meta.get("cameras") or meta["camera"]
             width, height = meta["render_size"]
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{meta_path} is incomplete or malformed ({exc!r})") from None
@@ -409,11 +515,12 @@ def new_meta(
     *,
     classes: tuple[str, ...],
     action_type: str,
-    camera: str,
+    cameras: tuple[str, ...] | list[str],
     render_size: tuple[int, int],
     history: HistorySpec,
 ) -> dict[str, Any]:
     """``policy.json`` of an untrained pixel policy (the trainer adds how it was trained)."""
+    cameras = [str(c) for c in cameras]
     from dataclasses import asdict
 
     return {
@@ -424,12 +531,18 @@ def new_meta(
         "uses_scripted_controller": False,
         "action_type": action_type,
         "classes": list(classes),
-        "camera": camera,
+        "camera": cameras[0],  # the first camera, as files before "cameras" named it
+        "cameras": cameras,
         "render_size": [int(render_size[0]), int(render_size[1])],
-        "reads": [*PROPRIO_KEYS, f"{camera}_rgb", "object_class or target_class (optional)"],
+        "reads": [
+            *PROPRIO_KEYS,
+            *(f"{c}_rgb" for c in cameras),
+            "object_class or target_class (optional)",
+        ],
         "history": asdict(history),
-        "features": "CNN(frame) + proprioception + class one-hot + previous actions + "
-        "gripper-command history (scorbot_gym.policies.pixel); no pose estimate",
+        "features": "CNN(stacked frames) per camera + proprioception + class one-hot + "
+        "previous actions + gripper-command history (scorbot_gym.policies.pixel); no pose "
+        "estimate",
         "network": {
             "encoders": {
                 "nature": "Nature-DQN conv 32x8x8/4, 64x4x4/2, 64x3x3/1, linear embedding",

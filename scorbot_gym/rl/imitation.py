@@ -243,7 +243,7 @@ def collect_episodes(
 
     make_expert = expert_factory or default
     expert = make_expert(env)
-    history = ActionHistory(learner.history_spec) if learner is not None else None
+    history = new_history(learner) if learner is not None else None
     episodes = []
     for seed in seeds:
         obs, info = env.reset(seed=int(seed))
@@ -294,6 +294,13 @@ def collect_episodes(
     return episodes
 
 
+def new_history(learner: Any) -> ActionHistory:
+    """The learner's per-episode memory: its own ``new_history()`` where it keeps more than
+    actions (a pixel policy's recent frames), else an :class:`ActionHistory` of its spec."""
+    make = getattr(learner, "new_history", None)
+    return make() if make is not None else ActionHistory(learner.history_spec)
+
+
 def _calibration(info: dict[str, Any]) -> dict[str, np.ndarray]:
     """The fixed cameras' calibration from the reset's info (repeated at every step)."""
     out = {}
@@ -311,7 +318,7 @@ def episode_features(
     episode: LabelledEpisode, policy_like: ImitationPolicy
 ) -> tuple[np.ndarray, np.ndarray]:
     """Features (with the executed-action history) and labels of an episode's acted steps."""
-    history = ActionHistory(policy_like.history_spec)
+    history = new_history(policy_like)
     keys = list(episode.observations)
     feats = []
     for t in range(len(episode)):

@@ -1,24 +1,33 @@
 """Imitation learning of the pixel policy (:mod:`scorbot_gym.policies.pixel`): the state
-policy's recipe, BC from scripted demonstrations with DART noise then DAgger, with the top
-camera image in place of the pose estimate.
+policy's recipe, BC from scripted demonstrations with DART noise then DAgger, with camera
+images in place of the pose estimate.
 
 Collection and DAgger are :func:`scorbot_gym.rl.imitation.collect_episodes` unchanged (in
 ``jobs`` worker processes if asked: rendering, not the fit, is what a run waits for): the
 scripted controller acts (demonstrations) or labels (DAgger) from the **oracle** pose in
-``info``, the learner acts from its frame, proprioception and action history. Episodes store
-only what the policy reads, the image as its 84 x 84 uint8 frame (``keep``), so memory grows by
-~21 kB per step. Fitting can add DrQ's random-shift augmentation (Kostrikov et al. 2021; Yarats
-et al. 2021: pad by ``shift`` pixels, crop back at a random offset per sample), the standard
-regulariser for a small CNN; it is off by default because here one pixel is about a centimetre
-on the table, and the shift bought nothing when measured. Training uses CUDA when it is
+``info``, the learner acts from its frames, proprioception and action history. Episodes store
+only what the policy reads, each camera's image as its 84 x 84 uint8 frame (``keep``), so
+memory grows by ~21 kB per camera and step; a frame stack is gathered from the stored steps
+at fitting time (:func:`stack_index`), not stored. Fitting can add DrQ's random-shift
+augmentation (Kostrikov et al. 2021; Yarats et al. 2021: pad by ``shift`` pixels, crop back
+at a random offset per sample), the standard regulariser for a small CNN; it is off by default
+because here one pixel is about a centimetre on the table, and the shift bought nothing when
+measured with the single-frame top-camera policy. Training uses CUDA when it is
 available (``device="auto"``); the saved policy runs on the CPU.
+
+**Validation** (robomimic's protocol): ``val_demos`` demonstrations from their own seeds are
+never fitted, and say how well the labels are reproduced off the training set;
+``val_episodes`` rollouts of the learner alone, on the training-evaluation seeds, after every
+``val_every`` fitting steps and at the end of every fit, choose the checkpoint the run returns
+(highest rollout success, then lowest held-out label error, then the later). DAgger always
+collects with the latest weights.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import gymnasium as gym
@@ -26,7 +35,13 @@ import numpy as np
 
 from scorbot_gym import seeds as seed_ranges
 from scorbot_gym.policies.imitation import ActionHistory, HistorySpec, to_action
-from scorbot_gym.policies.pixel import NetSpec, PixelPolicy, n_vector_features, new_meta
+from scorbot_gym.policies.pixel import (
+    NetSpec,
+    PixelPolicy,
+    n_vector_features,
+    new_meta,
+    stack_frames,
+)
 from scorbot_gym.rl.imitation import (
     LabelledEpisode,
     check_expert_options,
@@ -49,7 +64,8 @@ class PixelImitationConfig:
     beta: float = 0.5
     beta_decay: float = 0.5
     net: NetSpec = field(default_factory=NetSpec)
-    camera: str = "top"
+    #: cameras the policy reads (``net.cameras`` follows their number)
+    cameras: tuple[str, ...] = ("top",)
     fit_steps: int = 8000
     batch_size: int = 256
     learning_rate: float = 3e-4
@@ -63,6 +79,12 @@ class PixelImitationConfig:
     #: the DAgger labeller's decision to close stands until the learner closes
     #: (:class:`~scorbot_gym.rl.imitation.ExecutedActionExpert` ``keeps_close``)
     expert_keeps_close: bool = False
+    #: held-out demonstrations (own seeds, never fitted): label error off the training set
+    val_demos: int = 0
+    #: validation rollouts per checkpoint (0: the run returns its last weights)
+    val_episodes: int = 0
+    #: fitting steps between checkpoints within a fit (0: only at the end of each fit)
+    val_every: int = 0
     device: str = "auto"
 
     def __post_init__(self) -> None:
@@ -72,15 +94,26 @@ class PixelImitationConfig:
             raise ValueError("a pixel policy reads no pose estimate: history.pose_window must be 0")
         if isinstance(self.net, dict):
             self.net = NetSpec(**self.net)
+        if isinstance(self.cameras, str) or not self.cameras:
+            raise ValueError(f"cameras must be a non-empty list of names, got {self.cameras!r}")
+        self.cameras = tuple(str(c) for c in self.cameras)
+        if len(set(self.cameras)) != len(self.cameras):
+            raise ValueError(f"cameras must not repeat, got {list(self.cameras)}")
+        self.net = replace(self.net, cameras=len(self.cameras))
         for name in ("demos", "fit_steps", "batch_size", "torch_threads", "jobs"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("dagger_rounds", "dagger_episodes", "shift"):
+        for name in ("dagger_rounds", "dagger_episodes", "shift", "val_demos", "val_episodes"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 <= self.beta <= 1.0 or not 0.0 <= self.beta_decay <= 1.0:
             raise ValueError(
                 f"beta and beta_decay must be in [0, 1], got {self.beta}, {self.beta_decay}"
+            )
+        if self.val_every < 0 or (self.val_every and not self.val_episodes):
+            raise ValueError(
+                f"val_every must be >= 0 and needs val_episodes > 0, got val_every "
+                f"{self.val_every}, val_episodes {self.val_episodes}"
             )
         if self.dart_sigma < 0:
             raise ValueError(f"dart_sigma must be >= 0, got {self.dart_sigma}")
@@ -98,18 +131,23 @@ class PixelImitationConfig:
 
 
 def skeleton(env: gym.Env, config: PixelImitationConfig) -> PixelPolicy:
-    """An untrained pixel policy for ``env``, which must render ``config.camera``."""
+    """An untrained pixel policy for ``env``, which must render ``config.cameras``."""
     classes = tuple(env.get_wrapper_attr("class_names"))
-    key = f"{config.camera}_rgb"
-    if key not in env.observation_space.spaces:
+    keys = [f"{c}_rgb" for c in config.cameras]
+    missing = [k for k in keys if k not in env.observation_space.spaces]
+    if missing:
         raise ValueError(
-            f"the pixel policy trains on {key!r}: make the env with cameras=[{config.camera!r}]"
+            f"the pixel policy trains on {missing}: make the env with "
+            f"cameras={list(config.cameras)}"
         )
-    height, width = env.observation_space[key].shape[:2]
+    sizes = {tuple(env.observation_space[k].shape[:2]) for k in keys}
+    if len(sizes) != 1:
+        raise ValueError(f"the cameras must render one size, the env gives {sorted(sizes)}")
+    height, width = sizes.pop()
     meta = new_meta(
         classes=classes,
         action_type=env.get_wrapper_attr("action_type"),
-        camera=config.camera,
+        cameras=config.cameras,
         render_size=(width, height),
         history=config.history,
     )
@@ -120,28 +158,53 @@ def skeleton(env: gym.Env, config: PixelImitationConfig) -> PixelPolicy:
 def episode_arrays(
     episode: LabelledEpisode, policy: PixelPolicy
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frames (T, C, S, S) uint8, raw vectors (T, n) with the executed-action history, and
-    labels (T, 6) of an episode's acted steps."""
+    """Each step's own frames (T, cameras x C, S, S) uint8 (unstacked: :func:`stack_index`
+    gathers a stack), raw vectors (T, n) with the executed-action history, and labels (T, 6)
+    of an episode's acted steps."""
     history = ActionHistory(policy.history_spec)
     keys = list(episode.observations)
     frames, vectors = [], []
     for t in range(len(episode)):
         obs = {k: episode.observations[k][t] for k in keys}
-        frame, vector = policy.features(obs, history)
-        frames.append(frame)
-        vectors.append(vector)
+        frames.append(policy.current_frames(obs))
+        vectors.append(policy.vector_features(obs, history))
         history.push(episode.actions[t], obs)
     return np.stack(frames), np.stack(vectors), episode.labels[: len(episode)]
 
 
-def random_shift(frames, pad: int):
+def stack_index(lengths: Sequence[int], frame_stack: int) -> np.ndarray:
+    """(N, frame_stack) row indices into the concatenated steps of episodes of ``lengths``:
+    for every step, its episode's last ``frame_stack`` steps, the oldest first, the episode's
+    first step repeated before it has that many (as :class:`~scorbot_gym.policies.pixel.
+    FrameHistory` pads)."""
+    rows = []
+    start = 0
+    back = np.arange(frame_stack - 1, -1, -1)
+    for n in lengths:
+        t = np.arange(n)[:, None]
+        rows.append(start + np.maximum(t - back, 0))
+        start += n
+    return np.concatenate(rows) if rows else np.zeros((0, frame_stack), np.int64)
+
+
+def gather_frames(frames, index, rows, cameras: int):
+    """The network's input for ``rows`` (numpy or torch alike): their stacks of frames."""
+    return stack_frames(frames[index[rows]], cameras)
+
+
+def random_shift(frames, pad: int, groups: int = 1):
     """DrQ-v2's random shift: replicate-pad by ``pad`` and resample each image at a random
-    integer offset in [-pad, pad] (one ``grid_sample`` for the whole batch)."""
+    integer offset in [-pad, pad] (one ``grid_sample`` for the whole batch). With ``groups``,
+    the channels split into that many cameras, each shifted on its own (a camera's stacked
+    frames move together)."""
     import torch as th
     import torch.nn.functional as F
 
     if pad == 0:
         return frames
+    if groups > 1:
+        parts = th.chunk(frames, groups, dim=1)
+        return th.cat([random_shift(part, pad) for part in parts], dim=1)
     n, _, h, w = frames.shape
     padded = F.pad(frames, (pad, pad, pad, pad), mode="replicate")
     eps = 1.0 / (h + 2 * pad)
@@ -161,10 +224,15 @@ def fit_pixel_policy(
     config: PixelImitationConfig,
     seed: int,
     warm_start: bool = False,
+    lengths: Sequence[int] | None = None,
+    on_checkpoint: Callable[[int], None] | None = None,
 ) -> list[float]:
     """Fit the policy's network (and its vector normalisation) to ``labels``: MSE on the arm's
     tanh outputs, binary cross-entropy on the gripper logit, frames randomly shifted.
-    Returns the loss curve; the fitted weights are copied back into ``policy`` (CPU)."""
+    ``frames`` are each step's own; ``lengths`` (the episodes', in order; default: one)
+    say which steps a frame stack gathers. Returns the loss curve; the fitted weights are
+    copied back into ``policy`` (CPU), also before every ``on_checkpoint(step)``, called
+    every ``config.val_every`` steps."""
     import torch as th
     import torch.nn.functional as F
 
@@ -178,6 +246,8 @@ def fit_pixel_policy(
     policy.mean = vectors.mean(axis=0).astype(np.float32)
     policy.std = vectors.std(axis=0).astype(np.float32)
     x_img = th.as_tensor(frames).to(device)  # uint8: 1/4 of the memory of floats
+    index = stack_index([len(labels)] if lengths is None else lengths, config.net.frame_stack)
+    x_index = th.as_tensor(index).to(device)
     x_vec = th.as_tensor(policy.normalise(vectors)).to(device)
     arm = th.as_tensor(np.clip(labels[:, :-1], -1.0, 1.0), dtype=th.float32).to(device)
     grip = th.as_tensor((labels[:, -1] > 0).astype(np.float32)).to(device)
@@ -189,10 +259,17 @@ def fit_pixel_policy(
     )
     sched = th.optim.lr_scheduler.CosineAnnealingLR(opt, config.fit_steps)
     losses = []
+    cameras = config.net.cameras
+
+    def copy_back() -> None:
+        policy.load_state({k: v.detach().cpu().numpy() for k, v in net.state_dict().items()})
+        policy.net.eval()
+
     net.train()
-    for _ in range(config.fit_steps):
+    for step in range(1, config.fit_steps + 1):
         idx = th.randint(0, len(x_vec), (config.batch_size,), device=device, generator=gen)
-        img = random_shift(x_img[idx].float() / 255.0, config.shift)
+        stacks = gather_frames(x_img, x_index, idx, cameras)
+        img = random_shift(stacks.float() / 255.0, config.shift, groups=cameras)
         out = net(img, x_vec[idx])
         loss = F.mse_loss(th.tanh(out[:, :-1]), arm[idx])
         loss = loss + F.binary_cross_entropy_with_logits(out[:, -1], grip[idx])
@@ -201,20 +278,35 @@ def fit_pixel_policy(
         opt.step()
         sched.step()
         losses.append(loss.detach())
-    policy.load_state({k: v.detach().cpu().numpy() for k, v in net.state_dict().items()})
-    policy.net.eval()
+        if on_checkpoint is not None and config.val_every and step % config.val_every == 0:
+            if step < config.fit_steps:  # the end of the fit is every caller's checkpoint
+                copy_back()
+                on_checkpoint(step)
+                net.train()
+    copy_back()
     return [float(v) for v in th.stack(losses).cpu().numpy()]
 
 
 def label_accuracy(
-    policy: PixelPolicy, frames: np.ndarray, vectors: np.ndarray, labels: np.ndarray
+    policy: PixelPolicy,
+    frames: np.ndarray,
+    vectors: np.ndarray,
+    labels: np.ndarray,
+    lengths: Sequence[int] | None = None,
 ) -> dict[str, float]:
     """How closely the policy reproduces the labels (arm RMSE, gripper sign agreement),
     on at most 4096 evenly spaced steps (CPU inference)."""
+    index = stack_index([len(labels)] if lengths is None else lengths, policy.net_spec.frame_stack)
     pick = np.linspace(0, len(labels) - 1, min(len(labels), 4096)).astype(int)
+    cameras = policy.net_spec.cameras
     pred = np.concatenate(
         [
-            to_action(policy.raw_outputs(frames[pick[i : i + 512]], vectors[pick[i : i + 512]]))
+            to_action(
+                policy.raw_outputs(
+                    gather_frames(frames, index, pick[i : i + 512], cameras),
+                    vectors[pick[i : i + 512]],
+                )
+            )
             for i in range(0, len(pick), 512)
         ]
     )
@@ -248,7 +340,11 @@ def train_pixel_imitation(
     with its own env made by :func:`scorbot_gym.make_env` from ``env_kwargs`` (the keywords
     ``env`` was made with). Every episode draws its DART noise and who acts from its own
     stream (``config.seed``, the round, the episode's seed), so the data do not depend on
-    ``jobs``."""
+    ``jobs``.
+
+    With ``config.val_episodes`` the returned policy holds the checkpoint the validation
+    rollouts chose (module docstring); ``policy.meta["training"]["checkpoints"]`` lists them
+    all."""
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     policy = skeleton(env, config)
@@ -278,36 +374,117 @@ def train_pixel_imitation(
     policy.meta.update(
         imitation_provenance("pixel_imitation", config, [], [], source, dagger_seeds)
     )
-    data = collect(0, seeds, None, 1.0)
-    frames, vectors, labels = _concat([episode_arrays(ep, policy) for ep in data])
-    fit_t0 = time.perf_counter()
-    losses = fit_pixel_policy(policy, frames, vectors, labels, config, seed=config.seed)
-    fit_s = time.perf_counter() - fit_t0
-    rounds = [
-        _round_record(0, 1.0, data, losses, fit_s, policy, frames, vectors, labels),
-    ]
-    say(f"BC on {len(data)} demonstrations ({len(labels)} steps): {rounds[-1]}")
-    if on_round is not None:
-        on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
-    for r in range(1, config.dagger_rounds + 1):
-        beta = config.beta * config.beta_decay ** (r - 1)
-        seeds = dagger_seeds[(r - 1) * config.dagger_episodes : r * config.dagger_episodes]
-        new = collect(r, seeds, policy, beta)
-        f, v, y = _concat([episode_arrays(ep, policy) for ep in new])
-        frames = np.concatenate([frames, f])
-        vectors = np.concatenate([vectors, v])
-        labels = np.concatenate([labels, y])
+    validation = Validation(policy, config, collect)
+    if config.val_demos:
+        validation.hold_out(collect(HELD_OUT_STREAM, validation.demo_seeds, None, 1.0))
+    frames = vectors = labels = None
+    lengths: list[int] = []
+    rounds: list[dict[str, Any]] = []
+    for r in range(config.dagger_rounds + 1):
+        if r == 0:  # behaviour cloning on the demonstrations
+            beta, new = 1.0, collect(0, seeds, None, 1.0)
+        else:
+            beta = config.beta * config.beta_decay ** (r - 1)
+            chunk = dagger_seeds[(r - 1) * config.dagger_episodes : r * config.dagger_episodes]
+            new = collect(r, chunk, policy, beta)
+        f, v, y, n = _concat([episode_arrays(ep, policy) for ep in new])
+        frames = f if frames is None else np.concatenate([frames, f])
+        vectors = v if vectors is None else np.concatenate([vectors, v])
+        labels = y if labels is None else np.concatenate([labels, y])
+        lengths = [*lengths, *n]
         fit_t0 = time.perf_counter()
         losses = fit_pixel_policy(
-            policy, frames, vectors, labels, config, seed=config.seed + r, warm_start=True
+            policy,
+            frames,
+            vectors,
+            labels,
+            config,
+            seed=config.seed + r,
+            warm_start=r > 0,
+            lengths=lengths,
+            on_checkpoint=lambda step, r=r: validation.checkpoint(r, step),
         )
         fit_s = time.perf_counter() - fit_t0
-        rounds.append(_round_record(r, beta, new, losses, fit_s, policy, frames, vectors, labels))
-        say(f"DAgger round {r} (beta {beta:.3f}): {rounds[-1]}")
+        validation.checkpoint(r, config.fit_steps)
+        rounds.append(
+            _round_record(r, beta, new, losses, fit_s, policy, frames, vectors, labels, lengths)
+        )
+        what = f"BC on {len(new)} demonstrations" if r == 0 else f"DAgger round {r}"
+        say(f"{what} (beta {beta:.3f}, {len(labels)} steps in all): {rounds[-1]}")
         if on_round is not None:
-            on_round(_record(policy, config, start, rounds, frames, labels), rounds[-1])
-    _record(policy, config, start, rounds, frames, labels)
+            pol = _record(policy, config, start, rounds, frames, labels, validation)
+            on_round(pol, rounds[-1])
+    validation.restore_best()
+    _record(policy, config, start, rounds, frames, labels, validation)
     return policy, policy.meta["training"]
+
+
+#: the random streams (``collect``'s round index) of the held-out demonstrations' DART noise
+#: and of the validation rollouts (the learner alone: nothing is drawn), apart from the rounds'
+HELD_OUT_STREAM, ROLLOUT_STREAM = 10_000, 10_001
+
+
+class Validation:
+    """The run's validation: held-out demonstrations' label error and rollouts of the
+    learner alone at every checkpoint; keeps the best checkpoint's weights and
+    normalisation (module docstring: how it chooses)."""
+
+    def __init__(self, policy: PixelPolicy, config: PixelImitationConfig, collect) -> None:
+        self.policy, self.config, self.collect = policy, config, collect
+        # past the half of the seed's demonstration block, never a training demonstration
+        offset = seed_ranges.BLOCK // 2
+        self.demo_seeds = seed_ranges.DEMONSTRATIONS.block(config.seed, config.val_demos, offset)
+        self.rollout_seeds = seed_ranges.TRAINING_EVALUATION.seeds(config.val_episodes)
+        self.held_out: tuple | None = None
+        self.checkpoints: list[dict[str, Any]] = []
+        self.best: tuple | None = None  # (key, state, mean, std)
+
+    def hold_out(self, episodes: Sequence[LabelledEpisode]) -> None:
+        self.held_out = _concat([episode_arrays(ep, self.policy) for ep in episodes])
+
+    def checkpoint(self, round_index: int, step: int) -> None:
+        """Score the policy's current weights; remember them if they are the best so far."""
+        cfg = self.config
+        if not (cfg.val_episodes or cfg.val_demos):
+            return
+        t0 = time.perf_counter()
+        record: dict[str, Any] = {"round": round_index, "fit_step": step}
+        if self.held_out is not None:
+            frames, vectors, labels, lengths = self.held_out
+            acc = label_accuracy(self.policy, frames, vectors, labels, lengths)
+            record.update({f"held_out_{k}": v for k, v in acc.items()})
+        if cfg.val_episodes:
+            episodes = self.collect(ROLLOUT_STREAM, self.rollout_seeds, self.policy, 0.0)
+            record["rollout_success"] = float(np.mean([ep.success for ep in episodes]))
+            record["rollout_episodes"] = len(episodes)
+        record["wall_s"] = round(time.perf_counter() - t0, 2)
+        self.checkpoints.append(record)
+        key = (
+            record.get("rollout_success", 0.0),
+            -record.get("held_out_arm_rmse", 0.0),
+            len(self.checkpoints),
+        )
+        if self.best is None or key > self.best[0]:
+            pol = self.policy
+            self.best = (key, pol.state_arrays(), pol.mean.copy(), pol.std.copy(), record)
+
+    def restore_best(self) -> None:
+        """Put the chosen checkpoint's weights and normalisation back into the policy."""
+        if self.best is None:
+            return
+        _, state, mean, std, _record_ = self.best
+        self.policy.load_state(state)
+        self.policy.mean, self.policy.std = mean, std
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "held_out_demonstrations": self.config.val_demos,
+            "held_out_seeds": seed_span(self.demo_seeds) if self.config.val_demos else None,
+            "rollout_episodes": self.config.val_episodes,
+            "rollout_seeds": seed_span(self.rollout_seeds) if self.config.val_episodes else None,
+            "chosen": None if self.best is None else self.best[4],
+            "checkpoints": list(self.checkpoints),
+        }
 
 
 def collect_pixel_episodes(
@@ -395,6 +572,7 @@ def _record(
     rounds: list[dict],
     frames: np.ndarray,
     labels: np.ndarray,
+    validation: Validation,
 ) -> PixelPolicy:
     """Write the training record so far into the policy's meta (after every round)."""
     dagger = int(sum(r["episodes"] for r in rounds[1:]))
@@ -413,6 +591,9 @@ def _record(
         "rounds": list(rounds),
         "expert": "ScriptedGraspPolicy with the oracle pose (labels only; not used at test time)",
         "augmentation": f"random shift +-{config.shift} px (DrQ)",
+        "cameras": list(config.cameras),
+        "frame_stack": config.net.frame_stack,
+        "validation": validation.summary(),
     }
     policy.meta["saw_scripted_controller"] = {  # in training only, as labeller
         "residual_base": False,
@@ -422,8 +603,10 @@ def _record(
     return policy
 
 
-def _concat(parts: Sequence[tuple[np.ndarray, ...]]) -> tuple[np.ndarray, ...]:
-    return tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+def _concat(parts: Sequence[tuple[np.ndarray, ...]]) -> tuple[Any, ...]:
+    """Episodes' (frames, vectors, labels) joined, and their lengths."""
+    joined = tuple(np.concatenate([p[i] for p in parts]) for i in range(3))
+    return (*joined, [len(p[2]) for p in parts])
 
 
 def _round_record(
@@ -436,6 +619,7 @@ def _round_record(
     frames: np.ndarray,
     vectors: np.ndarray,
     labels: np.ndarray,
+    lengths: Sequence[int],
 ) -> dict[str, Any]:
     return {
         "round": r,
@@ -445,5 +629,5 @@ def _round_record(
         "env_steps": int(sum(len(ep) for ep in episodes)),
         "final_loss": float(np.mean(losses[-100:])),
         "fit_s": round(fit_s, 2),
-        **label_accuracy(policy, frames, vectors, labels),
+        **label_accuracy(policy, frames, vectors, labels, lengths),
     }
