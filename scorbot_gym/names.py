@@ -21,6 +21,7 @@ POLICIES = (
     "learned_grasp_frame",
     "finetuned_grasp_frame",
     "rl_grasp_frame",
+    "rl_scratch",
 )
 #: the pose sources :mod:`scorbot_gym.perception.registry` registers itself (sorted)
 POSE_SOURCES = (

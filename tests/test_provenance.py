@@ -156,6 +156,38 @@ def test_shipped_fine_tune_names_its_starting_policy():
     assert residual["trained_by"] == "residual" and residual["provenance"]["pose_models"] is None
 
 
+def test_the_shipped_from_scratch_policy_saw_no_controller_and_says_which_checkpoint_it_is():
+    """``rl_scratch``: SAC with no residual base and no demonstrations, the checkpoint its run
+    chose on training-evaluation seeds (never a reported range), and it acts on its own env."""
+    from scorbot_gym import make_env
+    from scorbot_gym.policies.loading import load_policy, uses_scripted_controller
+    from scorbot_gym.seeds import TRAINING_EVALUATION
+
+    policy = load_policy("rl_scratch")
+    meta = policy.meta
+    assert meta["trained_by"] == "rl_from_scratch" and not uses_scripted_controller(policy)
+    assert meta["saw_scripted_controller"] == {"residual_base": False, "bc_demo_episodes": 0}
+    assert meta["config"]["bc_demos"] == 0 and meta["config"]["init_policy"] is None
+    assert policy.object_features == "grasp_frame"
+    chosen = meta["checkpoint"]
+    assert chosen["kind"] == "best"
+    assert chosen["evaluation"]["timesteps"] == meta["trained_timesteps"]
+    seeds = chosen["evaluation_seeds"]
+    assert seeds["first"] in TRAINING_EVALUATION and seeds["last"] in TRAINING_EVALUATION
+    kwargs = dict(policy.env_kwargs())
+    env = make_env(kwargs.pop("env_id"), pose="oracle", **kwargs)
+    try:
+        policy.bind(env)
+        obs, info = env.reset(seed=3)
+        policy.reset(obs, info)
+        for _ in range(3):
+            action = policy.act(obs)
+            assert env.action_space.contains(action)
+            obs, *_ = env.step(action)
+    finally:
+        env.close()
+
+
 # --- Minari datasets --------------------------------------------------------------------------
 
 

@@ -129,6 +129,9 @@ def test_rollout_replays_a_training_run_with_a_video_of_every_episode(one_run, t
     assert (one_run / "best" / "policy.json").is_file()
     state = json.loads((one_run / "checkpoint" / "state.json").read_text())
     assert state["best"]["timesteps"] in [e["timesteps"] for e in state["eval"]]
+    chosen = json.loads((one_run / "best" / "policy.json").read_text())["checkpoint"]
+    assert chosen["kind"] == "best" and chosen["evaluation"] == state["best"]
+    assert chosen["evaluation_seeds"]["range"] == "training_evaluation"  # not a reported range
     js, video = tmp_path / "r.json", tmp_path / "r.mp4"
     argv = ["rollout", "--policy", str(one_run), "--episodes", "2", "--objects", "box"]
     assert main([*argv, "--json", str(js), "--video", str(video), "--no-progress"]) == 0

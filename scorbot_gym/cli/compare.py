@@ -11,6 +11,7 @@ from scorbot_gym.cli._args import (
     non_negative_int,
     positive_int,
 )
+from scorbot_gym.names import POLICIES
 
 
 def _noise_levels(text: str) -> list[str]:
@@ -52,10 +53,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--policies",
         type=_names,
         default=["scripted", "rl"],
-        help="comma-separated: built-in policies (scripted: the controller, rl: the shipped "
-        "residual, learned: the shipped stand-alone imitation policy, random) or policy folders "
-        "(policy.json) / `scorbot-gym train` run folders; differences are against scripted "
-        "(else the first) (default scripted,rl)",
+        help=f"comma-separated: built-in policies ({', '.join(POLICIES)}; `scorbot-gym "
+        "rollout --help` says what each is) or policy folders (policy.json) / `scorbot-gym "
+        "train` run folders; differences are against scripted (else the first) (default "
+        "scripted,rl)",
     )
     p.add_argument(
         "--pose",

@@ -58,7 +58,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help=f"who acts: {', '.join(POLICIES)} (scripted: PBVS controller; rl: the shipped "
         "residual; learned: the shipped imitation policy; finetuned: it after RL fine-tuning; "
         "learned_grasp_frame, finetuned_grasp_frame, rl_grasp_frame: learned, finetuned and "
-        "rl reading the object's grasp frame, not its class), "
+        "rl reading the object's grasp frame, not its class; rl_scratch: SAC from scratch, "
+        "no controller and no demonstrations, reading the grasp frame), "
         "or a folder: a policy, or a `scorbot-gym train` run (replays its --checkpoint)",
     )
     p.add_argument(

@@ -7,8 +7,9 @@ the top camera image, no pose estimate); ``sac``/``tqc``/``ppo`` →
 ``learned`` (the shipped stand-alone imitation policy), ``finetuned`` (that policy after
 RL fine-tuning), ``learned_grasp_frame`` (``learned``'s recipe reading the object's grasp
 frame instead of its class), ``finetuned_grasp_frame`` (it after the same fine-tune) and
-``rl_grasp_frame`` (the residual reading the grasp frame) stand for the policies in the
-package (:data:`SHIPPED`).
+``rl_grasp_frame`` (the residual reading the grasp frame) and ``rl_scratch`` (SAC from
+scratch, no controller and no demonstrations, reading the grasp frame) stand for the policies
+in the package (:data:`SHIPPED`).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from scorbot_gym.policies.imitation import (
 from scorbot_gym.policies.sb3 import (
     SHIPPED_GRASP_FRAME_RESIDUAL,
     SHIPPED_POLICY,
+    SHIPPED_SCRATCH_POLICY,
     read_policy_json,
 )
 
@@ -38,6 +40,7 @@ SHIPPED = {
     "learned_grasp_frame": SHIPPED_GRASP_FRAME_POLICY,
     "finetuned_grasp_frame": SHIPPED_GRASP_FRAME_FINETUNED_POLICY,
     "rl_grasp_frame": SHIPPED_GRASP_FRAME_RESIDUAL,
+    "rl_scratch": SHIPPED_SCRATCH_POLICY,
 }
 
 

@@ -33,6 +33,8 @@ VERSION = 1
 #: the residual reading the grasp frame (``object_features: grasp_frame``), not the class
 SHIPPED_GRASP_FRAME_RESIDUAL = Path(__file__).parent / "data" / "residual_sac_grasp_frame"
 SHIPPED_POLICY = Path(__file__).parent / "data" / "residual_sac_oracle"
+#: SAC from scratch (no controller, no demonstrations) reading the grasp frame
+SHIPPED_SCRATCH_POLICY = Path(__file__).parent / "data" / "scratch_sac_grasp_frame"
 
 
 def check_action_type(env, action_type: str) -> None:

@@ -69,6 +69,19 @@ RESUMABLE_CHANGES = (
 )
 
 
+def best_checkpoint(state: dict[str, Any]) -> dict[str, Any]:
+    """What a run's ``best/`` policy is: the weights of the evaluation with the highest
+    success so far (the latest among equals), on the run's training-evaluation seeds, which
+    no reported comparison uses (:data:`scorbot_gym.seeds.TRAINING_EVALUATION`)."""
+    data = (state.get("provenance") or {}).get("data") or {}
+    return {
+        "kind": "best",
+        "chosen_by": "the highest evaluation success during training (the latest among equals)",
+        "evaluation": dict(state["best"]),
+        "evaluation_seeds": data.get("evaluation_seeds"),
+    }
+
+
 @dataclass
 class TrainConfig:
     """Everything a run depends on (saved as ``config.json``; the run is a function of it).
@@ -714,9 +727,10 @@ class _Run:
         self.export(model, self.out / runs.POLICY)
 
     def save_best(self, model, record: dict[str, Any]) -> None:
-        """The policy of the best evaluation so far (``rollout --policy RUN`` loads it)."""
-        self.export(model, self.out / runs.BEST)
+        """The policy of the best evaluation so far (``rollout --policy RUN`` loads it); its
+        ``policy.json`` says which evaluation chose it (a copy shipped elsewhere keeps that)."""
         self.state["best"] = {k: record[k] for k in ("timesteps", "success_rate", "ci95")}
+        self.export(model, self.out / runs.BEST, checkpoint=best_checkpoint(self.state))
 
     def _finetuned(self, model):
         from scorbot_gym.rl.finetune import to_imitation_policy
@@ -737,13 +751,16 @@ class _Run:
         }
         return to_imitation_policy(model, self.init_policy, record, self.state["provenance"])
 
-    def export(self, model, path: Path) -> None:
+    def export(self, model, path: Path, checkpoint: dict[str, Any] | None = None) -> None:
         if self.init_policy is not None:  # numpy weights + policy.json, as the imitation trainer
             self._finetuned(model).save(path)
             return
         path.mkdir(parents=True, exist_ok=True)
         atomic_save(path / MODEL_FILE, lambda p: save_model(model, p))
-        atomic_write_json(path / "policy.json", self._meta(model))
+        meta = self._meta(model)
+        if checkpoint is not None:
+            meta["checkpoint"] = checkpoint
+        atomic_write_json(path / "policy.json", meta)
         norm = self.normalizer()
         if norm is not None:
             atomic_save(path / "normalize.npz", norm.save)
