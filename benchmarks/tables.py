@@ -947,6 +947,25 @@ def _stall(arm: dict) -> str:
     return " / ".join("–" if v is None else f"{100 * v:.0f}" for v in seen)
 
 
+def _peaks(arm: dict) -> str:
+    """Each seed's best evaluation, and the env steps of its first >= 50 % and >= 80 % ("–":
+    not reached, or a report from before peaks were recorded)."""
+    peaks = arm.get("peak")
+    if not peaks:
+        return "–"
+    reached = arm["first_reached"]
+
+    def steps(level: str, i: int) -> str:
+        t = reached[level]["timesteps"][i]
+        return "–" if t is None else f"{t // 1000}k"
+
+    return "; ".join(
+        f"{100 * p['success_rate']:.0f} % at {p['timesteps'] // 1000}k "
+        f"({steps('0.5', i)} / {steps('0.8', i)})"
+        for i, p in enumerate(peaks)
+    )
+
+
 def learning_curves() -> str:
     d = read("learning_curves.json")
     arms = dict(d["arms"].items())
@@ -968,10 +987,12 @@ def learning_curves() -> str:
                 f"{int(b['timesteps'][-1]):,}",
                 f"{100 * b['mean'][-1]:.0f} %{band}",
                 f"{a['by_wall_s']['wall_s'][-1]:,.0f} s",
+                _peaks(a),
                 _stall(a),
             ]
         )
     head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time",
+            "best evaluation per seed (first ≥ 50 % / ≥ 80 %)",
             "failed episodes end (cm from the grasp point)"]  # fmt: skip
     learned = read("compare.json")["arms"]["learned"]["training"]
     oracle = next(r for r in read("compare.json")["results"]

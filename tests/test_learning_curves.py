@@ -56,6 +56,17 @@ def test_the_last_evaluations_stall_diagnostic_is_reported_per_seed(tmp_path):
     assert arm["final_failed_grasp_distance_m"] == [{"final": 0.061, "closest": 0.04}]
 
 
+def test_each_seed_reports_its_best_evaluation_and_when_it_first_reached_50_and_80(tmp_path):
+    """A curve that is not monotone: the peak is the first best evaluation, not the last."""
+    evals = [(100, 1.0, 0.0), (200, 2.0, 0.6), (300, 3.0, 0.9), (400, 4.0, 0.9), (500, 5.0, 0.3)]
+    run = _run(tmp_path / "r", 0, evals)
+    arm = learning_curves({"r": [run]})["r"]
+    assert arm["peak"] == [{"success_rate": 0.9, "timesteps": 300}]
+    assert arm["first_reached"]["0.5"]["timesteps"] == [200]
+    assert arm["first_reached"]["0.8"] == {"timesteps": [300], "wall_s": [3.0], "seeds_reached": 1}
+    assert arm["final_success_rate"] == [0.3]
+
+
 def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp_path):
     one = _run(tmp_path / "one", 3, [(50, 1.0, 0.5), (100, 2.0, 1.0)])
     curve = learning_curves({"one": [one]})["one"]["by_timesteps"]

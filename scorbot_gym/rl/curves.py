@@ -120,6 +120,16 @@ def first_reached(histories: Sequence[dict[str, Any]], level: float) -> dict[str
     }
 
 
+def peak(history: dict[str, Any]) -> dict[str, Any]:
+    """A seed's best evaluation (the first among equals): success rate and env steps. Not
+    monotone curves make the last evaluation a poor summary of what a run reached."""
+    i = int(np.argmax(history["success_rate"]))
+    return {
+        "success_rate": float(history["success_rate"][i]),
+        "timesteps": int(history["timesteps"][i]),
+    }
+
+
 def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) -> dict[str, Any]:
     """Per arm (label -> run folders, a ``--seeds`` folder counting as its seeds): the seeds and
     the mean success with its 95 % band against env steps and against training wall time."""
@@ -137,6 +147,7 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
             "by_timesteps": curve(histories, "timesteps", points),
             "by_wall_s": curve(histories, "wall_s", points),
             "first_reached": {f"{lv:g}": first_reached(histories, lv) for lv in (0.5, 0.8)},
+            "peak": [peak(h) for h in histories],
         }
         if all(np.isfinite(h["mean_return"]).all() for h in histories):
             report[label]["return_by_timesteps"] = curve(
