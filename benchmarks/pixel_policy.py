@@ -275,8 +275,14 @@ def main(argv: list[str] | None = None) -> None:
     from scorbot_gym.envs.factory import make_env
     from scorbot_gym.evaluation.summary import newcombe_paired_diff
     from scorbot_gym.policies.imitation import HistorySpec
+    from scorbot_gym.policies.loading import SHIPPED
     from scorbot_gym.policies.pixel import DEFAULT_RENDER_SIZE, NetSpec, PixelPolicy
-    from scorbot_gym.rl.pixel import PixelImitationConfig, train_pixel_imitation
+    from scorbot_gym.policies.sb3 import read_policy_json
+    from scorbot_gym.rl.pixel import (
+        PixelImitationConfig,
+        recipe_differences,
+        train_pixel_imitation,
+    )
 
     torch.set_num_threads(args.threads)
     step_ms = render_cost()
@@ -350,6 +356,9 @@ def main(argv: list[str] | None = None) -> None:
             f"n={arm['episodes']} failures {arm['failure_causes']}",
             flush=True,
         )
+    state_meta = read_policy_json(SHIPPED["learned"] / "policy.json")
+    differs = recipe_differences(policy.meta, state_meta)["differs"]
+    print("besides the pose, the arms differ in: " + ("; ".join(differs) or "nothing recorded"))
     pose_buys = diffs["state_minus_pixel"]
     print(
         f"the explicit pose estimate buys {pose_buys['diff']:+.1%} (state - pixel, 95% CI "
@@ -369,7 +378,8 @@ def main(argv: list[str] | None = None) -> None:
         "arms": arms,
         "paired_differences": {
             "method": "Newcombe (1998) method 10 paired-proportion interval; McNemar exact test",
-            "state_minus_pixel is": "the success the explicit pose estimate buys",
+            "state_minus_pixel is": "the success the explicit pose estimate buys, with the "
+            "other differences in recipe_vs_state.differs",
             **diffs,
         },
         "pixel_training": {
@@ -404,6 +414,7 @@ def main(argv: list[str] | None = None) -> None:
             "keypoints": policy.net_spec.keypoints,
             "reads": policy.meta["reads"],
         },
+        "recipe_vs_state": recipe_differences(policy.meta, state_meta),
         "pixel_policy_size_kb": round(size_kb, 1),
         "env_step_ms_median": step_ms,
         "evaluation_wall_s": round(time.perf_counter() - t0, 1),

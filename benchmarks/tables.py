@@ -905,16 +905,35 @@ def learned_policy() -> str:
     )
 
 
+def _pixel_recipe(config: dict) -> str:
+    """The pixel arm's recipe, from its training config (older records lack the newer keys:
+    the defaults of their time, one top-camera frame, no stall input, no keep-closing)."""
+    cameras = config.get("cameras") or [config.get("camera", "top")]
+    stack = config.get("net", {}).get("frame_stack", 1)
+    stall = config["history"].get("stall_steps", 0)
+    return (
+        f"{' + '.join(cameras)}, {stack} frame(s) each, stall input {stall or 'none'}, "
+        f"keep-closing labels {'yes' if config.get('expert_keeps_close') else 'no'}, "
+        f"random shift ±{config.get('shift', 0)} px, {config['demos']} demonstrations + "
+        f"{config['dagger_rounds']}×{config['dagger_episodes']} DAgger"
+    )
+
+
 def pixel_policy() -> str:
     d = read("pixel_policy.json")
     diff = d["paired_differences"]["state_minus_pixel"]
     t = d["pixel_training"]
+    differs = d.get("recipe_vs_state", {}).get("differs")
+    besides = (
+        f" Besides the pose, the arms differ in: {'; '.join(differs) or 'nothing recorded'}."
+        if differs is not None
+        else " Its differences from that state arm were not recorded (before `recipe_vs_state`)."
+    )
     return _arms_table(d["arms"], "ci95") + (
-        f"\nState − pixel (what the pose estimate buys): {100 * diff['diff']:+.1f} points "
-        f"{ci(diff['ci95'])}, McNemar p = {diff['mcnemar_p']:.2g}. Pixel training: "
-        f"{t['demonstration_episodes']} demonstrations + {t['dagger_episodes']} DAgger "
-        f"episodes, {t['env_steps']:,} env steps, {t['wall_time_s']:,.0f} s on "
-        f"{d['machine'].get('cuda', 'CPU')}.\n"
+        f"\nState − pixel: {100 * diff['diff']:+.1f} points "
+        f"{ci(diff['ci95'])}, McNemar p = {diff['mcnemar_p']:.2g}. Pixel recipe: "
+        f"{_pixel_recipe(t['config'])}; {t['env_steps']:,} env steps, "
+        f"{t['wall_time_s']:,.0f} s on {d['machine'].get('cuda', 'CPU')}.{besides}\n"
     )
 
 

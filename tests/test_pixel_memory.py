@@ -217,3 +217,37 @@ def test_bad_memory_camera_and_validation_settings_are_refused_in_one_line():
         assert "\n" not in str(err.value)
     config = PixelImitationConfig(cameras=CAMERAS, net=NetSpec(cameras=1))
     assert config.net.cameras == 2  # the network follows the cameras named
+
+
+def test_the_recipe_comparison_names_every_confound_that_remains():
+    """Against the shipped state policy: a pixel recipe that matches it shares memory, the
+    wrist camera, both fixes and the episodes; the first pixel arm's recipe differs in each."""
+    from scorbot_gym.policies.loading import SHIPPED
+    from scorbot_gym.policies.sb3 import read_policy_json
+    from scorbot_gym.rl.pixel import recipe_differences
+
+    state = read_policy_json(SHIPPED["learned"] / "policy.json")
+    s = state["training"]["config"]
+    matched = PixelImitationConfig(
+        demos=s["demos"],
+        dagger_rounds=s["dagger_rounds"],
+        dagger_episodes=s["dagger_episodes"],
+        dart_sigma=s["dart_sigma"],
+        cameras=CAMERAS,
+        net=NetSpec(frame_stack=3),
+        history=HistorySpec(stall_steps=s["history"]["stall_steps"]),
+        expert_keeps_close=s["expert_keeps_close"],
+    )
+    first = PixelImitationConfig(demos=200, dagger_rounds=3, dagger_episodes=60)
+
+    def record(config, val=None):
+        return {"training": {"config": json.loads(json.dumps(config.__dict__, default=vars)),
+                             "validation": val}}  # fmt: skip
+
+    same = recipe_differences(record(matched), state)
+    assert not [d for d in same["differs"] if not d.startswith("state learner")]
+    assert len(same["same"]) == 6
+    apart = recipe_differences(record(first, {"rollout_episodes": 50}), state)["differs"]
+    for words in ("memory", "no wrist camera", "stall input", "keep-closing", "demonstrations",
+                  "checkpoint"):  # fmt: skip
+        assert any(words in d for d in apart), words

@@ -631,3 +631,66 @@ def _round_record(
         "fit_s": round(fit_s, 2),
         **label_accuracy(policy, frames, vectors, labels, lengths),
     }
+
+
+def recipe_differences(pixel: dict[str, Any], state: dict[str, Any]) -> dict[str, list[str]]:
+    """What the pixel arm and a state imitation policy share and what still differs besides
+    the pose estimate, from their ``policy.json`` training records: a pixel-vs-pose difference
+    is stated with the ``differs`` list beside it (the anchors' confounds: memory, cameras,
+    the state policy's fixes, demonstrations, fitting, checkpoint choice)."""
+    p, s = pixel["training"]["config"], state["training"]["config"]
+    ph, sh = p["history"], s["history"]
+    same: list[str] = []
+    differs: list[str] = []
+
+    def check(ok: bool, shared: str, apart: str) -> None:
+        (same if ok else differs).append(shared if ok else apart)
+
+    stack = int(p.get("net", {}).get("frame_stack", 1))
+    window = int(sh.get("pose_window", 0))
+    check(
+        (stack > 1) == (window > 1),
+        f"memory: the last {stack} frames / the last {window} pose estimates",
+        f"memory: pixel sees {stack} frame(s), state the last {window} pose estimate(s)",
+    )
+    cameras = list(p.get("cameras") or [p.get("camera", "top")])
+    check(
+        "eye_in_hand" in cameras,
+        f"cameras: {' + '.join(cameras)} (the wrist camera included)",
+        f"cameras: {' + '.join(cameras)} only, no wrist camera",
+    )
+    check(
+        ph.get("stall_steps", 0) == sh.get("stall_steps", 0),
+        f"stall input: {sh.get('stall_steps', 0)} steps",
+        f"stall input: pixel {ph.get('stall_steps', 0)}, state {sh.get('stall_steps', 0)} steps",
+    )
+    check(
+        bool(p.get("expert_keeps_close")) == bool(s.get("expert_keeps_close")),
+        f"keep-closing labels: {bool(s.get('expert_keeps_close'))}",
+        f"keep-closing labels: pixel {bool(p.get('expert_keeps_close'))}, state "
+        f"{bool(s.get('expert_keeps_close'))}",
+    )
+    episodes = [
+        (c["demos"], c["dagger_rounds"], c["dagger_episodes"], c["dart_sigma"]) for c in (p, s)
+    ]
+    check(
+        episodes[0] == episodes[1],
+        "demonstrations: {} + {} x {} DAgger, DART sigma {}".format(*episodes[1]),
+        "demonstrations: pixel {} + {} x {} DAgger (DART {}), state {} + {} x {} (DART {})".format(
+            *episodes[0], *episodes[1]
+        ),
+    )
+    val = pixel["training"].get("validation") or {}
+    if val.get("rollout_episodes"):
+        differs.append(
+            f"checkpoint: pixel's chosen by {val['rollout_episodes']} validation rollouts per "
+            "checkpoint, state's the last fit (favours the pixel arm)"
+        )
+    else:
+        same.append("checkpoint: the last fit's, both")
+    poses = s.get("poses")
+    if poses and poses != ["oracle"]:
+        differs.append(
+            f"state learner trained on poses from {' and '.join(poses)}; tested on the oracle"
+        )
+    return {"same": same, "differs": differs}
