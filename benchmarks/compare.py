@@ -24,7 +24,7 @@ that no shipped policy trained on (:mod:`scorbot_gym.assets.heldout_objects`).
 ``--replot`` redraws the figure of ``--out`` (``.json`` or ``.json.gz``) without running an
 episode.
 
-    nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned] [--episodes 200] \
+    nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned,rl_scratch] [--episodes 200] \
         [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
 """
 
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument(
         "--policies",
-        default="rl,learned,finetuned",
+        default="rl,learned,finetuned,rl_scratch",
         help="learned arms, comma-separated (scripted is added)",
     )
     parser.add_argument("--episodes", type=int, default=200)
