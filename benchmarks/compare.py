@@ -24,8 +24,9 @@ that no shipped policy trained on (:mod:`scorbot_gym.assets.heldout_objects`).
 ``--replot`` redraws the figure of ``--out`` (``.json`` or ``.json.gz``) without running an
 episode.
 
-    nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned,rl_scratch] [--episodes 200] \
-        [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] [--pose-model FILE] [--jobs 6]
+    nice -n 5 python benchmarks/compare.py [--policies rl,learned,finetuned,rl_scratch] \
+        [--episodes 200] [--poses oracle,manifold,chance] [--noise 0:20,0.02:0] \
+        [--pose-model FILE] [--jobs 6]
 """
 
 from __future__ import annotations

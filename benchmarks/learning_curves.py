@@ -38,7 +38,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 #: TrainConfig settings of the arms --train can start (oracle pose; --algo, --action-type)
 PRESETS = {
     "residual": {"residual": True},
-    # learning from scratch: the 'scratch' hyperparameters (normalized_dense reward) ...
+    # learning from scratch: the 'scratch' hyperparameters (SAC: normalized_pregrasp, gamma 0.8) ...
     "scratch": {"hyperparams_entry": "scratch"},
     # ... and the same with the old dense reward, the reward ablation
     "scratch_dense": {"hyperparams_entry": "scratch", "hyperparams": {"reward_type": "dense"}},

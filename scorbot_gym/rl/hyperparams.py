@@ -2,12 +2,13 @@
 
 As in RL Zoo, each algorithm has a file (``hyperparams/sac.yml``, ``tqc.yml``, ``ppo.yml``)
 with one entry per setting (``default``: the policy acts alone; ``scratch``: the policy acts
-alone and learns from scratch, with the ``normalized_dense`` reward; ``residual``: a correction
-on top of the scripted controller; ``finetune``, SAC only: RLPD-style fine-tuning of a saved
-imitation policy, ``--init-policy``, see :mod:`scorbot_gym.rl.finetune`). A run takes the entry
-its kind implies, or the one it names (``--hyperparams-entry``), applies ``key=value``
-overrides, checks every value, and records the resolved set in its folder (``config.json`` and
-``hyperparams.yml``), so a run is a function of its folder, not of the package version.
+alone and learns from scratch, with a normalised reward (SAC's ``normalized_pregrasp``);
+``residual``: a correction on top of the scripted controller; ``finetune``, SAC only:
+RLPD-style fine-tuning of a saved imitation policy, ``--init-policy``, see
+:mod:`scorbot_gym.rl.finetune`). A run takes the entry its kind implies, or the one it names
+(``--hyperparams-entry``), applies ``key=value`` overrides, checks every value, and records
+the resolved set in its folder (``config.json`` and ``hyperparams.yml``), so a run is a
+function of its folder, not of the package version.
 
 ``reward_type`` is the env's reward (an env setting kept with the hyperparameters, as RL Zoo
 keeps ``env_kwargs``: the reward and the learner's settings are tuned together).
