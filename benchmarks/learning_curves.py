@@ -20,7 +20,8 @@ By default the JSON and PNG go to a new ``runs/learning_curves-<time>/``; ``--ou
 file (an existing one only with ``--overwrite``), and ``--config NAME`` stores the run as the
 variant ``configs[NAME]`` of it, without a figure, the file's other runs kept. The committed
 record is updated by adding ``--out benchmarks/results/learning_curves.json --overwrite`` to
-the command (and ``--config residual_no_burnin`` or ``scratch_56k`` for its variants).
+the command (and ``--config residual_no_burnin`` or ``scratch_56k`` for its variants; the main
+run's command is in ``benchmarks/README.md``).
 """
 
 from __future__ import annotations

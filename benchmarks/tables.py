@@ -974,8 +974,9 @@ def finetune() -> str:
     return table(["pose", "arms", "paired difference (95 % CI)", "McNemar p"], rows)
 
 
-#: learning_curves.json's variants shown beside the main run (the from-scratch recipe of #49)
-CURVE_CONFIGS = ("scratch_grasp_frame", "scratch_pregrasp")
+#: learning_curves.json's variants shown beside the main run (#49's from-scratch recipes): the
+#: main run of 2026-11-27 ('default' SAC to 30k, the residual)
+CURVE_CONFIGS = ("first_runs",)
 
 
 def _stall(arm: dict) -> str:
@@ -1006,6 +1007,13 @@ def _peaks(arm: dict) -> str:
     )
 
 
+def _seed_ends(arm: dict) -> str:
+    """Each seed's last evaluation where the seeds stopped at different steps (the mean
+    stops at the shortest)."""
+    ends = [run["timesteps"][-1] for run in arm.get("per_seed", [])]
+    return f" (seeds: {' / '.join(f'{t // 1000}k' for t in ends)})" if len(set(ends)) > 1 else ""
+
+
 def learning_curves() -> str:
     d = read("learning_curves.json")
     arms = dict(d["arms"].items())
@@ -1024,14 +1032,14 @@ def learning_curves() -> str:
             [
                 name,
                 str(len(a["seeds"])),
-                f"{int(b['timesteps'][-1]):,}",
+                f"{int(b['timesteps'][-1]):,}" + _seed_ends(a),
                 f"{100 * b['mean'][-1]:.0f} %{band}",
                 f"{a['by_wall_s']['wall_s'][-1]:,.0f} s",
                 _peaks(a),
                 _stall(a),
             ]
         )
-    head = ["arm", "seeds", "env steps", "final success, mean (95 % CI)", "wall time",
+    head = ["arm", "seeds", "env steps", "success there, mean (95 % CI)", "wall time",
             "best evaluation per seed (first ≥ 50 % / ≥ 80 %)",
             "failed episodes end (cm from the grasp point)"]  # fmt: skip
     learned = read("compare.json")["arms"]["learned"]["training"]

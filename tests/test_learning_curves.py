@@ -65,6 +65,13 @@ def test_each_seed_reports_its_best_evaluation_and_when_it_first_reached_50_and_
     assert arm["first_reached"]["0.5"]["timesteps"] == [200]
     assert arm["first_reached"]["0.8"] == {"timesteps": [300], "wall_s": [3.0], "seeds_reached": 1}
     assert arm["final_success_rate"] == [0.3]
+    assert arm["per_seed"] == [
+        {
+            "seed": 0,
+            "timesteps": [100, 200, 300, 400, 500],
+            "success_rate": [0.0, 0.6, 0.9, 0.9, 0.3],
+        }
+    ]
 
 
 def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp_path):
@@ -75,3 +82,28 @@ def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp
     (empty / runs.CHECKPOINT / runs.STATE).write_text(json.dumps({"config": {}, "eval": []}))
     with pytest.raises(ValueError, match="no evaluations recorded yet"):
         learning_curves({"empty": [empty]})
+
+
+def test_returns_of_different_rewards_are_not_drawn_on_one_axis(tmp_path):
+    """Two arms on different rewards: the figure shows success only (one row of panels)."""
+    import struct
+
+    runs_ = {}
+    for name, reward in (("a", "normalized_pregrasp"), ("b", "normalized_dense")):
+        run = _run(tmp_path / name, 0, [(100, 1.0, 0.0), (200, 2.0, 0.5)])
+        path = run / runs.CHECKPOINT / runs.STATE
+        state = json.loads(path.read_text())
+        state["config"]["hyperparams"] = {"reward_type": reward}
+        for e in state["eval"]:
+            e["mean_return"] = 0.1
+        path.write_text(json.dumps(state))
+        runs_[name] = [run]
+
+    def height(report) -> int:
+        plot_learning_curves(report, tmp_path / "c.png")
+        return struct.unpack(">I", (tmp_path / "c.png").read_bytes()[20:24])[0]
+
+    both = learning_curves(runs_)
+    one = learning_curves({"a": runs_["a"]})
+    assert "return_by_timesteps" in both["a"] and "return_by_timesteps" in both["b"]
+    assert height(both) < 0.6 * height(one)  # the return row is left out

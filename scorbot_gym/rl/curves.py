@@ -148,6 +148,15 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
             "by_wall_s": curve(histories, "wall_s", points),
             "first_reached": {f"{lv:g}": first_reached(histories, lv) for lv in (0.5, 0.8)},
             "peak": [peak(h) for h in histories],
+            # each seed's own evaluations: the mean stops where the shortest run does
+            "per_seed": [
+                {
+                    "seed": h["seed"],
+                    "timesteps": h["timesteps"].astype(int).tolist(),
+                    "success_rate": h["success_rate"].tolist(),
+                }
+                for h in histories
+            ],
         }
         if all(np.isfinite(h["mean_return"]).all() for h in histories):
             report[label]["return_by_timesteps"] = curve(
@@ -155,6 +164,12 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
             )
             report[label]["return_by_wall_s"] = curve(histories, "wall_s", points, "mean_return")
     return report
+
+
+def reward_type(arm: Mapping[str, Any]) -> str:
+    """The reward an arm's runs were trained and evaluated on (``dense`` before runs
+    recorded it: the env's default then)."""
+    return str(((arm.get("settings") or {}).get("hyperparams") or {}).get("reward_type", "dense"))
 
 
 def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
@@ -170,8 +185,10 @@ def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
     from pose.fileio import atomic_write_bytes
 
     rows = [("", "success rate (held-out seeds)")]
-    if report and all("return_by_timesteps" in arm for arm in report.values()):
-        rows.append(("return_", "mean return (held-out seeds)"))
+    rewards = {reward_type(arm) for arm in report.values()}
+    # returns of different rewards are not on one scale: drawn only when the arms share one
+    if report and len(rewards) == 1 and all("return_by_timesteps" in a for a in report.values()):
+        rows.append(("return_", f"mean return, {rewards.pop()} (held-out seeds)"))
     fig, axes = plt.subplots(
         len(rows), 2, figsize=(10, 3.8 * len(rows)), sharey="row", squeeze=False
     )
@@ -189,12 +206,18 @@ def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:
                     ax.fill_between(
                         x, c["ci95_low"], c["ci95_high"], alpha=0.25, color=line.get_color()
                     )
+                if not prefix and axis == "timesteps" and n > 1:  # each seed, thin
+                    for run in arm.get("per_seed", []):
+                        ax.plot(run["timesteps"], run["success_rate"], lw=0.6, alpha=0.5,
+                                color=line.get_color())  # fmt: skip
         axes[r, 0].set_xlabel("env steps")
         axes[r, 1].set_xlabel("training wall time (min)")
         axes[r, 0].set_ylabel(ylabel)
     axes[0, 0].set_ylim(-0.02, 1.02)
-    axes[0, 0].legend(loc="best", fontsize=8)
-    fig.suptitle("mean over seeds, band: 95 % CI of the mean")
+    axes[0, 0].legend(loc="upper left", fontsize=7, framealpha=0.9)
+    fig.suptitle(
+        "mean over seeds (to the shortest run), band: 95 % CI of the mean; thin: each seed"
+    )
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
