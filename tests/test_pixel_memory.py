@@ -211,6 +211,7 @@ def test_bad_memory_camera_and_validation_settings_are_refused_in_one_line():
         ({"net": {"frame_stack": 0}}, "frame_stack must be >= 1"),
         ({"val_every": 100}, "needs val_episodes > 0"),
         ({"val_demos": -1}, "val_demos must be >= 0"),
+        ({"val_demos": 5, "demos": 60_000}, "demos must be <= 50000"),
     ]:
         with pytest.raises(ValueError, match=words) as err:
             PixelImitationConfig(**kwargs)

@@ -110,6 +110,10 @@ class PixelImitationConfig:
             raise ValueError(
                 f"beta and beta_decay must be in [0, 1], got {self.beta}, {self.beta_decay}"
             )
+        if self.val_demos and self.demos > seed_ranges.BLOCK // 2:
+            raise ValueError(  # the held-out demonstrations start half-way into the block
+                f"with val_demos, demos must be <= {seed_ranges.BLOCK // 2}, got {self.demos}"
+            )
         if self.val_every < 0 or (self.val_every and not self.val_episodes):
             raise ValueError(
                 f"val_every must be >= 0 and needs val_episodes > 0, got val_every "
@@ -343,8 +347,8 @@ def train_pixel_imitation(
     ``jobs``.
 
     With ``config.val_episodes`` the returned policy holds the checkpoint the validation
-    rollouts chose (module docstring); ``policy.meta["training"]["checkpoints"]`` lists them
-    all."""
+    rollouts chose (module docstring); ``policy.meta["training"]["validation"]`` lists every
+    checkpoint's scores."""
     say = progress or (lambda _msg: None)
     start = time.perf_counter()
     policy = skeleton(env, config)
@@ -437,7 +441,7 @@ class Validation:
         self.rollout_seeds = seed_ranges.TRAINING_EVALUATION.seeds(config.val_episodes)
         self.held_out: tuple | None = None
         self.checkpoints: list[dict[str, Any]] = []
-        self.best: tuple | None = None  # (key, state, mean, std)
+        self.best: tuple | None = None  # (key, weights, mean, std, record)
 
     def hold_out(self, episodes: Sequence[LabelledEpisode]) -> None:
         self.held_out = _concat([episode_arrays(ep, self.policy) for ep in episodes])
