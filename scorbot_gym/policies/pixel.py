@@ -103,11 +103,6 @@ class NetSpec:
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
-    @property
-    def input_channels(self) -> int:
-        """Channels of the network's image input: per camera, its stacked frames."""
-        return self.cameras * self.frame_stack * self.channels
-
     @classmethod
     def from_record(cls, record: dict[str, Any]) -> NetSpec:
         """The spec a ``policy.json`` ``network`` entry names (files written before the
