@@ -23,6 +23,7 @@ from scorbot_gym.sim.simulation import MOVING_CAMERAS, Simulation, check_render_
 from scorbot_gym.tasks import GraspTask
 from scorbot_gym.tasks.clutter import ClutterTask
 from scorbot_gym.tasks.disturbance import Disturbance, make_disturbance
+from scorbot_gym.tasks.grasp import REWARD_GAMMA, reward_gamma_for
 
 ACTION_TYPES = ("joint", "cartesian")
 #: how Cartesian actions become joint targets (``cartesian_ik``)
@@ -78,6 +79,9 @@ class ScorbotGraspEnv(gym.Env):
     open until 2 cm from the grasp point; ``info["reward_pregrasp"]``;
     :func:`scorbot_gym.tasks.grasp.pregrasp_progress`).
     ``reward_type="sparse"``: 1 on success, else 0.
+    ``reward_gamma`` (normalised rewards only; default 0.99): the discount they are built for,
+    ``w = (1 - reward_gamma) / 2`` (0.1 at 0.8: shaping 20 times larger beside a success);
+    see :func:`scorbot_gym.tasks.grasp.normalized_shaping_max`.
 
     ``info["failure_cause"]`` is ``None`` once the episode is a success; before that, it is the
     reason the episode counts as failed if it ends at this step: ``missed``, ``dropped``,
@@ -151,6 +155,7 @@ class ScorbotGraspEnv(gym.Env):
         distractors: int | Sequence[str] = 0,
         tilt_deg: float = 0.0,
         cartesian_ik: str = "closed_form",
+        reward_gamma: float = REWARD_GAMMA,
     ) -> None:
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
@@ -186,6 +191,7 @@ class ScorbotGraspEnv(gym.Env):
         self.observe_object_pose = args.flag("observe_object_pose", observe_object_pose)
         self.shadows = args.flag("shadows", shadows)
         self.action_type, self.reward_type = action_type, reward_type
+        self.reward_gamma = reward_gamma_for(reward_type, reward_gamma)
         self.cartesian_ik = cartesian_ik
         self.image_types = image_types
         self.image_width, self.image_height = image_width, image_height
@@ -268,7 +274,11 @@ class ScorbotGraspEnv(gym.Env):
             )
             first = next(iter(self._sims.values()), None)
             robot = Robot(sim, first[1].kinematics if first else None)
-            self._sims[name] = (sim, robot, GraspTask(sim, robot, self.reward_type))
+            self._sims[name] = (
+                sim,
+                robot,
+                GraspTask(sim, robot, self.reward_type, reward_gamma=self.reward_gamma),
+            )
             self._perturbers[name] = ScenePerturber(sim)
         self.sim, self.robot, self.task = self._sims[name]
         self._perturber = self._perturbers[name]
@@ -287,7 +297,7 @@ class ScorbotGraspEnv(gym.Env):
                 cluttered=True,
             )
             robot = Robot(sim)
-            task = GraspTask(sim, robot, self.reward_type)
+            task = GraspTask(sim, robot, self.reward_type, reward_gamma=self.reward_gamma)
             self._sims["clutter"] = (sim, robot, task)
             self._perturbers["clutter"] = ScenePerturber(sim)
             self._clutter = ClutterTask(sim, robot, task, tilt_deg=self.tilt_deg)

@@ -168,8 +168,11 @@ def learning_curves(arms: Mapping[str, Sequence[str | Path]], points: int = 50) 
 
 def reward_type(arm: Mapping[str, Any]) -> str:
     """The reward an arm's runs were trained and evaluated on (``dense`` before runs
-    recorded it: the env's default then)."""
-    return str(((arm.get("settings") or {}).get("hyperparams") or {}).get("reward_type", "dense"))
+    recorded it: the env's default then), with the discount a normalised one is built for
+    where it is not 0.99 (its returns are on another scale)."""
+    hp = (arm.get("settings") or {}).get("hyperparams") or {}
+    name, built_for = str(hp.get("reward_type", "dense")), hp.get("reward_gamma", 0.99)
+    return name if built_for == 0.99 else f"{name}, reward_gamma {built_for}"
 
 
 def plot_learning_curves(report: Mapping[str, Any], path: str | Path) -> None:

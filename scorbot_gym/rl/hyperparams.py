@@ -44,6 +44,8 @@ OFF_POLICY = ("sac", "tqc")
 #: the env's reward types (scorbot_gym.tasks.grasp.REWARD_TYPES; repeated here, as this module
 #: imports PyYAML only, and a test checks that the two agree)
 REWARD_TYPES = ("dense", "normalized_dense", "normalized_pregrasp", "sparse")
+#: the discount the dense reward is built for (scorbot_gym.tasks.grasp.REWARD_GAMMA)
+DENSE_REWARD_GAMMA = 0.99
 #: what the policy is told of the object (scorbot_gym.policies.object_features.OBJECT_FEATURES)
 OBJECT_FEATURES = ("class", "grasp_frame")
 
@@ -107,6 +109,13 @@ def _reward_type(v: Any) -> str:
     return v
 
 
+def _discount(v: Any) -> float:
+    x = _float(0.0, 1.0, low_open=True)(v)
+    if x == 1.0:
+        raise ValueError("must be a number in (0, 1)")
+    return x
+
+
 def _object_features(v: Any) -> str:
     if v not in OBJECT_FEATURES:
         raise ValueError(f"must be one of {', '.join(OBJECT_FEATURES)}")
@@ -160,6 +169,7 @@ KEYS: dict[str, tuple[tuple[str, ...], Callable[[Any], Any], str]] = {
     # the env's reward, tuned with the rest (RL Zoo's env_kwargs)
     "reward_type": (ALGOS, _reward_type, "the env's reward (scorbot_gym.tasks.grasp)"),
     "reward_scale": (ALGOS, _float(0.0, low_open=True), "what the learner's rewards are times"),
+    "reward_gamma": (ALGOS, _discount, "the discount a normalised reward is built for"),
     # the policy's inputs (an env wrapper, as RL Zoo's env_wrapper)
     "object_features": (ALGOS, _object_features, "the object's class one-hot, or its grasp frame"),
 }
@@ -299,7 +309,27 @@ def resolve(
     setting = setting_for(residual, finetune, entry)
     resolved = load_defaults(algo, setting)
     resolved.update(check(algo, overrides, setting=setting))
+    check_reward_gamma(resolved)
     return dict(sorted(resolved.items()))
+
+
+def check_reward_gamma(hp: dict[str, Any]) -> None:
+    """``reward_gamma`` with what it applies to: a normalised reward (the others are built for
+    one discount, 0.99), and a learner whose ``gamma`` is at most it (a larger discount values
+    never finishing above a success under that reward; scorbot_gym.tasks.grasp)."""
+    if "reward_gamma" not in hp:
+        return
+    reward, gamma, built_for = hp.get("reward_type", "dense"), hp.get("gamma"), hp["reward_gamma"]
+    if not str(reward).startswith("normalized") and built_for != DENSE_REWARD_GAMMA:
+        raise ValueError(
+            f"hyperparams: reward_gamma applies to the normalised rewards; reward_type "
+            f"{reward!r} is built for {DENSE_REWARD_GAMMA}"
+        )
+    if gamma is not None and gamma > built_for:
+        raise ValueError(
+            f"hyperparams: gamma {gamma} is above reward_gamma {built_for}: under that reward "
+            f"never finishing can be worth more than a success; set reward_gamma >= gamma"
+        )
 
 
 def sb3_schedule(algo: str, hp: dict[str, Any], n_envs: int) -> dict[str, Any]:

@@ -52,6 +52,7 @@ from scorbot_gym.rl.callbacks import (
 )
 from scorbot_gym.rl.hyperparams import ALGOS, POSES
 from scorbot_gym.rl.residual import ResidualActionWrapper
+from scorbot_gym.tasks.grasp import REWARD_GAMMA
 
 #: the evaluations during training use these seeds; no training episode does (scorbot_gym.seeds)
 EVAL_SEED = seed_ranges.TRAINING_EVALUATION.start
@@ -368,6 +369,7 @@ def make_policy_env(config: TrainConfig, objects: list[str] | None = None) -> gy
         classes=config.class_names(),
         objects=objects if objects is not None else config.objects,
         reward_type=config.resolved_hyperparams()["reward_type"],
+        reward_gamma=config.resolved_hyperparams().get("reward_gamma", REWARD_GAMMA),
     )
 
 

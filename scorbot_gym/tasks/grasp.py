@@ -46,6 +46,36 @@ NORMALIZED_REACH_K = 3.0
 #: The most a step that does not succeed can pay: ``(1 - REWARD_GAMMA) / 2`` = 0.005, so that
 #: never finishing is worth at most half of a success (see :func:`normalized_grasp_reward`).
 NORMALIZED_SHAPING_MAX = (1.0 - REWARD_GAMMA) / 2.0
+
+
+def normalized_shaping_max(reward_gamma: float = REWARD_GAMMA) -> float:
+    """``w``, the most a step that does not succeed pays in the normalised rewards built for
+    a learner's discount ``reward_gamma``: ``(1 - reward_gamma) / 2``, the largest ``w`` that
+    keeps never finishing worth at most half of a success for every discount up to
+    ``reward_gamma`` (see :func:`normalized_grasp_reward`)."""
+    if not 0.0 < reward_gamma < 1.0:
+        raise ValueError(f"reward_gamma must be a discount in (0, 1), got {reward_gamma!r}")
+    return (1.0 - reward_gamma) / 2.0
+
+
+def reward_gamma_for(reward_type: str, reward_gamma: object) -> float:
+    """``reward_gamma`` checked for ``reward_type``: a discount in (0, 1), and only the
+    normalised rewards are built for a discount of one's choosing (``dense`` is built for
+    ``REWARD_GAMMA``, ``sparse`` for none), so anything else with them is refused."""
+    try:
+        value = float(reward_gamma) if not isinstance(reward_gamma, bool) else math.nan
+    except (TypeError, ValueError):
+        value = math.nan
+    if not 0.0 < value < 1.0:
+        raise ValueError(f"reward_gamma must be a discount in (0, 1), got {reward_gamma!r}")
+    if value != REWARD_GAMMA and not reward_type.startswith("normalized"):
+        raise ValueError(
+            f"reward_gamma applies to the normalised rewards (normalized_dense, "
+            f"normalized_pregrasp); reward_type {reward_type!r} is built for {REWARD_GAMMA}"
+        )
+    return value
+
+
 #: fingers closer than this (m) hold nothing: "closed empty" (the thinnest catalogue object is
 #: several times wider); the scripted controller's re-grasp reads the same test
 CLOSED_EMPTY_OPENING = 0.004
@@ -138,6 +168,7 @@ def normalized_grasp_reward(
     hold_time: float,
     pregrasp: float | None = None,
     closing: float | None = None,
+    shaping_max: float = NORMALIZED_SHAPING_MAX,
 ) -> tuple[float, dict[str, float]]:
     """The normalised dense reward of one step (in [0, 1]) and its terms (they sum to it).
 
@@ -192,12 +223,12 @@ def normalized_grasp_reward(
     progress["grasp"] = float(grasped) if closing is None else closing
     progress["lift"] = min(max(lift / lift_height, 0.0), 1.0) * float(grasped)
     progress["hold"] = min(max(held_time / hold_time, 0.0), 1.0)
-    stage_weight = NORMALIZED_SHAPING_MAX / len(progress)
+    stage_weight = shaping_max / len(progress)
     terms = {k: stage_weight * v for k, v in progress.items()}
     # a collision costs the whole step's shaping; with the pre-grasp stage, the approach's only
     lost = ("reach", "pregrasp") if pregrasp is not None else tuple(terms)
     terms["collision"] = -sum(terms[k] for k in lost) if collision else 0.0
-    terms["success"] = (1.0 - NORMALIZED_SHAPING_MAX) if success else 0.0
+    terms["success"] = (1.0 - shaping_max) if success else 0.0
     return float(sum(terms.values())), terms
 
 
@@ -223,11 +254,14 @@ class GraspTask:
         reward_type: str = "dense",
         lift_height: float = 0.05,
         hold_time: float = 0.5,
+        reward_gamma: float = REWARD_GAMMA,
     ) -> None:
         if reward_type not in REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {reward_type!r}")
         self.sim, self.robot = sim, robot
         self.reward_type = reward_type
+        #: ``w`` of the normalised rewards (unused by ``dense`` and ``sparse``)
+        self.shaping_max = normalized_shaping_max(reward_gamma)
         self.lift_height, self.hold_time = lift_height, hold_time
         self.state: EpisodeState | None = None
         m = sim.model
@@ -331,6 +365,7 @@ class GraspTask:
                 self.hold_time,
                 facts["pregrasp"],
                 facts["closing"],
+                self.shaping_max,
             )
         return grasp_reward(
             facts["reach"], facts["grasped"], facts["lift"], self.state.success, self.lift_height
