@@ -84,16 +84,24 @@ def test_one_seed_has_no_band_and_a_run_without_evaluations_is_a_clear_error(tmp
         learning_curves({"empty": [empty]})
 
 
-def test_returns_of_different_rewards_are_not_drawn_on_one_axis(tmp_path):
+@pytest.mark.parametrize(
+    "other",
+    [
+        {"reward_type": "normalized_dense"},
+        # the same reward built for another discount: its returns are on another scale
+        {"reward_type": "normalized_pregrasp", "reward_gamma": 0.8},
+    ],
+)
+def test_returns_of_different_rewards_are_not_drawn_on_one_axis(tmp_path, other):
     """Two arms on different rewards: the figure shows success only (one row of panels)."""
     import struct
 
     runs_ = {}
-    for name, reward in (("a", "normalized_pregrasp"), ("b", "normalized_dense")):
+    for name, reward in (("a", {"reward_type": "normalized_pregrasp"}), ("b", other)):
         run = _run(tmp_path / name, 0, [(100, 1.0, 0.0), (200, 2.0, 0.5)])
         path = run / runs.CHECKPOINT / runs.STATE
         state = json.loads(path.read_text())
-        state["config"]["hyperparams"] = {"reward_type": reward}
+        state["config"]["hyperparams"] = reward
         for e in state["eval"]:
             e["mean_return"] = 0.1
         path.write_text(json.dumps(state))

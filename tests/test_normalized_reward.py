@@ -25,6 +25,7 @@ from scorbot_gym.tasks.grasp import (
     SUCCESS_BONUS,
     closing_progress,
     normalized_grasp_reward,
+    normalized_shaping_max,
     pregrasp_progress,
 )
 
@@ -228,3 +229,64 @@ def test_the_scripted_pregrasp_pose_scores_full_on_the_real_env():
     assert 0 < max(closing) <= 0.5 * stage and closing[-1] > closing[0]
     assert infos[first_grasp]["reward_grasp"] == pytest.approx(stage)
     assert rewards[:-1].max() <= W and rewards[-1] >= 1.0 - W
+
+
+def test_reward_gamma_sets_the_shaping_and_keeps_the_bound():
+    """Built for gamma 0.8 (``reward_gamma``), a step that does not succeed pays at most
+    w = 0.1 and a success at least 0.9: never finishing is worth at most w / (1 - 0.8) = 0.5
+    at that discount (and less at any smaller one), so a success now still beats it; on a
+    real scripted episode every reward is in [0, 1], the terms sum to it, and the non-success
+    steps reach close to the larger bound."""
+    w = normalized_shaping_max(0.8)
+    assert w == pytest.approx(0.1)
+    best, _ = normalized_grasp_reward(0.0, True, 1.0, 10.0, False, False, 0.05, 0.5, 1.0, 1.0, w)
+    worst_success, _ = normalized_grasp_reward(
+        1.0, False, 0.0, 0.0, True, True, 0.05, 0.5, 0.0, 0.0, w
+    )
+    assert best == pytest.approx(w) and worst_success == pytest.approx(1 - w)
+    for gamma in (0.5, 0.8):
+        assert w / (1 - gamma) <= 0.5 < worst_success
+    assert w / (1 - 0.9) > worst_success  # a learner with a larger discount: the bound breaks
+
+    rewards, infos = _scripted_episode(0, "normalized_pregrasp", reward_gamma=0.8)
+    assert infos[-1]["is_success"]
+    assert rewards[:-1].max() <= w and rewards[:-1].max() > 0.9 * w and rewards[-1] >= 1 - w
+    assert all(
+        sum(i[f"reward_{k}"] for k in PREGRASP_REWARD_TERMS) == pytest.approx(r, abs=1e-12)
+        for r, i in zip(rewards, infos, strict=True)
+    )
+    # the same episode at the default: every reward 20 times smaller until the success
+    default, _ = _scripted_episode(0, "normalized_pregrasp")
+    np.testing.assert_allclose(rewards[:-1], 20 * default[:-1], rtol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"reward_type": "dense", "reward_gamma": 0.8}, "applies to the normalised rewards"),
+        ({"reward_type": "sparse", "reward_gamma": 0.8}, "applies to the normalised rewards"),
+        ({"reward_type": "normalized_dense", "reward_gamma": 1.0}, r"discount in \(0, 1\)"),
+        ({"reward_type": "normalized_dense", "reward_gamma": "high"}, r"discount in \(0, 1\)"),
+        ({"reward_type": "normalized_dense", "reward_gamma": True}, r"discount in \(0, 1\)"),
+    ],
+)
+def test_the_env_refuses_a_reward_gamma_it_cannot_use(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        gym.make("ScorbotGrasp-v0", object_name="box", **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"reward_gamma": 0.7}, "gamma 0.8 is above reward_gamma 0.7"),
+        ({"reward_gamma": 0.9, "reward_type": "dense"}, "applies to the normalised rewards"),
+        ({"reward_gamma": 1}, r"in \(0, 1\)"),
+    ],
+)
+def test_hyperparams_check_reward_gamma_before_a_run(overrides, message):
+    """A run's resolved set is refused where the reward would not keep a success above never
+    finishing for its learner, or where reward_gamma has nothing to apply to."""
+    with pytest.raises(ValueError, match=message):
+        hparams.resolve("sac", False, {"gamma": 0.8, **overrides}, entry="scratch")
+    ok = hparams.resolve("sac", False, {"gamma": 0.8, "reward_gamma": 0.8}, entry="scratch")
+    assert ok["reward_gamma"] == 0.8

@@ -43,6 +43,14 @@ def test_the_entry_picks_the_reward_of_the_training_and_evaluation_envs():
     env = make_policy_env(config)
     assert env.unwrapped.reward_type == "normalized_pregrasp"
     env.close()
+    assert env.unwrapped.reward_gamma == 0.99  # the reward's discount, unless the set says
+    env.close()
+    built_for = TrainConfig(objects=["box"], hyperparams_entry="scratch")
+    built_for.hyperparams = {"reward_gamma": 0.8}
+    env = make_policy_env(built_for.validate().resolved())
+    assert env.unwrapped.reward_gamma == 0.8
+    assert env.unwrapped.task.shaping_max == pytest.approx(0.1)
+    env.close()
     ablation = TrainConfig(hyperparams_entry="scratch", hyperparams={"reward_type": "dense"})
     assert ablation.resolved_hyperparams()["reward_type"] == "dense"
     assert TrainConfig().resolved_hyperparams()["reward_type"] == "dense"
