@@ -123,12 +123,19 @@ def test_the_stacks_fitting_gathers_are_the_stacks_the_acting_policy_sees(wrist_
     index = stack_index([len(labels)], 3)
     history = policy.new_history()
     keys = list(episode.observations)
+    calls = []
+    real_frames = policy.current_frames
+    policy.current_frames = lambda o: calls.append(1) or real_frames(o)
     for t in range(len(episode)):
         obs = {k: episode.observations[k][t] for k in keys}
         live, vector = policy.features(obs, history)
         np.testing.assert_array_equal(live, gather_frames(frames, index, np.array([t]), 2)[0])
         np.testing.assert_array_equal(vector, vectors[t])
-        policy.remember(history, episode.actions[t], obs)
+        # a copy of the observation is not taken for the one the frames came from
+        policy.remember(history, episode.actions[t], obs if t % 2 else dict(obs))
+    # each step's frames are made once, and again only where push got another dict
+    assert len(calls) == len(episode) + (len(episode) + 1) // 2
+    del policy.current_frames
     assert live.shape == (2 * 3 * 3, 84, 84)
     # the newest frame of each camera is the step's own; the top camera is not the wrist one
     assert not np.array_equal(live[6:9], live[15:18])

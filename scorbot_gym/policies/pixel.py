@@ -228,6 +228,7 @@ class FrameHistory(ActionHistory):
     def reset(self) -> None:
         super().reset()
         self.frames: list[np.ndarray] = []
+        self._seen: tuple[dict, np.ndarray] | None = None
 
     def push(self, action: np.ndarray, obs: dict[str, np.ndarray] | None = None) -> None:
         super().push(action, obs)
@@ -235,13 +236,21 @@ class FrameHistory(ActionHistory):
         if keep:
             if obs is None:
                 raise ValueError("a frame stack needs the observation in push")
-            self.frames = [*self.frames, self.policy.current_frames(obs)][-keep:]
+            seen = self._seen
+            # the frames stacked() was given for this very observation, else computed again
+            frames = seen[1] if seen is not None and seen[0] is obs else None
+            if frames is None:
+                frames = self.policy.current_frames(obs)
+            self.frames = [*self.frames, frames][-keep:]
+        self._seen = None
 
-    def stacked(self, current: np.ndarray) -> np.ndarray:
+    def stacked(self, current: np.ndarray, obs: dict | None = None) -> np.ndarray:
         """The last ``frame_stack`` frames, ``current`` the newest; before the episode has
         that many, its first frame repeated (as Gymnasium's ``FrameStackObservation`` pads
-        with the reset's)."""
+        with the reset's). ``current`` is kept for the ``push`` of the same ``obs`` (the
+        frames are resized once per step, not again when they are stored)."""
         k = self.policy.net_spec.frame_stack
+        self._seen = (obs, current) if obs is not None else None
         seen = [*self.frames, current][-k:]
         return np.stack([seen[0]] * (k - len(seen)) + seen)
 
@@ -387,7 +396,7 @@ class PixelPolicy:
         if self.net_spec.frame_stack > 1:
             if not isinstance(history, FrameHistory):
                 raise TypeError("a frame-stacking policy needs its own new_history()")
-            current = stack_frames(history.stacked(current), self.net_spec.cameras)
+            current = stack_frames(history.stacked(current, obs), self.net_spec.cameras)
         return current, self.vector_features(obs, history)
 
     def normalise(self, vectors: np.ndarray) -> np.ndarray:
