@@ -21,12 +21,16 @@ def test_scratch_entries_are_set_for_learning_not_for_fine_tuning():
         # SAC's the measured recipe (sac.yml: fresh seeds at 160k); TQC and PPO not run with it
         want = ("normalized_pregrasp", 0.8) if algo == "sac" else ("normalized_dense", 0.99)
         assert (hp["reward_type"], hp["gamma"]) == want
+        assert hp.get("reward_gamma", 0.99) == want[1]  # the reward built for the discount
         assert hp["net_arch"] == [256, 256]
         if algo in hparams.OFF_POLICY:
             assert hp["buffer_size"] >= 1_000_000  # holds a 1M-step run
             assert hp["learning_starts"] >= 1000
             assert hp["ent_coef"] == "auto_0.001"
-            assert hp["reward_scale"] == 200  # the learner sees steps of <= 1
+            # the learner sees steps of <= 1: w times the scale, w = (1 - reward_gamma) / 2
+            built_for = hp.get("reward_gamma", 0.99)
+            assert (1 - built_for) / 2 * hp["reward_scale"] == pytest.approx(1.0)
+            assert built_for >= hp["gamma"]
         else:
             assert hp["n_steps"] >= 4096
     # every entry the shipped policies and results came from names the old reward
@@ -43,15 +47,19 @@ def test_the_entry_picks_the_reward_of_the_training_and_evaluation_envs():
     env = make_policy_env(config)
     assert env.unwrapped.reward_type == "normalized_pregrasp"
     env.close()
-    assert env.unwrapped.reward_gamma == 0.99  # the reward's discount, unless the set says
-    env.close()
-    built_for = TrainConfig(objects=["box"], hyperparams_entry="scratch")
-    built_for.hyperparams = {"reward_gamma": 0.8}
-    env = make_policy_env(built_for.validate().resolved())
-    assert env.unwrapped.reward_gamma == 0.8
+    assert env.unwrapped.reward_gamma == 0.8  # the reward built for the entry's discount
     assert env.unwrapped.task.shaping_max == pytest.approx(0.1)
     env.close()
+    built_for = TrainConfig(objects=["box"], hyperparams_entry="scratch")
+    built_for.hyperparams = {"reward_gamma": 0.99}
+    env = make_policy_env(built_for.validate().resolved())
+    assert env.unwrapped.reward_gamma == 0.99
+    assert env.unwrapped.task.shaping_max == pytest.approx(0.005)
+    env.close()
     ablation = TrainConfig(hyperparams_entry="scratch", hyperparams={"reward_type": "dense"})
+    with pytest.raises(ValueError, match=r"built for 0.99 \(set reward_gamma=0.99\)"):
+        ablation.resolved_hyperparams()  # the entry's reward_gamma has nothing to apply to
+    ablation.hyperparams["reward_gamma"] = 0.99
     assert ablation.resolved_hyperparams()["reward_type"] == "dense"
     assert TrainConfig().resolved_hyperparams()["reward_type"] == "dense"
 
@@ -84,7 +92,7 @@ def test_a_run_from_before_reward_type_keeps_the_dense_reward():
     scratch = TrainConfig(hyperparams_entry="scratch").resolved().to_json()
     del scratch["hyperparams"]["reward_scale"]
     assert TrainConfig.from_json(scratch).resolved_hyperparams()["reward_scale"] == 1.0
-    assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_scale"] == 200
+    assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_scale"] == 10
 
 
 def test_updates_run_where_the_device_says():
@@ -212,7 +220,7 @@ def test_the_learner_sees_the_reward_times_reward_scale():
         finally:
             venv.close()
         rewards[scale] = np.array(steps)
-    assert (rewards[1] > 0).all() and (rewards[1] <= 0.005).all()
+    assert (rewards[1] > 0).all() and (rewards[1] <= 0.1).all()  # w at reward_gamma 0.8
     np.testing.assert_allclose(rewards[200], 200 * rewards[1], rtol=1e-6)
 
 
@@ -264,3 +272,13 @@ def test_a_grasp_frame_run_trains_exports_and_acts_on_a_new_object(tmp_path, res
     old = TrainConfig(hyperparams_entry="scratch").resolved().to_json()
     del old["hyperparams"]["object_features"]
     assert TrainConfig.from_json(old).resolved_hyperparams()["object_features"] == "class"
+
+
+def test_a_run_from_before_reward_gamma_keeps_the_reward_it_trained_on():
+    """A scratch run resolved before reward_gamma existed trained on the normalised reward
+    built for 0.99; resuming it under today's scratch entry (built for 0.8) keeps 0.99."""
+    old = TrainConfig(hyperparams_entry="scratch").resolved().to_json()
+    del old["hyperparams"]["reward_gamma"]
+    config = TrainConfig.from_json(old)
+    assert config.resolved_hyperparams()["reward_gamma"] == 0.99
+    assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_gamma"] == 0.8

@@ -323,7 +323,7 @@ def check_reward_gamma(hp: dict[str, Any]) -> None:
     if not str(reward).startswith("normalized") and built_for != DENSE_REWARD_GAMMA:
         raise ValueError(
             f"hyperparams: reward_gamma applies to the normalised rewards; reward_type "
-            f"{reward!r} is built for {DENSE_REWARD_GAMMA}"
+            f"{reward!r} is built for {DENSE_REWARD_GAMMA} (set reward_gamma={DENSE_REWARD_GAMMA})"
         )
     if gamma is not None and gamma > built_for:
         raise ValueError(

@@ -334,7 +334,12 @@ class TrainConfig:
         hp = data.get("hyperparams")
         if isinstance(hp, dict) and hp:  # a resolved set from before these keys: their values
             # then (not the entry's now)
-            then = {"reward_type": "dense", "reward_scale": 1.0, "object_features": "class"}
+            then = {
+                "reward_type": "dense",
+                "reward_scale": 1.0,
+                "object_features": "class",
+                "reward_gamma": REWARD_GAMMA,
+            }
             data = {**data, "hyperparams": {**then, **hp}}
         return data
 
