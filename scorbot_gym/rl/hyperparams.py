@@ -14,9 +14,10 @@ function of its folder, not of the package version.
 keeps ``env_kwargs``: the reward and the learner's settings are tuned together).
 ``reward_scale`` (default 1) multiplies the rewards the learner sees, SAC's "reward scale"
 (Haarnoja et al. 2018): the env, its Monitor CSVs and the evaluations keep the env's reward.
-The scratch entries use it because the normalised reward pays at most 0.005 a step: Q-values
-whose action dependence is ~1e-4 drown in the critic's initial output noise, so SAC did not
-climb it where it climbed the same shaping at a 200-times larger scale.
+The scratch entries use it because the normalised reward pays at most ``w`` a step (0.005
+built for 0.99, 0.1 for 0.8: ``reward_gamma``): Q-values whose action dependence is ~1e-4
+drown in the critic's initial output noise, so SAC did not climb the reward built for 0.99
+where it climbed the same shaping at a 200-times larger scale.
 
 ``train_freq`` and ``gradient_steps`` (off-policy) are counted per env, as if there were one:
 :func:`sb3_schedule` scales ``gradient_steps`` with the number of envs, so updates per env step
