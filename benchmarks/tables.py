@@ -410,12 +410,19 @@ def compare_arms() -> str:
     oracle, est = by[("rl_scratch", "oracle")], by[("rl_scratch", "manifold")]
     ok = [[c == "1" for c in r["episode_success"]] for r in (est, oracle)]
     diff = newcombe_paired_diff(*ok)
+    blind = by.get(("rl_scratch", "chance"))  # the estimator's rotation swapped for a constant
+    chance = (
+        f"; with the rotation-blind chance pose (`chance`) {pct(blind['success_rate'])} "
+        f"{ci(blind['ci95'])}"
+        if blind
+        else ""
+    )
     return markdown_table(d) + (
         f"\nWith the pose-manifold estimator (no privileged input; config `{SCRATCH_MANIFOLD}`, "
         f"the same seeds): `scripted` {pct(by[('scripted', 'manifold')]['success_rate'])}, "
         f"`rl_scratch` {pct(est['success_rate'])} {ci(est['ci95'])}, "
         f"{100 * diff['diff']:+.1f} points {ci(diff['ci95'])} from itself with the true pose "
-        f"(McNemar p = {diff['mcnemar_p']:.2g}); targets (#49): ≥ 80 % with the true pose "
+        f"(McNemar p = {diff['mcnemar_p']:.2g}){chance}; targets (#49): ≥ 80 % with the true pose "
         f"({'met' if oracle['success_rate'] >= 0.8 else 'not met'}), within 10 points of it "
         f"with the estimator ({'met' if diff['diff'] >= -0.10 else 'not met'}).\n"
     )
