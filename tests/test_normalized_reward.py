@@ -54,6 +54,7 @@ def _scripted_episode(seed: int, reward_type: str = "normalized_dense", **env_kw
 
 def test_reward_types_agree_between_env_and_hyperparams():
     assert hparams.REWARD_TYPES == REWARD_TYPES
+    assert hparams.DENSE_REWARD_GAMMA == REWARD_GAMMA  # repeated there too (PyYAML only)
 
 
 def test_every_step_is_in_0_1_and_the_terms_sum_to_it():
