@@ -43,6 +43,9 @@ PRESETS = {
     "scratch": {"hyperparams_entry": "scratch"},
     # ... and the same with the old dense reward, the reward ablation
     "scratch_dense": {"hyperparams_entry": "scratch", "hyperparams": {"reward_type": "dense"}},
+    # ... and trained on a pose hidden while the hand is near the object, as an image
+    # estimator's is (OccludedOraclePoseSource): a policy that acts from a held estimate
+    "scratch_occluded": {"hyperparams_entry": "scratch", "pose": "occluded", "noise_pos_m": 0.005},
     # the 'default' entry (64x64, 50k buffer, dense reward): what learning_curves_scratch_56k ran
     "default": {},
     "bc": {"bc_demos": 100, "bc_steps": 3000},

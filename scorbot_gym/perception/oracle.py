@@ -3,10 +3,13 @@
 ``NoisyOraclePoseSource`` is dm_control's *corruptor* idea applied to the pose: controlled,
 seeded noise and dropout on top of the truth, so that a policy's robustness can be plotted
 against one knob at a time instead of against a whole estimator's error profile.
+``OccludedOraclePoseSource`` adds the estimator's one systematic loss, the object hidden by
+the hand, for training policies that act from a held estimate.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from numbers import Real
 
 import numpy as np
@@ -87,3 +90,63 @@ class NoisyOraclePoseSource(OraclePoseSource):
 
 def _is_real(value: object) -> bool:
     return isinstance(value, Real) and not isinstance(value, bool)
+
+
+class OccludedOraclePoseSource(NoisyOraclePoseSource):
+    """The noisy oracle, lost whenever the hand is near the object: a corruptor for training a
+    policy that will act from an estimator's *held* estimate.
+
+    An image estimator loses the object as the hand comes down over it (the gripper hides it
+    from the camera) and keeps losing it while the object is in the hand, so the last estimate
+    before the approach is held through the grasp and the lift (``pose_age`` grows, the
+    object seen to stay on the table). A policy trained on the oracle never saw that: its
+    object pose always followed the object. Here an estimate is lost (``valid=False``, so
+    the wrapper holds the previous one) while the hand (``observation["ee_pos"]``) is within
+    ``hide_distance_m`` of the object's centre; the distance is drawn per episode, uniformly
+    from ``hide_distance_m = (low, high)``, because how close the hand comes before the view
+    is lost depends on the object's size and the approach. Estimates that are made carry the
+    noisy oracle's noise.
+    """
+
+    def __init__(
+        self,
+        pos_sigma_m: float = 0.005,
+        yaw_sigma_deg: float = 5.0,
+        dropout: float = 0.0,
+        hide_distance_m: Sequence[float] = (0.06, 0.2),
+    ) -> None:
+        super().__init__(pos_sigma_m, yaw_sigma_deg, dropout)
+        low_high = list(hide_distance_m) if isinstance(hide_distance_m, (list, tuple)) else []
+        if not (
+            len(low_high) == 2
+            and all(_is_real(v) and np.isfinite(v) for v in low_high)
+            and 0.0 <= low_high[0] <= low_high[1]
+        ):
+            raise ValueError(
+                "hide_distance_m must be [low, high] in metres with 0 <= low <= high, got "
+                f"{hide_distance_m!r}"
+            )
+        self.hide_distance_m = (float(low_high[0]), float(low_high[1]))
+        self._hide = self.hide_distance_m[1]
+
+    def reset(self, frame: PerceptionFrame, rng: np.random.Generator) -> None:
+        super().reset(frame, rng)
+        self._hide = float(rng.uniform(*self.hide_distance_m))
+
+    def hidden(self, frame: PerceptionFrame) -> bool:
+        """Whether the hand hides the object in this frame (this episode's distance)."""
+        if "ee_pos" not in frame.observation:
+            raise ValueError(
+                "occluded_oracle needs the hand's position: the env's observation has no ee_pos"
+            )
+        ee = np.asarray(frame.observation["ee_pos"], float)
+        obj = np.asarray(frame.truth["position"], float)
+        return bool(np.linalg.norm(ee - obj) < self._hide)
+
+    def estimate(self, frame: PerceptionFrame) -> WorldPose:
+        est = super().estimate(frame)  # draws its noise either way: one stream per episode
+        if self.hidden(frame):
+            return WorldPose.invalid(
+                "hidden by the hand (occluded_oracle)", object_name=frame.object_name
+            )
+        return est

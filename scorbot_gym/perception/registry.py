@@ -17,7 +17,11 @@ import numpy as np
 
 from scorbot_gym.perception.base import PerceptionFrame, PoseSource, WorldPose
 from scorbot_gym.perception.constant import ConstantPoseSource, true_position_source
-from scorbot_gym.perception.oracle import NoisyOraclePoseSource, OraclePoseSource
+from scorbot_gym.perception.oracle import (
+    NoisyOraclePoseSource,
+    OccludedOraclePoseSource,
+    OraclePoseSource,
+)
 
 
 class FunctionPoseSource:
@@ -74,6 +78,7 @@ def _blob_choice_source(choice: str) -> Callable[..., PoseSource]:
 _REGISTRY: dict[str, Callable[..., Any]] = {
     "oracle": OraclePoseSource,
     "noisy_oracle": NoisyOraclePoseSource,
+    "occluded_oracle": OccludedOraclePoseSource,
     "oracle_position": true_position_source,
     "constant": ConstantPoseSource,
     "manifold": _model_set_source,

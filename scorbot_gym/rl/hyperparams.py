@@ -38,7 +38,8 @@ from typing import Any
 import yaml
 
 ALGOS = ("sac", "tqc", "ppo")
-POSES = ("oracle", "noisy", "manifold")  # the pose sources a run trains with
+#: the pose sources a run trains with ("occluded": the noisy oracle hidden by the hand)
+POSES = ("oracle", "noisy", "occluded", "manifold")
 SETTINGS = ("default", "scratch", "residual")  # every algorithm's file has these
 FINETUNE = "finetune"  # the setting of --init-policy (sac.yml only)
 OFF_POLICY = ("sac", "tqc")

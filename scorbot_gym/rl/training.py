@@ -99,8 +99,12 @@ class TrainConfig:
     #: the images, no privileged input: the default, recorded as such by :meth:`resolved`) or
     #: "given" (privileged: told the true class, for ablations); None for the other poses
     identity: str | None = None
-    noise_pos_m: float = 0.01  # pose="noisy": x-y position noise (std)
-    noise_yaw_deg: float = 5.0  # pose="noisy": heading noise (std)
+    noise_pos_m: float = 0.01  # pose="noisy" or "occluded": x-y position noise (std)
+    noise_yaw_deg: float = 5.0  # pose="noisy" or "occluded": heading noise (std)
+    #: pose="occluded": the object is hidden while the hand is within a distance drawn per
+    #: episode from [hide_low_m, hide_high_m] of it (OccludedOraclePoseSource)
+    hide_low_m: float = 0.06
+    hide_high_m: float = 0.2
     action_type: str = "cartesian"
     objects: list[str] | None = None  # training objects (default: the whole catalogue)
     classes: list[str] | None = None  # entries of the object_class one-hot (default: catalogue)
@@ -161,11 +165,17 @@ class TrainConfig:
             ("residual_scale", True),
             ("noise_pos_m", False),
             ("noise_yaw_deg", False),
+            ("hide_low_m", False),
+            ("hide_high_m", False),
         ):
             value = getattr(self, name)
             if not (math.isfinite(value) and (value > 0 if low_open else value >= 0)):
                 bound = "> 0" if low_open else ">= 0"
                 raise ValueError(f"{name} must be a finite number {bound}, got {value}")
+        if self.hide_low_m > self.hide_high_m:
+            raise ValueError(
+                f"hide_low_m ({self.hide_low_m}) must be <= hide_high_m ({self.hide_high_m})"
+            )
         seed_ranges.check_run_seed(self.seed)
         for name in self.objects or []:
             if name not in CATALOGUE:
@@ -282,6 +292,12 @@ class TrainConfig:
             return "noisy_oracle", {
                 "pos_sigma_m": self.noise_pos_m,
                 "yaw_sigma_deg": self.noise_yaw_deg,
+            }
+        if self.pose == "occluded":
+            return "occluded_oracle", {
+                "pos_sigma_m": self.noise_pos_m,
+                "yaw_sigma_deg": self.noise_yaw_deg,
+                "hide_distance_m": [self.hide_low_m, self.hide_high_m],
             }
         if self.pose == "manifold":
             if self.pose_model:
