@@ -42,7 +42,10 @@ PRESETS = {
     # learning from scratch: the 'scratch' hyperparameters (SAC: normalized_pregrasp, gamma 0.8) ...
     "scratch": {"hyperparams_entry": "scratch"},
     # ... and the same with the old dense reward, the reward ablation
-    "scratch_dense": {"hyperparams_entry": "scratch", "hyperparams": {"reward_type": "dense"}},
+    "scratch_dense": {
+        "hyperparams_entry": "scratch",
+        "hyperparams": {"reward_type": "dense", "reward_gamma": 0.99},  # the one it is built for
+    },
     # ... and trained on a pose hidden while the hand is near the object, as an image
     # estimator's is (OccludedOraclePoseSource): a policy that acts from a held estimate
     "scratch_occluded": {"hyperparams_entry": "scratch", "pose": "occluded", "noise_pos_m": 0.005},

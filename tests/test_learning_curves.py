@@ -115,3 +115,22 @@ def test_returns_of_different_rewards_are_not_drawn_on_one_axis(tmp_path, other)
     one = learning_curves({"a": runs_["a"]})
     assert "return_by_timesteps" in both["a"] and "return_by_timesteps" in both["b"]
     assert height(both) < 0.6 * height(one)  # the return row is left out
+
+
+def test_every_training_preset_is_a_valid_run():
+    """A preset with a misspelt setting or value fails here, not hours into a sweep."""
+    import runpy
+    from pathlib import Path
+
+    from scorbot_gym.perception.oracle import OccludedOraclePoseSource
+    from scorbot_gym.rl.training import TrainConfig, make_policy_env
+
+    script = Path(__file__).resolve().parents[1] / "benchmarks" / "learning_curves.py"
+    presets = runpy.run_path(str(script), run_name="presets_under_test")["PRESETS"]
+    for label, preset in presets.items():
+        config = TrainConfig(**preset).validate()
+        assert config.resolved_hyperparams(), label
+    occluded = TrainConfig(**presets["scratch_occluded"]).validate()
+    env = make_policy_env(occluded)
+    assert isinstance(env.get_wrapper_attr("source"), OccludedOraclePoseSource)
+    env.close()

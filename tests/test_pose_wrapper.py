@@ -102,6 +102,45 @@ def test_noisy_oracle_is_seeded_and_records_errors():
     env.close()
 
 
+def test_occluded_oracle_hides_the_object_while_the_hand_is_near():
+    """The estimate is lost exactly while the hand is within this episode's distance (drawn
+    from the range at reset, from the wrapper's seeded generator); otherwise it is the noisy
+    oracle's. Bad ranges and an observation without the hand are one-line errors."""
+    source = make_pose_source("occluded_oracle", pos_sigma_m=0.0, hide_distance_m=[0.1, 0.2])
+    truth = {"position": np.array([0.3, 0.0, 0.78]), "quaternion": np.array([1.0, 0, 0, 0])}
+    drawn = []
+    for seed in range(20):
+        source.reset(PerceptionFrame(truth=truth), np.random.default_rng(seed))
+        drawn.append(source._hide)
+        for height, hidden in ((0.09, True), (0.21, False)):
+            ee = truth["position"] + [0.0, 0.0, height]
+            est = source.estimate(PerceptionFrame({"ee_pos": ee}, truth=truth))
+            assert est.valid is not hidden
+            if hidden:
+                assert "hidden by the hand" in est.reason
+            else:
+                np.testing.assert_allclose(est.position, truth["position"])
+    assert 0.1 <= min(drawn) < max(drawn) <= 0.2
+    with pytest.raises(ValueError, match="no ee_pos"):
+        source.estimate(PerceptionFrame({}, truth=truth))
+    for bad in ([0.2, 0.1], [0.1], [-0.1, 0.1], "0.1"):
+        with pytest.raises(ValueError, match="hide_distance_m must be"):
+            make_pose_source("occluded_oracle", hide_distance_m=bad)
+
+
+def test_occluded_oracle_in_the_env_holds_the_last_estimate():
+    """In the env the hand starts far from the object: never hidden at distance 0, always
+    at 10 m (no estimate, pose_age at MAX_AGE, pose_valid 0)."""
+    near = make_env(pose="occluded_oracle", pose_kwargs={"hide_distance_m": [0.0, 0.0]})
+    assert all(o["pose_valid"][0] == 1 and o["pose_age"][0] == 0 for o, _ in _rollout(near, 3))
+    near.close()
+    far = make_env(pose="occluded_oracle", pose_kwargs={"hide_distance_m": [10.0, 10.0]})
+    for obs, info in _rollout(far, 3):
+        assert obs["pose_valid"][0] == 0 and obs["pose_age"][0] >= 1
+        assert "hidden by the hand" in info["perception"]["reason"]
+    far.close()
+
+
 def test_registry_rejects_bad_names_and_lists_the_valid_ones():
     assert {"oracle", "noisy_oracle", "manifold"} <= set(pose_source_names())
     with pytest.raises(ValueError, match="registered: .*oracle"):

@@ -410,6 +410,30 @@ def test_train_sets_the_noisy_pose_sources_noise(capsys):
     assert len(err.splitlines()) == 1 and "apply only to --pose noisy" in err, err
 
 
+def test_train_sets_the_occluded_pose_sources_settings(capsys):
+    """``--pose occluded`` takes the noise and ``--hide-distance-m LOW HIGH``; the env it trains
+    in loses the object while the hand is near; a range the wrong way round is a one-line
+    error before any work, and ``--hide-distance-m`` elsewhere too."""
+    from scorbot_gym.cli import build_parser
+    from scorbot_gym.cli.train import config_from_args
+    from scorbot_gym.rl.training import make_policy_env
+
+    argv = ["train", "--pose", "occluded", "--pos-sigma-m", "0", "--hide-distance-m", "0.1", "0.3"]
+    config = config_from_args(build_parser().parse_args(argv))
+    assert (config.noise_pos_m, config.hide_low_m, config.hide_high_m) == (0.0, 0.1, 0.3)
+    env = make_policy_env(config)
+    source = env.get_wrapper_attr("source")
+    assert source.hide_distance_m == (0.1, 0.3) and source.pos_sigma_m == 0.0
+    env.close()
+    for argv, why in (
+        (["--pose", "occluded", "--hide-distance-m", "0.3", "0.1"], "hide_low_m"),
+        (["--hide-distance-m", "0.1", "0.3"], "applies only to --pose occluded"),
+    ):
+        assert main(["train", *argv, "--show-hyperparams"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and why in err, err
+
+
 # --- a checkpoint written whole: a kill at any moment leaves one complete ---------------------
 def _checkpoint(folder, step: int) -> None:
     folder.mkdir(parents=True)

@@ -27,6 +27,7 @@ _NEW_RUN_OPTIONS = (
     "identity",
     "pos_sigma_m",
     "yaw_sigma_deg",
+    "hide_distance_m",
     "residual_gripper",
     "action_type",
     "objects",
@@ -92,7 +93,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--hyperparams.",
     )
     p.add_argument("--algo", choices=hparams.ALGOS, default="sac")
-    p.add_argument("--pose", choices=hparams.POSES, default="oracle", help="pose source")
+    p.add_argument(
+        "--pose",
+        choices=hparams.POSES,
+        default="oracle",
+        help="pose source (occluded: the noisy oracle lost while the hand is near the object, "
+        "as an image estimator's is: for policies that will act from a held estimate)",
+    )
     p.add_argument(
         "--pose-model",
         type=_existing_file,
@@ -113,13 +120,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--pos-sigma-m",
         type=non_negative_float,
         default=None,
-        help="--pose noisy: x-y position noise of every estimate, m (default 0.01)",
+        help="--pose noisy or occluded: x-y position noise of every estimate, m (default 0.01)",
     )
     p.add_argument(
         "--yaw-sigma-deg",
         type=non_negative_float,
         default=None,
-        help="--pose noisy: heading noise of every estimate, deg (default 5)",
+        help="--pose noisy or occluded: heading noise of every estimate, deg (default 5)",
+    )
+    p.add_argument(
+        "--hide-distance-m",
+        type=non_negative_float,
+        nargs=2,
+        metavar=("LOW", "HIGH"),
+        default=None,
+        help="--pose occluded: the object is hidden while the hand is within a distance drawn "
+        "per episode from [LOW, HIGH] m of it (default 0.06 0.2)",
     )
     p.add_argument("--action-type", choices=("cartesian", "joint"), default="cartesian")
     add_name_list(p, "--objects", CATALOGUE, "training objects (default: all)")
@@ -268,9 +284,18 @@ def config_from_args(args: argparse.Namespace):
     """The run's :class:`~scorbot_gym.rl.training.TrainConfig`, checked (hyperparameters too)."""
     from scorbot_gym.rl.training import TrainConfig
 
-    if args.pose != "noisy" and (args.pos_sigma_m is not None or args.yaw_sigma_deg is not None):
-        raise ValueError("--pos-sigma-m and --yaw-sigma-deg apply only to --pose noisy")
-    noise = {"noise_pos_m": args.pos_sigma_m, "noise_yaw_deg": args.yaw_sigma_deg}
+    noisy = args.pos_sigma_m is not None or args.yaw_sigma_deg is not None
+    if args.pose not in ("noisy", "occluded") and noisy:
+        raise ValueError("--pos-sigma-m and --yaw-sigma-deg apply only to --pose noisy or occluded")
+    if args.pose != "occluded" and args.hide_distance_m is not None:
+        raise ValueError("--hide-distance-m applies only to --pose occluded")
+    low, high = args.hide_distance_m or (None, None)
+    noise = {
+        "noise_pos_m": args.pos_sigma_m,
+        "noise_yaw_deg": args.yaw_sigma_deg,
+        "hide_low_m": low,
+        "hide_high_m": high,
+    }
     overrides = _overrides(args)
     if args.conf is not None:
         setting = hparams.setting_for(args.residual, args.init_policy is not None)
