@@ -64,7 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--noise", default="0:20,0.02:0", help="noise levels: S or S:Y")
     parser.add_argument(
-        "--poses", default="oracle", help="oracle, manifold and/or chance (besides --noise)"
+        "--poses",
+        default="oracle",
+        help="oracle, occluded, manifold and/or chance (besides --noise)",
     )
     parser.add_argument("--pose-model", type=Path, default=None, help="manifold model file")
     parser.add_argument(

@@ -186,3 +186,20 @@ def test_markdown_table_has_one_row_per_arm(cli_report):
     wall = json.loads((SHIPPED_POLICY / "policy.json").read_text())["training"]["wall_time_s"]
     assert f"{wall:,.0f} s wall" in text  # the shipped residual's policy.json records its time
     assert "1,234 env steps, 56 s wall, seed 7" in text
+
+
+def test_the_occluded_condition_runs_the_hand_hidden_oracle_off_the_noise_curves():
+    """``occluded`` is the training corruptor's pose (its defaults), recorded as no noise
+    level; in the episodes the estimate goes stale as the hand closes in."""
+    (cond,) = cmp.pose_conditions(["occluded"])
+    assert (cond.label, cond.source, cond.kwargs) == ("occluded", "occluded_oracle", {})
+    assert cond.record()["noise_pos_m"] is None and cond.record()["estimator"] is None
+    report = cmp.compare(["scripted"], ["oracle", "occluded"], 2, objects=["box"], progress=False)
+    by = {r["pose"]: r for r in report["results"]}
+    assert by["occluded"]["pose_source"] == "occluded_oracle"
+    assert by["oracle"]["perception"]["valid_rate"] == 1.0
+    assert 0.0 < by["occluded"]["perception"]["valid_rate"] < 0.9  # lost near the hand
+    assert [p["pose"] for p in report["noise_curves"]["scripted"]] == ["oracle"]
+    from scorbot_gym.evaluation.compare_plot import condition_title
+
+    assert condition_title("occluded", None) == "true pose, hidden near the hand"

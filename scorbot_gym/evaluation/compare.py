@@ -18,7 +18,10 @@ seeds).
 
 **Pose conditions**: ``oracle``; ``noisy@S`` (``noisy_oracle`` with x-y position noise S
 metres and heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degrees);
-``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``manifold`` (the
+``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``occluded``
+(``occluded_oracle`` with its defaults: the noisy oracle, 5 mm and 5 degrees, lost while the
+hand is within 6-20 cm of the object, so the policy acts from a held estimate as it does with
+an image estimator; not a noise level); ``manifold`` (the
 pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
 models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses) with
 **no privileged input**, as the main arm of ``benchmarks/closed_loop.py``: masks from background
@@ -102,7 +105,7 @@ MANIFOLD_RECOGNIZER = DEFAULT_RECOGNIZER  # identity recognised, not given (befo
 # "flr+appearance", which compare.json's estimator conditions record)
 MANIFOLD_CAMERAS = ("top", "side")  # pose from the first; recognition fused over both
 #: the pose-condition names (besides one ``noisy@S[:Y]`` per noise level)
-POSE_CONDITIONS = ("oracle", "noisy", "manifold", "chance")
+POSE_CONDITIONS = ("oracle", "noisy", "occluded", "manifold", "chance")
 #: the pose estimators of the estimator conditions (``manifold``: the trained models)
 ESTIMATOR_CONDITIONS = ("manifold", "chance")
 
@@ -180,6 +183,8 @@ def pose_conditions(
     for p in poses:
         if p == "oracle":
             out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
+        elif p == "occluded":  # the source's defaults (what scratch_occluded trains on)
+            out.append(PoseCondition("occluded", "occluded_oracle", {}, None))
         elif p in ESTIMATOR_CONDITIONS:  # the same source; chance swaps the estimator only
             kw: dict[str, Any] = {
                 "segmenter": MANIFOLD_SEGMENTER,
