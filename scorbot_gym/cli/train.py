@@ -39,6 +39,7 @@ _NEW_RUN_OPTIONS = (
     "bc_demos",
     "bc_steps",
     "init_policy",
+    "init_weights",
     "hyperparams_entry",
     "conf",
     "hyperparams",
@@ -204,6 +205,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "'finetune'; the saved policies are imitation-format folders)",
     )
     p.add_argument(
+        "--init-weights",
+        default=None,
+        metavar="rl_scratch|DIR",
+        help="start from this RL policy's networks and observation statistics (same algorithm, "
+        "action type and network; a new replay buffer), e.g. to go on training it under "
+        "--pose occluded",
+    )
+    p.add_argument(
         "--bc-steps", type=non_negative_int, default=2000, help="behaviour-cloning gradient steps"
     )
     p.add_argument(
@@ -317,6 +326,7 @@ def config_from_args(args: argparse.Namespace):
         bc_demos=args.bc_demos,
         bc_steps=args.bc_steps,
         init_policy=args.init_policy,
+        init_weights=args.init_weights,
         hyperparams_entry=args.hyperparams_entry,
         device=args.device or "auto",
         normalize=args.init_policy is None,  # a fine-tune uses the policy's own statistics

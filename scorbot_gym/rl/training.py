@@ -117,6 +117,10 @@ class TrainConfig:
     bc_demos: int = 0
     bc_steps: int = 2000
     init_policy: str | None = None  # fine-tune this imitation policy ("learned" or a folder)
+    #: start from this RL policy's networks and observation statistics (a shipped name such
+    #: as "rl_scratch", or a policy folder of the same algorithm, action type and network),
+    #: with a new replay buffer: e.g. to go on training under another pose source
+    init_weights: str | None = None
     #: the entry of hyperparams/<algo>.yml (None: 'residual', 'finetune' or 'default' by kind)
     hyperparams_entry: str | None = None
     hyperparams: dict[str, Any] = field(default_factory=dict)
@@ -188,6 +192,8 @@ class TrainConfig:
             )
         if self.init_policy is not None:
             self._check_finetune()
+        if self.init_weights is not None:
+            self._check_init_weights()
         hp = self.resolved_hyperparams()
         if hp.get("object_features") == "grasp_frame" and self.finetune:
             raise ValueError(
@@ -200,6 +206,45 @@ class TrainConfig:
     def finetune(self) -> bool:
         """Whether this run fine-tunes an imitation policy (:mod:`scorbot_gym.rl.finetune`)."""
         return self.init_policy is not None
+
+    def init_weights_folder(self) -> Path:
+        """The policy folder :attr:`init_weights` names (a shipped name or a path)."""
+        from scorbot_gym.policies.loading import SHIPPED
+
+        return runs.policy_dir(Path(SHIPPED.get(self.init_weights, self.init_weights)))
+
+    def _check_init_weights(self) -> None:
+        """The initial policy must be one this run's model can take whole: same algorithm,
+        action type and network, trained with normalised observations, no residual."""
+        if self.residual or self.init_policy is not None:
+            raise ValueError("init_weights excludes residual and init_policy")
+        if not self.normalize:
+            raise ValueError("init_weights needs normalize=true (it starts from the policy's "
+                             "observation statistics)")  # fmt: skip
+        folder = self.init_weights_folder()
+        meta = runs.read_json(folder / "policy.json")
+        if not isinstance(meta, dict):
+            raise ValueError(f"init_weights: {folder}/policy.json is not a policy description")
+        theirs = {
+            "algo": meta.get("algo"),
+            "action_type": meta.get("action_type"),
+            "net_arch": list((meta.get("config") or {}).get("hyperparams", {}).get("net_arch", [])),
+            "residual": meta.get("residual"),
+        }
+        ours = {
+            "algo": self.algo,
+            "action_type": self.action_type,
+            "net_arch": list(self.resolved_hyperparams()["net_arch"]),
+            "residual": None,
+        }
+        for key, value in ours.items():
+            if theirs[key] != value:
+                raise ValueError(
+                    f"init_weights {self.init_weights}: its {key} is {theirs[key]!r}, this "
+                    f"run's {value!r}"
+                )
+        if not (folder / "normalize.npz").is_file():
+            raise ValueError(f"init_weights {self.init_weights}: {folder} has no normalize.npz")
 
     def _check_finetune(self) -> None:
         if self.algo != "sac":
@@ -239,7 +284,7 @@ class TrainConfig:
                     isinstance(value, list) and all(isinstance(v, str) for v in value)
                 )
                 kind = "a list of names"
-            elif f.name in ("pose_model", "init_policy"):
+            elif f.name in ("pose_model", "init_policy", "init_weights"):
                 ok, kind = value is None or isinstance(value, str), "a path"
             elif f.name == "identity":
                 ok, kind = value is None or isinstance(value, str), f"one of {IDENTITIES}"
@@ -520,6 +565,12 @@ def run_provenance(config: TrainConfig, env: gym.Env) -> dict[str, Any]:
             "name": config.init_policy,
             **provenance.policy_identity(init, runs.read_json(init / "policy.json")),
         }
+    if config.init_weights is not None:
+        init = config.init_weights_folder()
+        data["init_weights"] = {
+            "name": config.init_weights,
+            **provenance.policy_identity(init, runs.read_json(init / "policy.json")),
+        }
     if config.pose_model:
         models = provenance.pose_model_identity(config.pose_model)
     else:
@@ -606,9 +657,10 @@ def _zero_init_actor(model, log_std_init: float) -> None:
             model.policy.log_std.fill_(log_std_init)
 
 
-def build_model(config: TrainConfig, venv, tb_dir: Path | None):
+def build_model(config: TrainConfig, venv, tb_dir: Path | None, new: bool = True):
     """The SB3 model of ``config`` (hyperparameters resolved, see :meth:`TrainConfig.schedule`
-    for how they map onto SB3's per-vector-step arguments)."""
+    for how they map onto SB3's per-vector-step arguments); a ``new`` run starts from
+    ``init_weights`` where given (a resumed one from its checkpoint)."""
     from stable_baselines3 import PPO
 
     hp = config.resolved_hyperparams()
@@ -652,7 +704,40 @@ def build_model(config: TrainConfig, venv, tb_dir: Path | None):
         )
     if config.residual:
         _zero_init_actor(model, hp["log_std_init"])
+    if new and config.init_weights is not None:
+        warm_start(model, venv, config.init_weights_folder())
     return model
+
+
+def warm_start(model, venv, folder: Path) -> None:
+    """Set ``model``'s networks (actor, critics and target critics) and ``venv``'s observation
+    statistics to those of the policy in ``folder``. Optimisers, the entropy coefficient and
+    the replay buffer start afresh; the statistics count as the policy's env steps, so they
+    move as slowly as they would have in its own run."""
+    import torch
+    from safetensors.numpy import load_file
+
+    weights = load_file(str(folder / "model.safetensors"))
+    state = {k.removeprefix("policy/"): torch.as_tensor(v) for k, v in weights.items()}
+    try:
+        model.policy.load_state_dict(state)
+    except RuntimeError as exc:
+        first = str(exc).strip().splitlines()[0]
+        msg = f"init_weights {folder}: its networks do not fit this run's ({first})"
+        raise ValueError(msg) from None
+    meta = runs.read_json(folder / "policy.json") or {}
+    count = float(meta.get("trained_timesteps") or 1)
+    with np.load(folder / "normalize.npz", allow_pickle=False) as stats:
+        for key, rms in venv.obs_rms.items():
+            if f"mean/{key}" not in stats.files:
+                raise ValueError(f"init_weights {folder}: normalize.npz has no statistics of {key}")
+            mean, var = stats[f"mean/{key}"], stats[f"var/{key}"]
+            if mean.shape != np.shape(rms.mean):
+                raise ValueError(
+                    f"init_weights {folder}: {key} has shape {mean.shape}, this run's "
+                    f"{np.shape(rms.mean)}"
+                )
+            rms.mean, rms.var, rms.count = mean.astype(np.float64), var.astype(np.float64), count
 
 
 def _build_finetune_model(config: TrainConfig, hp: dict, sched: dict, common: dict):
@@ -1240,7 +1325,8 @@ def _load_checkpoint(config: TrainConfig, out: Path, venv):
     ck = out / runs.CHECKPOINT
     if config.normalize:
         checkpoint.load_vec_normalize(venv, ck / checkpoint.VEC_NORMALIZE)
-    model = build_model(config, venv, out / runs.TENSORBOARD if config.tensorboard else None)
+    tb_dir = out / runs.TENSORBOARD if config.tensorboard else None
+    model = build_model(config, venv, tb_dir, new=False)
     try:
         restore_training_state(model, ck / checkpoint.MODEL)
     except ValueError as exc:
