@@ -282,3 +282,58 @@ def test_a_run_from_before_reward_gamma_keeps_the_reward_it_trained_on():
     config = TrainConfig.from_json(old)
     assert config.resolved_hyperparams()["reward_gamma"] == 0.99
     assert TrainConfig(hyperparams_entry="scratch").resolved_hyperparams()["reward_gamma"] == 0.8
+
+
+def test_init_weights_starts_from_the_policys_networks_and_statistics(tmp_path, capsys):
+    """``--init-weights rl_scratch``: the new run's actor, critics and observation statistics
+    are the shipped policy's before any update, its policy.json names where it started, a
+    resume continues from its own checkpoint (not the initial policy again), and a policy
+    that cannot fit (other action type, a residual run) is a one-line error before any work."""
+    from safetensors.numpy import load_file
+
+    from scorbot_gym.policies.loading import SHIPPED
+
+    shipped = SHIPPED["rl_scratch"]
+    config = TrainConfig(hyperparams_entry="scratch", init_weights="rl_scratch").validate()
+    venv = make_vec_env(config)
+    model = build_model(config, venv, None)
+    weights = load_file(str(shipped / "model.safetensors"))
+    for key, value in model.policy.state_dict().items():
+        np.testing.assert_array_equal(value.cpu().numpy(), weights[f"policy/{key}"])
+    with np.load(shipped / "normalize.npz") as stats:
+        np.testing.assert_array_equal(venv.obs_rms["ee_pos"].mean, stats["mean/ee_pos"])
+    meta = json.loads((shipped / "policy.json").read_text())
+    assert venv.obs_rms["ee_pos"].count == meta["trained_timesteps"]
+    venv.close()
+
+    out = tmp_path / "warm"
+    argv = [
+        "train", "--hyperparams-entry", "scratch", "--init-weights", "rl_scratch", "--pose",
+        "occluded", "--objects", "box", "--timesteps", "30", "--learning-starts", "10",
+        "--eval-every", "30", "--eval-episodes", "1", "--checkpoint-every", "30",
+        "--no-progress", "--no-tensorboard", "--device", "cpu", "--out", str(out),
+    ]  # fmt: skip
+    assert main(argv) == 0
+    policy = json.loads((out / "policy" / "policy.json").read_text())
+    assert policy["provenance"]["data"]["init_weights"]["name"] == "rl_scratch"
+    assert policy["config"]["pose"] == "occluded" and policy["trained_by"] == "rl_from_scratch"
+    trained = load_file(str(out / "policy" / "model.safetensors"))
+    assert not np.array_equal(trained["policy/actor.mu.weight"], weights["policy/actor.mu.weight"])
+    from scorbot_gym.rl.training import _load_checkpoint
+
+    run_config = TrainConfig.from_json(json.loads((out / "config.json").read_text()))
+    venv = make_vec_env(run_config)
+    _load_checkpoint(run_config, out, venv)  # as --resume does: its own statistics stay
+    assert venv.obs_rms["ee_pos"].count > meta["trained_timesteps"]
+    venv.close()
+    assert main(["train", "--resume", str(out), "--timesteps", "40", "--no-progress"]) == 0
+    capsys.readouterr()
+    for bad, why in (
+        (["--action-type", "joint"], "its action_type is 'cartesian'"),
+        (["--residual"], "excludes residual"),
+        (["--init-weights", str(tmp_path / "nothing")], "nothing"),
+    ):
+        args = ["train", "--hyperparams-entry", "scratch", "--init-weights", "rl_scratch", *bad]
+        assert main([*args, "--show-hyperparams"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and why in err, err
