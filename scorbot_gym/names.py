@@ -30,6 +30,7 @@ POSE_SOURCES = (
     "manifold",
     "manifold_clutter",
     "noisy_oracle",
+    "occluded_oracle",
     "oracle",
     "oracle_position",
     "random_blob",
