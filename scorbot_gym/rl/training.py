@@ -219,8 +219,10 @@ class TrainConfig:
         if self.residual or self.init_policy is not None:
             raise ValueError("init_weights excludes residual and init_policy")
         if not self.normalize:
-            raise ValueError("init_weights needs normalize=true (it starts from the policy's "
-                             "observation statistics)")  # fmt: skip
+            raise ValueError(
+                "init_weights needs normalize=true (it starts from the policy's observation "
+                "statistics)"
+            )
         folder = self.init_weights_folder()
         meta = runs.read_json(folder / "policy.json")
         if not isinstance(meta, dict):
