@@ -203,3 +203,13 @@ def test_the_occluded_condition_runs_the_hand_hidden_oracle_off_the_noise_curves
     from scorbot_gym.evaluation.compare_plot import condition_title
 
     assert condition_title("occluded", None) == "true pose, hidden near the hand"
+    near, ranged = cmp.pose_conditions(["occluded@0.1", "occluded@0.06:0.2"])
+    assert (near.label, near.kwargs) == ("occluded@0.1:0.1", {"hide_distance_m": [0.1, 0.1]})
+    assert ranged.kwargs == {"hide_distance_m": [0.06, 0.2]}
+    assert (
+        condition_title("occluded@0.06:0.2", None, short=True)
+        == "hidden near the hand (0.06–0.2 m)"
+    )
+    for bad in ("occluded@", "occluded@x", "occluded@0.2:0.1", "occluded@-1", "occluded@1:2:3"):
+        with pytest.raises(ValueError, match="expected occluded@D or occluded@LOW:HIGH"):
+            cmp.pose_conditions([bad])

@@ -66,7 +66,8 @@ def test_chance_is_the_manifold_condition_with_only_the_estimator_named_apart(tm
 
 
 def test_an_unknown_pose_condition_names_chance_among_the_valid_ones(capsys):
-    with pytest.raises(ValueError, match="valid: oracle, noisy, manifold, chance$"):
+    valid = r"valid: oracle, noisy, occluded, manifold, chance, occluded@D\[:HIGH\]$"
+    with pytest.raises(ValueError, match=valid):
         cmp.pose_conditions(["chancy"])
     assert main(["compare", "--policies", "scripted", "--pose", "chancy", "--episodes", "1"]) == 2
     err = capsys.readouterr().err.strip()

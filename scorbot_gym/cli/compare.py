@@ -67,7 +67,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "images, no privileged input: background masks, recognised identity), chance (the "
         "rotation-blind chance level: manifold with the estimator swapped for a constant "
         "rotation fitted on the default models' views; the position still comes from the "
-        "image) (default oracle)",
+        "image), occluded or occluded@D[:HIGH] (ground truth lost while the hand is within "
+        "6-20 cm, or D-HIGH m, of the object, as a camera loses it) (default oracle)",
     )
     p.add_argument(
         "--noise",

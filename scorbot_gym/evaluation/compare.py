@@ -21,7 +21,8 @@ metres and heading noise ``S * DEG_PER_M`` degrees, i.e. 1 cm goes with 5 degree
 ``noisy@S:Y`` (position S metres, heading Y degrees, e.g. ``noisy@0.02:20``); ``occluded``
 (``occluded_oracle`` with its defaults: the noisy oracle, 5 mm and 5 degrees, lost while the
 hand is within 6-20 cm of the object, so the policy acts from a held estimate as it does with
-an image estimator; not a noise level); ``manifold`` (the
+an image estimator; not a noise level); ``occluded@D`` or ``occluded@LOW:HIGH`` (the same,
+hidden within D metres, or within a distance drawn per episode from LOW-HIGH); ``manifold`` (the
 pose-manifold estimator from a ``scorbot-gym pose train`` model file, or without one the default
 models of the top camera, trained on first use and cached, as ``scorbot-gym rollout`` uses) with
 **no privileged input**, as the main arm of ``benchmarks/closed_loop.py``: masks from background
@@ -104,7 +105,7 @@ MANIFOLD_SEGMENTER = "background"  # masks by background subtraction, not the re
 MANIFOLD_RECOGNIZER = DEFAULT_RECOGNIZER  # identity recognised, not given (before 2026-11-27:
 # "flr+appearance", which compare.json's estimator conditions record)
 MANIFOLD_CAMERAS = ("top", "side")  # pose from the first; recognition fused over both
-#: the pose-condition names (besides one ``noisy@S[:Y]`` per noise level)
+#: the pose-condition names (besides one ``noisy@S[:Y]`` per noise level, and ``occluded@...``)
 POSE_CONDITIONS = ("oracle", "noisy", "occluded", "manifold", "chance")
 #: the pose estimators of the estimator conditions (``manifold``: the trained models)
 ESTIMATOR_CONDITIONS = ("manifold", "chance")
@@ -134,6 +135,25 @@ class PoseCondition:
             "segmenter": self.kwargs.get("segmenter"),
             "estimator": self.estimator,
         }
+
+
+def hide_range(text: str) -> tuple[float, float]:
+    """``"D"`` or ``"LOW:HIGH"`` (metres) -> the ``occluded@`` condition's hide distances;
+    one-line error for anything else."""
+    parts = text.split(":")
+    try:
+        if len(parts) > 2:
+            raise ValueError
+        low = float(parts[0])
+        high = float(parts[-1])
+        if not (np.isfinite(low) and np.isfinite(high) and 0 <= low <= high):
+            raise ValueError
+    except ValueError:
+        raise ValueError(
+            f"occluded@{text}: expected occluded@D or occluded@LOW:HIGH, hide distances in "
+            "metres with 0 <= LOW <= HIGH, e.g. occluded@0.1 or occluded@0.06:0.2"
+        ) from None
+    return low, high
 
 
 def noise_level(level: float | str | tuple[float, float]) -> tuple[float, float]:
@@ -185,6 +205,10 @@ def pose_conditions(
             out.append(PoseCondition("oracle", "oracle", {}, 0.0, 0.0))
         elif p == "occluded":  # the source's defaults (what scratch_occluded trains on)
             out.append(PoseCondition("occluded", "occluded_oracle", {}, None))
+        elif p.startswith("occluded@"):  # one hide distance range, to calibrate against
+            low, high = hide_range(p[len("occluded@") :])
+            kw = {"hide_distance_m": [low, high]}
+            out.append(PoseCondition(f"occluded@{low:g}:{high:g}", "occluded_oracle", kw, None))
         elif p in ESTIMATOR_CONDITIONS:  # the same source; chance swaps the estimator only
             kw: dict[str, Any] = {
                 "segmenter": MANIFOLD_SEGMENTER,
@@ -199,7 +223,8 @@ def pose_conditions(
         elif p == "noisy":
             noise = list(noise) or [0.01]
         else:
-            raise ValueError(f"unknown pose condition {p!r}; valid: {', '.join(POSE_CONDITIONS)}")
+            valid = ", ".join(POSE_CONDITIONS)
+            raise ValueError(f"unknown pose condition {p!r}; valid: {valid}, occluded@D[:HIGH]")
     for level in noise:
         pos, yaw = noise_level(level)
         kw = {"pos_sigma_m": pos, "yaw_sigma_deg": yaw}

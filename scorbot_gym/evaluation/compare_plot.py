@@ -68,8 +68,11 @@ def condition_title(pose: str, noise: tuple[float, float] | None, short: bool = 
         return "estimated pose" if short else "pose from the images"
     if pose == "chance":
         return "image-blind pose" if short else "image-blind (chance)"
-    if pose == "occluded":
-        return "hidden near the hand" if short else "true pose, hidden near the hand"
+    if pose.startswith("occluded"):
+        where = f" ({pose.partition('@')[2].replace(':', '–')} m)" if "@" in pose else ""
+        return (
+            f"hidden near the hand{where}" if short else f"true pose, hidden near the hand{where}"
+        )
     if noise is None:
         return pose
     pos, yaw = noise
