@@ -397,6 +397,26 @@ def compare_cartesian_ik() -> str:
 SCRATCH_MANIFOLD = "manifold_rl_scratch"
 #: compare.json's run of the arms with the true pose hidden near the hand (occluded_oracle)
 OCCLUDED = "occluded_pose"
+#: ... and of the from-scratch arm hidden within one fixed distance each (occluded@D)
+OCCLUDED_DISTANCE = "occluded_distance"
+
+
+def _occluded_distance_sentence() -> str:
+    """Success of each arm against the distance within which the object is hidden (config
+    ``occluded_distance``); empty without it."""
+    try:
+        o = read("compare.json", OCCLUDED_DISTANCE)
+    except KeyError:
+        return ""
+    arms: dict[str, list[str]] = {}
+    for r in o["results"]:
+        low, _, high = r["pose"].partition("@")[2].partition(":")
+        where = f"{100 * float(low):g} cm" if low == high else f"{low}–{high} m"
+        arms.setdefault(r["label"], []).append(f"{where} {pct(r['success_rate'])}")
+    return (
+        f"Hidden within one fixed distance of the hand (config `{OCCLUDED_DISTANCE}`, the same "
+        "seeds): " + "; ".join(f"`{a}` " + ", ".join(v) for a, v in arms.items()) + ".\n"
+    )
 
 
 def _occluded_sentence() -> str:
@@ -456,7 +476,7 @@ def compare_arms() -> str:
         f"({'met' if oracle['success_rate'] >= 0.8 else 'not met'}), within 10 points of it "
         f"with the estimator ({'met' if diff['diff'] >= -0.10 else 'not met'}).\n"
     )
-    return markdown_table(d) + estimator + _occluded_sentence()
+    return markdown_table(d) + estimator + _occluded_sentence() + _occluded_distance_sentence()
 
 
 def _condition_words(cond: dict) -> str:
