@@ -49,6 +49,9 @@ def _env_kwargs(source: str, models_file: Path) -> dict:
     if source == "noisy_oracle":
         noise = {"pos_sigma_m": 0.02, "yaw_sigma_deg": 7.0, "dropout": 0.1}
         return {"pose_kwargs": noise, "objects": OBJECTS, "distractors": 1}
+    if source == "occluded_oracle":  # the hide range is a list: the spec keeps it as data
+        hidden = {"pos_sigma_m": 0.01, "hide_distance_m": [0.05, 0.3]}
+        return {"pose_kwargs": hidden, "objects": OBJECTS}
     models = {"models": load_model_set(models_file)}  # as the sources read a path
     if source == "manifold":
         return {"pose_kwargs": {**models, "recognizer": "appearance"}, "objects": OBJECTS,
@@ -60,7 +63,7 @@ def test_every_registered_pose_source_is_covered():
     """A pose source added to the registry must be added here (and so to the contract)."""
     assert set(pose_source_names()) == {
         "oracle", "noisy_oracle", "manifold", "manifold_clutter", "largest_blob", "random_blob",
-        "constant", "oracle_position",
+        "constant", "oracle_position", "occluded_oracle",
     }  # fmt: skip
 
 
